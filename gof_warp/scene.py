@@ -1,0 +1,124 @@
+"""Scenes: posed images (+ optional masks and initial points) ready for training.
+
+A :class:`Scene` is what every reader in :mod:`gof_warp.data` returns and what training, extraction and
+evaluation consume. Images are decoded once into ``uint8`` arrays (``[H, W, 3]``) and kept in memory;
+masks are ``uint8`` ``[H, W]`` (255 = object / foreground, 0 = background).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .camera import Camera, camera_extent
+from .errors import SceneError
+
+
+@dataclass(eq=False)
+class View:
+    """One posed image.
+
+    Attributes:
+        camera: its :class:`~gof_warp.camera.Camera` (pinhole, undistorted).
+        image: ``[H, W, 3]`` uint8 RGB, already composited on the scene background where it had alpha.
+        mask: ``[H, W]`` uint8 (255 inside), or None. Blender alpha and DTU object masks land here.
+        name: image name (file stem).
+    """
+
+    camera: Camera
+    image: np.ndarray
+    mask: np.ndarray | None = None
+    name: str = ""
+
+    def __post_init__(self):
+        h, w = self.camera.height, self.camera.width
+        if self.image.dtype != np.uint8 or self.image.ndim != 3 or self.image.shape[2] != 3:
+            raise SceneError(f"view {self.name!r}: image must be uint8 [H, W, 3], got {self.image.dtype} {self.image.shape}")
+        if self.image.shape[:2] != (h, w):
+            raise SceneError(
+                f"view {self.name!r}: image is {self.image.shape[1]}x{self.image.shape[0]} but its camera says {w}x{h}"
+            )
+        if self.mask is not None and (self.mask.shape != (h, w) or self.mask.dtype != np.uint8):
+            raise SceneError(f"view {self.name!r}: mask must be uint8 [{h}, {w}], got {self.mask.dtype} {self.mask.shape}")
+
+    def image_float(self) -> np.ndarray:
+        """``[H, W, 3]`` float32 in ``[0, 1]``."""
+        return self.image.astype(np.float32) / 255.0
+
+
+@dataclass(eq=False)
+class Scene:
+    """Train/test views, optional initial points and the scene's extent.
+
+    Attributes:
+        train, test: lists of :class:`View`.
+        points: ``[P, 3]`` float64 initial points (e.g. COLMAP's sparse points), or None.
+        point_colors: ``[P, 3]`` uint8, or None.
+        extent: 1.1 × the largest distance of a train camera centre from their mean (3DGS's
+            ``cameras_extent``); scales learning rates and pruning.
+        background: RGB in ``[0, 1]`` that alpha images were composited on.
+        format: detected format name (``colmap``, ``blender``, ``ingp``, ``dtu``).
+        source: the folder it was read from.
+        camera_models: the camera model(s) as stored in the files (e.g. ``OPENCV``), before undistortion.
+        warnings: things the reader noticed that a user should know (printed by ``gof_warp.inspect``).
+    """
+
+    train: list[View]
+    test: list[View] = field(default_factory=list)
+    points: np.ndarray | None = None
+    point_colors: np.ndarray | None = None
+    extent: float = 0.0
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    format: str = ""
+    source: str = ""
+    camera_models: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+    def __post_init__(self):
+        if not self.train:
+            raise SceneError(f"scene {self.source or '(in memory)'} has no training views")
+        if self.points is not None:
+            self.points = np.asarray(self.points, dtype=np.float64).reshape(-1, 3)
+            if not np.all(np.isfinite(self.points)):
+                raise SceneError(f"scene {self.source}: initial points contain NaN/inf")
+        if self.point_colors is not None:
+            self.point_colors = np.asarray(self.point_colors, dtype=np.uint8).reshape(-1, 3)
+            if self.points is None or len(self.point_colors) != len(self.points):
+                raise SceneError(f"scene {self.source}: point colours do not match the points")
+        if not self.extent:
+            self.extent = camera_extent([v.camera for v in self.train])
+
+    @property
+    def train_cameras(self) -> list[Camera]:
+        return [v.camera for v in self.train]
+
+    @property
+    def test_cameras(self) -> list[Camera]:
+        return [v.camera for v in self.test]
+
+    @property
+    def all_views(self) -> list[View]:
+        return list(self.train) + list(self.test)
+
+    def image_bytes(self) -> int:
+        """Memory held by decoded images and masks."""
+        return sum(v.image.nbytes + (v.mask.nbytes if v.mask is not None else 0) for v in self.all_views)
+
+    def summary(self) -> dict:
+        """Plain-data description (what ``python -m gof_warp.inspect`` prints)."""
+        res = sorted({(v.camera.width, v.camera.height) for v in self.all_views})
+        return {
+            "source": self.source,
+            "format": self.format,
+            "camera_models": sorted(set(self.camera_models)),
+            "train_views": len(self.train),
+            "test_views": len(self.test),
+            "resolutions": [f"{w}x{h}" for w, h in res],
+            "masks": sum(v.mask is not None for v in self.all_views),
+            "initial_points": 0 if self.points is None else int(len(self.points)),
+            "extent": round(float(self.extent), 6),
+            "background": list(self.background),
+            "image_memory_mb": round(self.image_bytes() / 2**20, 1),
+            "warnings": list(self.warnings),
+        }
