@@ -151,7 +151,8 @@ class Camera:
         """
         i = (np.arange(self.width) + 0.5 - self.cx) / self.fx
         j = (np.arange(self.height) + 0.5 - self.cy) / self.fy
-        d_cam = np.stack(np.meshgrid(i, j, indexing="xy") + [np.ones((self.height, self.width))], axis=-1)
+        ii, jj = np.meshgrid(i, j, indexing="xy")
+        d_cam = np.stack([ii, jj, np.ones_like(ii)], axis=-1)
         return self.center, d_cam @ self.R  # R^T applied to row vectors
 
     def scaled(self, factor: float) -> "Camera":

@@ -1,0 +1,68 @@
+"""Camera conventions: projection, pixel rays, OpenGL→OpenCV conversion, resizing, validation."""
+
+import numpy as np
+import pytest
+
+from gof_warp.camera import Camera, camera_extent, look_at
+from gof_warp.errors import SceneError
+
+
+def test_look_at_projects_target_to_principal_point_with_z_depth():
+    cam = look_at([3.0, -2.0, 1.0], [0.0, 0.0, 0.0], fx=400, fy=380, cx=150.3, cy=90.7, width=320, height=200)
+    uv, z = cam.project(np.zeros((1, 3)))
+    np.testing.assert_allclose(uv[0], [150.3, 90.7], atol=1e-9)
+    np.testing.assert_allclose(z[0], np.sqrt(14.0), rtol=1e-12)
+    # World "up" (+z) appears upward in the image: smaller row coordinate (OpenCV y down).
+    uv_up, _ = cam.project(np.array([[0.0, 0.0, 0.5]]))
+    assert uv_up[0, 1] < 90.7
+
+
+def test_pixel_rays_hit_pixel_centres():
+    cam = look_at([0.0, -4.0, 0.5], [0.1, 0.0, 0.0], fx=55, fy=60, cx=13.0, cy=9.5, width=31, height=17)
+    o, d = cam.pixel_rays()
+    pts = o + 2.5 * d  # depth 2.5 along every ray
+    uv, z = cam.project(pts.reshape(-1, 3))
+    np.testing.assert_allclose(z, 2.5, rtol=1e-12)
+    jj, ii = np.mgrid[0:17, 0:31]
+    np.testing.assert_allclose(uv[:, 0], ii.ravel() + 0.5, atol=1e-9)
+    np.testing.assert_allclose(uv[:, 1], jj.ravel() + 0.5, atol=1e-9)
+
+
+def test_from_c2w_opengl_flips_y_and_z():
+    cam = look_at([1.0, 2.0, 3.0], [0.0, 0.0, 0.0])
+    c2w_gl = cam.c2w.copy()
+    c2w_gl[:3, 1:3] *= -1
+    back = Camera.from_c2w(c2w_gl, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, opengl=True)
+    np.testing.assert_allclose(back.R, cam.R, atol=1e-12)
+    np.testing.assert_allclose(back.t, cam.t, atol=1e-12)
+    np.testing.assert_allclose(back.center, [1, 2, 3], atol=1e-12)
+
+
+def test_scaled_camera_keeps_pixel_geometry():
+    cam = look_at([0.0, -3.0, 0.0], [0.0, 0.0, 0.0], fx=300, cx=170.2, cy=101.9, width=333, height=211)
+    half = cam.scaled(0.5)
+    assert (half.width, half.height) == (166, 106)
+    p = np.array([[0.3, 0.1, -0.2]])
+    uv, _ = cam.project(p)
+    uv2, _ = half.project(p)
+    np.testing.assert_allclose(uv2[0], uv[0] * [166 / 333, 106 / 211], rtol=1e-12)
+
+
+def test_invalid_cameras_raise():
+    with pytest.raises(SceneError, match="not a rotation"):
+        Camera(R=np.diag([1.0, 1.0, 2.0]), t=np.zeros(3), fx=1, fy=1, cx=0, cy=0, width=2, height=2)
+    with pytest.raises(SceneError, match="focal"):
+        Camera(R=np.eye(3), t=np.zeros(3), fx=-1, fy=1, cx=0, cy=0, width=2, height=2)
+    with pytest.raises(SceneError, match="NaN"):
+        Camera(R=np.eye(3), t=np.array([0, np.nan, 0]), fx=1, fy=1, cx=0, cy=0, width=2, height=2)
+    with pytest.raises(SceneError, match="size"):
+        Camera(R=np.eye(3), t=np.zeros(3), fx=1, fy=1, cx=0, cy=0, width=0, height=2)
+
+
+def test_camera_extent_is_3dgs_radius():
+    cams = [look_at(e, [0, 0, 0]) for e in ([2.0, 0, 0], [-2.0, 0, 0], [0, 1.0, 0])]
+    centres = np.array([[2.0, 0, 0], [-2.0, 0, 0], [0, 1.0, 0]])
+    expected = 1.1 * np.linalg.norm(centres - centres.mean(0), axis=1).max()
+    assert camera_extent(cams) == pytest.approx(expected)
+    with pytest.raises(SceneError):
+        camera_extent([])
