@@ -1,0 +1,190 @@
+"""GOF's training loss ``L = L_c + λ_d L_d + λ_n L_n`` (paper Eq. 12; GOF_REFERENCE §4, §9).
+
+* Colour: ``L_c = (1 − λ_dssim)·L1 + λ_dssim·(1 − SSIM)``, SSIM with an 11×11 Gaussian window,
+  σ = 1.5 (:func:`gof_warp.metrics.ssim`), λ_dssim = 0.2.
+* Depth distortion: ``L_d = mean over pixels`` of the renderer's distortion map (GOF's code squares
+  NDC-depth differences; the paper writes ``Σ w_i w_j |t_i − t_j|``; the map is the renderer's job).
+* Depth–normal consistency, with ``N`` the normal of the rendered median-depth map
+  (:func:`depth_to_normal`):
+
+  - ``form="paper"`` (default): ``Σ_i ω_i (1 − n_iᵀN)`` per pixel (paper Eq. 11). Because the
+    renderer's normal channel is the *un-normalised* ``Σ_i ω_i n_i`` and its alpha is ``Σ_i ω_i``, this
+    is exactly ``alpha − normalᵀN`` — no approximation. Pixels seen by nothing cost nothing.
+  - ``form="gof"``: ``1 − normalize(Σ_i ω_i n_i)ᵀN`` per pixel, as GOF's ``train.py`` computes it
+    (every pixel weighs the same whatever its opacity).
+
+  Both are averaged over all ``H·W`` pixels; where ``N`` is undefined (1-px border, degenerate
+  neighbourhoods) it is 0, as GOF's ``depth_to_normal`` leaves the border: the GOF form then costs 1
+  there (GOF's value exactly) and the paper form 0. Gradients reach both the depth and the normals.
+
+The regularisers start at ``regularization_from_iter`` (GOF: 15 000, ``>=``). Setting a λ to 0
+switches a term off (and skips its computation) for ablations.
+
+Images are channel-last ``[H, W, 3]`` floats in ``[0, 1]``, like the renderer's ``rgb``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from .camera import Camera
+from .errors import GofError
+from .metrics import ssim
+
+NORMAL_FORMS = ("paper", "gof")
+# A central-difference cross product this much smaller than |dv|·|du| (sine of the angle between the
+# two tangents) is treated as degenerate: N is left 0 there instead of dividing by ~0 (which gives
+# ~1e12 gradients through torch's normalize at depth edges).
+DEGENERATE_SINE = 1e-6
+
+
+@dataclass
+class LossConfig:
+    """Weights of GOF's loss terms. λ = 0 switches a term off.
+
+    Defaults: GOF ``arguments/__init__.py`` and its scripts, with the bounded/object-scene distortion
+    weight (1000, GOF's DTU script); unbounded-scene presets use ``lambda_distortion = 100``.
+    """
+
+    lambda_dssim: float = 0.2
+    lambda_distortion: float = 1000.0
+    lambda_normal: float = 0.05
+    regularization_from_iter: int = 15_000
+    normal_form: str = "paper"  # "paper": Σ ω_i(1 − n_iᵀN); "gof": 1 − normalize(Σ ω_i n_i)ᵀN
+
+    def __post_init__(self):
+        if self.normal_form not in NORMAL_FORMS:
+            raise GofError(f"LossConfig.normal_form must be one of {NORMAL_FORMS}, got {self.normal_form!r}")
+        if not 0.0 <= self.lambda_dssim <= 1.0:
+            raise GofError(f"LossConfig.lambda_dssim must be in [0, 1], got {self.lambda_dssim}")
+        if self.lambda_distortion < 0 or self.lambda_normal < 0:
+            raise GofError("LossConfig: lambda_distortion and lambda_normal must be >= 0")
+
+
+def l1(img: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
+    """Mean absolute difference (scalar)."""
+    return (img - gt).abs().mean()
+
+
+def dssim(img: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
+    """``1 − SSIM`` of two channel-last images ``[H, W, C]`` (11×11 Gaussian window, σ = 1.5)."""
+    return 1.0 - ssim(img.permute(2, 0, 1), gt.permute(2, 0, 1), window_size=11, sigma=1.5)
+
+
+def distortion_loss(distortion: torch.Tensor) -> torch.Tensor:
+    """Mean of the renderer's per-pixel depth-distortion map ``[H, W]``."""
+    return distortion.mean()
+
+
+def depth_to_points(depth: torch.Tensor, camera: Camera) -> torch.Tensor:
+    """Camera-space points ``[H, W, 3]`` of a z-depth map ``[H, W]`` through the pixel centres
+    ``((i + ½ − cx)/fx, (j + ½ − cy)/fy, 1)·depth`` (any principal point)."""
+    h, w = depth.shape
+    kw = {"dtype": depth.dtype, "device": depth.device}
+    x = (torch.arange(w, **kw) + 0.5 - camera.cx) / camera.fx
+    y = (torch.arange(h, **kw) + 0.5 - camera.cy) / camera.fy
+    rays = torch.stack(torch.broadcast_tensors(x[None, :], y[:, None], torch.ones((), **kw)), dim=-1)
+    return depth[..., None] * rays
+
+
+def depth_to_normal(depth: torch.Tensor, camera: Camera, *, return_valid: bool = False):
+    """Normals of a depth map by central differences (GOF ``utils/depth_utils.py``), camera space.
+
+    ``N[v, u] = normalize((P[v+1, u] − P[v−1, u]) × (P[v, u+1] − P[v, u−1]))`` with ``P`` from
+    :func:`depth_to_points`. With OpenCV axes (x right, y down, z forward) this order makes ``N``
+    face the camera for any depth map: ``Nᵀr ∝ −z²/(fx fy) < 0`` along the pixel ray ``r``, so no
+    per-pixel sign flip is needed.
+
+    Args:
+        depth: ``[H, W]`` z-depth (the renderer's median depth), differentiable.
+        camera: the view's :class:`~gof_warp.camera.Camera` (intrinsics only are used).
+        return_valid: also return the ``[H, W]`` bool mask where ``N`` is defined.
+    Returns:
+        ``[H, W, 3]`` unit normals; 0 on the 1-pixel border and where the two tangents are (nearly)
+        parallel or zero (see ``DEGENERATE_SINE``).
+    """
+    if depth.ndim != 2 or depth.shape[0] < 3 or depth.shape[1] < 3:
+        raise GofError(f"depth_to_normal: depth must be [H, W] with H, W >= 3, got {list(depth.shape)}")
+    p = depth_to_points(depth, camera)
+    dv = p[2:, 1:-1] - p[:-2, 1:-1]
+    du = p[1:-1, 2:] - p[1:-1, :-2]
+    n = torch.linalg.cross(dv, du, dim=-1)
+    norm = n.norm(dim=-1)
+    valid = norm > DEGENERATE_SINE * dv.norm(dim=-1) * du.norm(dim=-1)
+    inner = torch.where(valid[..., None], n / torch.where(valid, norm, torch.ones_like(norm))[..., None],
+                        torch.zeros_like(n))
+    normals = torch.nn.functional.pad(inner, (0, 0, 1, 1, 1, 1))
+    if return_valid:
+        return normals, torch.nn.functional.pad(valid, (1, 1, 1, 1))
+    return normals
+
+
+def depth_normal_consistency(median_depth: torch.Tensor, normal: torch.Tensor, camera: Camera,
+                             alpha: torch.Tensor | None = None, *, form: str = "paper") -> torch.Tensor:
+    """Depth–normal consistency loss (scalar, mean over all pixels; see the module docstring).
+
+    Args:
+        median_depth: ``[H, W]`` rendered median depth.
+        normal: ``[H, W, 3]`` rendered camera-space normal ``Σ_i ω_i n_i`` (not renormalised).
+        camera: the view's camera.
+        alpha: ``[H, W]`` rendered ``Σ_i ω_i``; required for ``form="paper"``.
+        form: ``"paper"`` (``alpha − normalᵀN``) or ``"gof"`` (``1 − normalize(normal)ᵀN``).
+    """
+    if form not in NORMAL_FORMS:
+        raise GofError(f"depth_normal_consistency: form must be one of {NORMAL_FORMS}, got {form!r}")
+    if normal.shape != (*median_depth.shape, 3):
+        raise GofError(f"depth_normal_consistency: normal {list(normal.shape)} does not match "
+                       f"depth {list(median_depth.shape)}")
+    n_depth, valid = depth_to_normal(median_depth, camera, return_valid=True)
+    if form == "gof":
+        return (1.0 - (torch.nn.functional.normalize(normal, dim=-1) * n_depth).sum(-1)).mean()
+    if alpha is None:
+        raise GofError("depth_normal_consistency: form='paper' needs the rendered alpha (Σ ω_i)")
+    if alpha.shape != median_depth.shape:
+        raise GofError(f"depth_normal_consistency: alpha {list(alpha.shape)} does not match "
+                       f"depth {list(median_depth.shape)}")
+    per_pixel = alpha - (normal * n_depth).sum(-1)
+    return torch.where(valid, per_pixel, torch.zeros_like(per_pixel)).mean()
+
+
+def total_loss(out: dict, gt_image: torch.Tensor, camera: Camera, config: LossConfig, iteration: int, *,
+               l1_pair: tuple[torch.Tensor, torch.Tensor] | None = None) -> tuple[torch.Tensor, dict]:
+    """GOF's training loss for one view.
+
+    Args:
+        out: the renderer's dict: ``rgb [H, W, 3]``, ``alpha [H, W]``, ``median_depth [H, W]``,
+            ``normal [H, W, 3]`` (camera space), ``distortion [H, W]``.
+        gt_image: ``[H, W, 3]`` in ``[0, 1]``, same device/dtype as ``out["rgb"]``.
+        camera: the view's camera.
+        iteration: current iteration (GOF counts from 1); regularisers act from
+            ``config.regularization_from_iter`` on.
+        l1_pair: optional ``(prediction, target)`` that replaces ``(rgb, gt_image)`` in the L1 term
+            only — GOF's decoupled appearance puts the appearance-corrected crop there while SSIM
+            stays on the raw render.
+    Returns:
+        ``(loss, terms)``: the scalar loss and detached scalars ``l1, dssim, distortion, normal,
+        total`` (terms that were off or inactive are absent).
+    """
+    rgb = out["rgb"]
+    if gt_image.shape != rgb.shape:
+        raise GofError(f"total_loss: gt_image {list(gt_image.shape)} does not match rendered rgb {list(rgb.shape)} "
+                       "(both channel-last [H, W, 3])")
+    terms: dict[str, torch.Tensor] = {}
+    pred, target = (rgb, gt_image) if l1_pair is None else l1_pair
+    terms["l1"] = l1(pred, target)
+    loss = (1.0 - config.lambda_dssim) * terms["l1"]
+    if config.lambda_dssim > 0:
+        terms["dssim"] = dssim(rgb, gt_image)
+        loss = loss + config.lambda_dssim * terms["dssim"]
+    if iteration >= config.regularization_from_iter:
+        if config.lambda_distortion > 0:
+            terms["distortion"] = distortion_loss(out["distortion"])
+            loss = loss + config.lambda_distortion * terms["distortion"]
+        if config.lambda_normal > 0:
+            terms["normal"] = depth_normal_consistency(out["median_depth"], out["normal"], camera,
+                                                       out.get("alpha"), form=config.normal_form)
+            loss = loss + config.lambda_normal * terms["normal"]
+    terms["total"] = loss
+    return loss, {k: v.detach() for k, v in terms.items()}

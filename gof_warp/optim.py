@@ -1,0 +1,221 @@
+"""Adam for the Gaussians, the position learning-rate schedule, and THE optimizer-state surgery.
+
+One param group per raw parameter (``gaussians.params`` names), as 3DGS/GOF build it
+(``scene/gaussian_model.py::training_setup``): Adam with ``eps = 1e-15``; learning rates
+
+=============== =========================== ===============================================
+parameter        learning rate               note
+=============== =========================== ===============================================
+means            1.6e-4·E → 1.6e-6·E         log-linear over 30 000 iterations, E = extent
+sh_dc            2.5e-3
+sh_rest          1.25e-4                     = 2.5e-3 / 20
+opacity_logits   0.05
+log_scales       5e-3
+quats            1e-3
+=============== =========================== ===============================================
+
+(GOF_REFERENCE §4.) The appearance embedding/network rates (1e-3 each) are listed in
+:class:`OptimConfig` for the trainer, which adds those groups itself.
+
+Optimizer-state surgery (densification, pruning, opacity reset) happens in exactly one place,
+:func:`replace_params`: it rebuilds each parameter tensor and moves Adam's ``exp_avg`` /
+``exp_avg_sq`` rows with their Gaussians (kept rows keep their moments, appended rows start at zero,
+reset rows are zeroed). The per-parameter ``step`` counter is shared by all rows and left alone, as
+in 3DGS/GOF.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from .errors import GofError
+from .model import PARAM_NAMES, Gaussians
+
+ADAM_MOMENTS = ("exp_avg", "exp_avg_sq")
+
+
+@dataclass
+class OptimConfig:
+    """Per-parameter learning rates and Adam settings (defaults: GOF ``arguments/__init__.py``)."""
+
+    means_lr_init: float = 1.6e-4  # × scene extent
+    means_lr_final: float = 1.6e-6  # × scene extent
+    means_lr_delay_steps: int = 0  # 3DGS "delay": inactive in GOF
+    means_lr_delay_mult: float = 0.01
+    means_lr_max_steps: int = 30_000  # the schedule reaches means_lr_final here
+    sh_dc_lr: float = 2.5e-3
+    sh_rest_lr: float = 2.5e-3 / 20.0
+    opacity_lr: float = 0.05
+    scaling_lr: float = 5e-3
+    rotation_lr: float = 1e-3
+    appearance_embedding_lr: float = 1e-3  # used by the trainer's appearance groups
+    appearance_network_lr: float = 1e-3
+    eps: float = 1e-15
+    betas: tuple[float, float] = (0.9, 0.999)
+
+    def param_lr(self, name: str) -> float:
+        """Constant learning rate of a non-position parameter."""
+        return {"sh_dc": self.sh_dc_lr, "sh_rest": self.sh_rest_lr, "opacity_logits": self.opacity_lr,
+                "log_scales": self.scaling_lr, "quats": self.rotation_lr}[name]
+
+
+def position_lr(iteration: int, config: OptimConfig, extent: float) -> float:
+    """Learning rate of the means at ``iteration`` (3DGS ``get_expon_lr_func``, scaled by ``extent``).
+
+    Log-linear interpolation from ``means_lr_init·E`` at iteration 0 to ``means_lr_final·E`` at
+    ``means_lr_max_steps`` (held afterwards); GOF's trainer counts iterations from 1 and calls this
+    before each step. With ``means_lr_delay_steps > 0`` the rate is additionally ramped up by
+    ``delay_mult + (1 − delay_mult)·sin(π/2 · clip(it/delay_steps))``.
+    """
+    lr_init, lr_final = config.means_lr_init * extent, config.means_lr_final * extent
+    if iteration < 0 or (lr_init == 0.0 and lr_final == 0.0):
+        return 0.0
+    if config.means_lr_delay_steps > 0:
+        ramp = math.sin(0.5 * math.pi * min(max(iteration / config.means_lr_delay_steps, 0.0), 1.0))
+        delay = config.means_lr_delay_mult + (1.0 - config.means_lr_delay_mult) * ramp
+    else:
+        delay = 1.0
+    t = min(max(iteration / config.means_lr_max_steps, 0.0), 1.0)
+    return delay * math.exp(math.log(lr_init) * (1.0 - t) + math.log(lr_final) * t)
+
+
+def make_optimizer(gaussians: Gaussians, config: OptimConfig, extent: float) -> torch.optim.Adam:
+    """``torch.optim.Adam`` with one group per raw parameter, each group tagged ``"name"``.
+
+    Makes the parameters leaf tensors that require grad (``gaussians.requires_grad_(True)``) when they
+    are not already. ``extent`` scales the means' rate (see :func:`position_lr`).
+    """
+    if not (extent > 0 and math.isfinite(extent)):
+        raise GofError(f"make_optimizer: extent must be a positive finite number, got {extent}")
+    if not all(p.is_leaf and p.requires_grad for p in gaussians.params.values()):
+        gaussians.requires_grad_(True)
+    groups = []
+    for name in PARAM_NAMES:
+        lr = position_lr(0, config, extent) if name == "means" else config.param_lr(name)
+        groups.append({"params": [gaussians.params[name]], "lr": lr, "name": name})
+    return torch.optim.Adam(groups, lr=0.0, eps=config.eps, betas=config.betas)
+
+
+def update_learning_rate(optimizer: torch.optim.Optimizer, iteration: int, config: OptimConfig, extent: float) -> float:
+    """Set the means group's rate for ``iteration``; returns it."""
+    lr = position_lr(iteration, config, extent)
+    _group(optimizer, "means")["lr"] = lr
+    return lr
+
+
+def _group(optimizer: torch.optim.Optimizer, name: str) -> dict:
+    for g in optimizer.param_groups:
+        if g.get("name") == name:
+            if len(g["params"]) != 1:
+                raise GofError(f"optimizer group {name!r} must hold exactly one tensor, has {len(g['params'])}")
+            return g
+    raise GofError(f"optimizer has no param group named {name!r} (build it with make_optimizer)")
+
+
+def _as_index(sel, n: int, what: str, device) -> torch.Tensor:
+    """A boolean mask [n] or an integer index → int64 index tensor."""
+    sel = torch.as_tensor(sel, device=device)
+    if sel.dtype == torch.bool:
+        if sel.shape != (n,):
+            raise GofError(f"{what}: boolean mask must have shape [{n}], got {list(sel.shape)}")
+        return torch.nonzero(sel).flatten()
+    if sel.dtype not in (torch.int32, torch.int64) or sel.ndim != 1:
+        raise GofError(f"{what}: expected a bool mask or a 1-D integer index, got {sel.dtype} {list(sel.shape)}")
+    sel = sel.long()
+    if sel.numel() and (int(sel.min()) < 0 or int(sel.max()) >= n):
+        raise GofError(f"{what}: index out of range [0, {n})")
+    return sel
+
+
+def replace_params(gaussians: Gaussians, optimizer: torch.optim.Optimizer | None, *, keep=None,
+                   append: dict | None = None, reset: dict | None = None) -> None:
+    """The one place where Gaussians are added, removed or reset together with Adam's state.
+
+    Applied in this order, in place on ``gaussians`` (and ``optimizer`` when given):
+
+    1. ``keep``: bool mask ``[N]`` or int index ``[K]`` — rows kept (in index order); their Adam
+       moments are kept with them. ``None`` keeps all.
+    2. ``append``: dict with every name of ``PARAM_NAMES`` → new rows ``[M, ...]`` (raw values),
+       appended after the kept rows; their moments start at zero. When ``gaussians.filter_3d`` is set,
+       ``append["filter_3d"]`` (``[M]``) is required too (the trainer recomputes the filter after
+       densifying, as GOF does; children usually carry their parent's value until then).
+    3. ``reset``: dict name → ``(rows, values)``: rows (bool mask / index over the rows after steps 1–2)
+       of that parameter get ``values`` (broadcastable to ``[len(rows), ...]``) and zero moments.
+
+    The new tensors are fresh leaves (``requires_grad`` as before) with no ``.grad``; the optimizer's
+    groups point to them and its state is re-keyed. Other groups (appearance) are untouched.
+    """
+    n = len(gaussians)
+    device = gaussians.device
+    keep_idx = None if keep is None else _as_index(keep, n, "replace_params keep", device)
+    if append is not None:
+        missing = [k for k in PARAM_NAMES if k not in append]
+        if missing:
+            raise GofError(f"replace_params append: missing parameters {missing}")
+        if gaussians.filter_3d is not None and "filter_3d" not in append:
+            raise GofError("replace_params append: the Gaussians carry a 3D filter; append['filter_3d'] is required")
+        m = append["means"].shape[0]
+        for k in PARAM_NAMES:
+            want = (m, *gaussians.params[k].shape[1:])
+            if tuple(append[k].shape) != want:
+                raise GofError(f"replace_params append[{k!r}]: expected shape {list(want)}, "
+                               f"got {list(append[k].shape)}")
+    reset = reset or {}
+    unknown = [k for k in reset if k not in PARAM_NAMES]
+    if unknown:
+        raise GofError(f"replace_params reset: unknown parameters {unknown} (known: {list(PARAM_NAMES)})")
+    n_after = (n if keep_idx is None else keep_idx.numel()) + (0 if append is None else append["means"].shape[0])
+    reset_idx = {k: (_as_index(rows, n_after, f"replace_params reset[{k!r}]", device), vals)
+                 for k, (rows, vals) in reset.items()}
+
+    def rebuild(t: torch.Tensor, new_rows) -> torch.Tensor:
+        t = t if keep_idx is None else t[keep_idx]
+        return t if new_rows is None else torch.cat([t, new_rows.to(t.dtype)], dim=0)
+
+    with torch.no_grad():
+        for name in PARAM_NAMES:
+            old = gaussians.params[name]
+            new = rebuild(old.detach(), None if append is None else append[name])
+            zero_rows = None
+            if name in reset_idx:
+                rows, vals = reset_idx[name]
+                new = new.clone() if keep_idx is None and append is None else new
+                new[rows] = torch.as_tensor(vals, dtype=new.dtype, device=new.device)
+                zero_rows = rows
+            new = new.contiguous().requires_grad_(old.requires_grad)
+            gaussians.params[name] = new
+            if optimizer is None:
+                continue
+            group = _group(optimizer, name)
+            if group["params"][0] is not old:
+                raise GofError(f"optimizer group {name!r} does not hold gaussians.params[{name!r}] (stale optimizer?)")
+            state = optimizer.state.pop(old, None)
+            group["params"][0] = new
+            if state is None:
+                continue
+            for key in ADAM_MOMENTS:
+                if key in state:
+                    z = None if append is None else torch.zeros_like(append[name], dtype=state[key].dtype)
+                    moment = rebuild(state[key], z)
+                    if zero_rows is not None:
+                        moment = moment.clone() if keep_idx is None and append is None else moment
+                        moment[zero_rows] = 0.0
+                    state[key] = moment
+            optimizer.state[new] = state
+        if gaussians.filter_3d is not None:
+            gaussians.filter_3d = rebuild(gaussians.filter_3d, None if append is None else append["filter_3d"])
+
+
+def check_optimizer_state(gaussians: Gaussians, optimizer: torch.optim.Optimizer) -> None:
+    """Raise :class:`GofError` unless every group holds the current parameter and its moments match its shape."""
+    for name in PARAM_NAMES:
+        p = gaussians.params[name]
+        if _group(optimizer, name)["params"][0] is not p:
+            raise GofError(f"optimizer group {name!r} does not hold the current gaussians.params[{name!r}]")
+        state = optimizer.state.get(p, {})
+        for key in ADAM_MOMENTS:
+            if key in state and state[key].shape != p.shape:
+                raise GofError(f"Adam {key} of {name!r} has shape {list(state[key].shape)}, parameter {list(p.shape)}")

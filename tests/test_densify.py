@@ -1,0 +1,322 @@
+"""Densification policy, optimizer-state surgery, learning-rate and SH schedules (CPU, no renderer)."""
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+from scipy.stats import chi2
+
+from gof_warp.densify import (Densifier, DensifyConfig, densify_candidates, prune_mask, quantile, quat_to_rotmat,
+                              reset_opacity, sample_children, sh_degree_at)
+from gof_warp.errors import GofError
+from gof_warp.model import PARAM_NAMES, Gaussians
+from gof_warp.optim import (OptimConfig, check_optimizer_state, make_optimizer, position_lr, replace_params,
+                            update_learning_rate)
+
+EXTENT = 2.0
+TOL32 = 1e-6  # float32 values copied or recomputed with one rounding
+CHI2_P = 1e-4  # false-alarm probability of each statistical bound (fixed seeds: deterministic anyway)
+N_SAMPLES = 20_000
+SE_BOUND = 4.5  # standard errors allowed per covariance entry (~7e-6 two-sided per entry for a Gaussian)
+TOL_RESET = 1e-5  # float32 logit -> sigmoid round trip of the reset opacity
+TOL_LR = 1e-12  # float64 arithmetic (schedule exp/log, rotation orthonormality): rounding only
+
+
+def _logit(p):
+    return math.log(p / (1 - p))
+
+
+def _gaussians(n=8, seed=0):
+    """Small model; sh_dc[:, 0] holds each Gaussian's identity (copied to children, untouched by Adam below)."""
+    g = torch.Generator().manual_seed(seed)
+    dc = torch.rand(n, 3, generator=g)
+    dc[:, 0] = torch.arange(n, dtype=torch.float32)
+    return Gaussians(means=torch.randn(n, 3, generator=g), quats=torch.randn(n, 4, generator=g),
+                     log_scales=torch.full((n, 3), math.log(0.005 * EXTENT)),
+                     opacity_logits=torch.full((n,), _logit(0.5)), sh_dc=dc,
+                     sh_rest=torch.rand(n, 3, 3, generator=g), max_sh_degree=1, active_sh_degree=0)
+
+
+def _stepped_optimizer(gs, steps=2):
+    """Adam with non-trivial moments: gradients = row identity + 1 (zero on sh_dc[:, 0] to keep identities)."""
+    opt = make_optimizer(gs, OptimConfig(), EXTENT)
+    for _ in range(steps):
+        for name, p in gs.params.items():
+            ident = torch.arange(len(gs), dtype=torch.float32).reshape(-1, *[1] * (p.ndim - 1)) + 1.0
+            p.grad = ident.expand_as(p).clone() * (0.1 if name != "means" else 1.0)
+            if name == "sh_dc":
+                p.grad[:, 0] = 0.0
+        opt.step()
+    return opt
+
+
+def _ids(gs):
+    return gs.sh_dc[:, 0].detach().round().long().tolist()
+
+
+def _moments(gs, opt):
+    """{name: {identity: (exp_avg row, exp_avg_sq row)}}; duplicates (children) are listed per identity."""
+    out = {}
+    for name in PARAM_NAMES:
+        st = opt.state[gs.params[name]]
+        rows = {}
+        for i, ident in enumerate(_ids(gs)):
+            rows.setdefault(ident, []).append((st["exp_avg"][i].clone(), st["exp_avg_sq"][i].clone()))
+        out[name] = rows
+    return out
+
+
+def _stats(n, grad=None, grad_abs=None, radii=None):
+    z = torch.zeros(n)
+    return SimpleNamespace(grad2d=torch.stack([z if grad is None else grad, z], 1),
+                           grad2d_abs=z if grad_abs is None else grad_abs,
+                           radii=torch.ones(n, dtype=torch.int32) if radii is None else radii)
+
+
+# ----------------------------------------------------------------------------- surgery
+def test_replace_params_keep_append_reset_moves_moments_with_rows():
+    gs = _gaussians()
+    opt = _stepped_optimizer(gs)
+    before = _moments(gs, opt)
+    keep = torch.tensor([6, 1, 3])
+    new = {k: v.detach()[[2]].clone() for k, v in gs.params.items()}
+    new["sh_dc"][:, 0] = 100.0
+    reset_rows = torch.tensor([False, True, False, False])
+    replace_params(gs, opt, keep=keep, append=new, reset={"quats": (reset_rows, torch.tensor([1.0, 0, 0, 0]))})
+    check_optimizer_state(gs, opt)
+    assert _ids(gs) == [6, 1, 3, 100] and len(gs) == 4
+    after = _moments(gs, opt)
+    for name in PARAM_NAMES:
+        for ident in (6, 1, 3):
+            if name == "quats" and ident == 1:
+                continue
+            for a, b in zip(after[name][ident][0], before[name][ident][0]):
+                assert torch.equal(a, b), f"{name} moments of Gaussian {ident} did not move with it"
+        assert all((m == 0).all() for m in after[name][100][0]), f"appended {name} moments are not zero"
+    assert all((m == 0).all() for m in after["quats"][1][0])  # reset row: moments zeroed
+    assert torch.equal(gs.quats[1].detach(), torch.tensor([1.0, 0, 0, 0]))
+    assert all(p.is_leaf and p.requires_grad and p.grad is None for p in gs.params.values())
+    # Adam keeps working on the new tensors
+    for p in gs.params.values():
+        p.grad = torch.ones_like(p)
+    opt.step()
+    check_optimizer_state(gs, opt)
+
+
+def test_replace_params_validates_and_keeps_filter():
+    gs = _gaussians(4)
+    gs.filter_3d = torch.arange(4, dtype=torch.float32)
+    opt = make_optimizer(gs, OptimConfig(), EXTENT)
+    new = {k: v.detach()[:1] for k, v in gs.params.items()}
+    with pytest.raises(GofError, match="filter_3d"):
+        replace_params(gs, opt, append=new)
+    with pytest.raises(GofError, match="mask"):
+        replace_params(gs, opt, keep=torch.ones(3, dtype=torch.bool))
+    keep = torch.tensor([True, False, True, True])
+    replace_params(gs, opt, keep=keep, append={**new, "filter_3d": torch.tensor([9.0])})
+    assert gs.filter_3d.tolist() == [0.0, 2.0, 3.0, 9.0]
+    assert opt.state == {} or all(len(s) == 0 for s in opt.state.values())  # no state before the first step
+
+
+# ----------------------------------------------------------------------------- clone / split sampling
+def test_children_sampled_from_parent_distribution():
+    """Many children of one anisotropic rotated parent: mean ≈ μ and covariance ≈ R S² Rᵀ."""
+    q = torch.tensor([[0.8, 0.3, -0.4, 0.35]])
+    s = torch.tensor([[0.5, 0.1, 0.02]])
+    parent = Gaussians(means=torch.tensor([[1.0, -2.0, 0.5]]), quats=q, log_scales=s.log(),
+                       opacity_logits=torch.zeros(1), sh_dc=torch.zeros(1, 3))
+    kids = sample_children(parent, torch.zeros(1, dtype=torch.long), N_SAMPLES, torch.Generator().manual_seed(0), 1.6)
+    x = kids["means"].double().numpy()
+    R = quat_to_rotmat(q.double())[0].numpy()
+    sigma = R @ np.diag(s[0].double().numpy() ** 2) @ R.T
+    mu = np.array([1.0, -2.0, 0.5])
+    d = x.mean(0) - mu
+    assert N_SAMPLES * d @ np.linalg.solve(sigma, d) < chi2.ppf(1 - CHI2_P, 3)  # Hotelling with known Σ
+    white = (x - mu) @ np.linalg.inv(np.linalg.cholesky(sigma)).T  # ~ N(0, I) if drawn from the parent
+    cov = white.T @ white / N_SAMPLES
+    se = np.sqrt((np.eye(3) + 1.0) / N_SAMPLES)  # standard error of E[w_i w_j]: sqrt(2/n) diag, sqrt(1/n) off
+    assert np.all(np.abs(cov - np.eye(3)) < SE_BOUND * se)
+    assert np.allclose(kids["log_scales"].exp().numpy(), s.numpy() / 1.6, rtol=TOL32)
+    assert torch.equal(kids["quats"], q.expand(N_SAMPLES, 4))
+    # a wrong (unrotated) covariance must fail the same bound
+    white_bad = (x - mu) / s[0].numpy()
+    assert np.any(np.abs(white_bad.T @ white_bad / N_SAMPLES - np.eye(3)) > SE_BOUND * se)
+
+
+def test_quat_to_rotmat_is_rotation():
+    R = quat_to_rotmat(torch.randn(50, 4, dtype=torch.float64))
+    assert torch.allclose(R @ R.transpose(1, 2), torch.eye(3, dtype=torch.float64).expand(50, 3, 3), atol=TOL_LR)
+    assert torch.allclose(torch.linalg.det(R), torch.ones(50, dtype=torch.float64), atol=TOL_LR)
+
+
+# ----------------------------------------------------------------------------- the densify step
+def _scene_for_step():
+    """8 Gaussians: 0-1 clone (small, high grad), 2-3 split (large, high grad), 4 low opacity, 5-7 idle."""
+    gs = _gaussians(8)
+    with torch.no_grad():
+        gs.params["log_scales"][2:4] = math.log(0.05 * EXTENT)  # > 0.01 E -> split
+        gs.params["opacity_logits"][4] = _logit(0.04)
+    opt = _stepped_optimizer(gs)
+    grad = torch.tensor([5e-4, 3e-4, 4e-4, 9e-4, 0, 0, 0, 1e-4])
+    return gs, opt, grad
+
+
+def test_step_clones_splits_prunes_and_moves_state():
+    gs, opt, grad = _scene_for_step()
+    before = _moments(gs, opt)
+    parent_means = gs.means.detach().clone()
+    parent_scales = gs.raw_scales.detach().clone()
+    dens = Densifier(DensifyConfig(metric="standard"))
+    dens.after_backward(_stats(8, grad), iteration=599)
+    report = dens.step(600, gs, opt, EXTENT)
+    check_optimizer_state(gs, opt)
+    assert (report.num_candidates, report.num_cloned, report.num_split, report.num_pruned) == (4, 2, 2, 1)
+    assert report.num_before == 8 and report.num_after == len(gs) == 8 + 2 + 4 - 2 - 1 == 11
+    assert report.num_added == 6 and dens.history == [(600, 11)]
+    ids = _ids(gs)
+    assert ids[:5] == [0, 1, 5, 6, 7] and sorted(ids[5:]) == [0, 1, 2, 2, 3, 3]  # parents first, then children
+    after = _moments(gs, opt)
+    for name in PARAM_NAMES:
+        for ident in (0, 1, 5, 6, 7):  # surviving parents come first, moments intact
+            assert torch.equal(after[name][ident][0][0], before[name][ident][0][0])
+        for ident in (0, 1):  # the clone (second occurrence) starts with zero moments
+            assert all((m == 0).all() for m in after[name][ident][1])
+        for ident in (2, 3):
+            assert all((m == 0).all() for pair in after[name][ident] for m in pair)
+    scales = gs.raw_scales.detach()
+    for i, ident in enumerate(ids):
+        expected = parent_scales[ident] / (1.6 if ident in (2, 3) else 1.0)
+        assert torch.allclose(scales[i], expected, rtol=TOL32)
+    clone_rows = [i for i, ident in enumerate(ids) if ident == 0]
+    assert torch.equal(gs.means[clone_rows[0]].detach(), parent_means[0])  # the parent stays put
+    assert not torch.equal(gs.means[clone_rows[1]].detach(), parent_means[0])  # the clone is sampled
+    assert dens.stats.count.shape == (11,) and dens.stats.count.sum() == 0
+
+
+def test_step_is_reproducible_with_seed():
+    means = []
+    for _ in range(2):
+        gs, opt, grad = _scene_for_step()
+        dens = Densifier(DensifyConfig(metric="standard", seed=7))
+        dens.after_backward(_stats(8, grad), 599)
+        dens.step(600, gs, opt, EXTENT)
+        means.append(gs.means.detach())
+    assert torch.equal(means[0], means[1])
+
+
+def test_schedule_of_step():
+    cfg = DensifyConfig(metric="standard")
+    for it, densifies in [(500, False), (550, False), (600, True), (14_900, True), (15_000, False)]:
+        gs, opt, grad = _scene_for_step()
+        dens = Densifier(cfg)
+        dens.after_backward(_stats(8, grad), it - 1)
+        rep = dens.step(it, gs, opt, EXTENT)
+        assert rep.densified == densifies, it
+        assert rep.filter_3d_due == densifies
+    dens = Densifier(cfg)
+    gs, opt, _ = _scene_for_step()
+    assert dens.step(3000, gs, opt, EXTENT).opacity_reset and not dens.step(15_000, gs, opt, EXTENT).opacity_reset
+    assert dens.step(15_100, gs, opt, EXTENT).filter_3d_due and not dens.step(29_900, gs, opt, EXTENT).filter_3d_due
+    dens.after_backward(_stats(len(gs), torch.ones(len(gs))), 15_000)  # no statistics from stop_iter on
+    assert dens.stats.count.sum() == 0
+
+
+def test_budget_caps_count_and_keeps_highest_metric():
+    n = 20
+    gs = _gaussians(n)
+    opt = make_optimizer(gs, OptimConfig(), EXTENT)
+    grad = torch.linspace(3e-4, 1e-3, n)[torch.randperm(n, generator=torch.Generator().manual_seed(1))]
+    dens = Densifier(DensifyConfig(metric="standard", max_gaussians=n + 5))
+    dens.after_backward(_stats(n, grad), 599)
+    rep = dens.step(600, gs, opt, EXTENT)
+    assert len(gs) == n + 5 and rep.num_candidates == n and rep.num_over_budget == n - 5
+    top5 = set(torch.argsort(grad, descending=True)[:5].tolist())
+    ids = _ids(gs)
+    assert {i for i in set(ids) if ids.count(i) == 2} == top5
+    dens.after_backward(_stats(len(gs), torch.full((len(gs),), 1e-3)), 699)
+    assert dens.step(700, gs, opt, EXTENT).num_added == 0 and len(gs) == n + 5  # full: no growth
+
+
+def test_gof_metric_quantile_selects_as_many_by_abs():
+    g = torch.Generator().manual_seed(2)
+    grad = torch.rand(1000, generator=g) * 4e-4  # about half above 2e-4
+    grad_abs = torch.rand(1000, generator=g)
+    mask, score, q = densify_candidates(grad, grad_abs, DensifyConfig(metric="gof"))
+    k = int((grad >= 2e-4).sum())
+    assert int((grad_abs >= q).sum()) == k and abs(q - torch.quantile(grad_abs, 1 - k / 1000).item()) < TOL32
+    assert torch.equal(mask, (grad >= 2e-4) | (grad_abs >= q)) and torch.equal(mask, score >= 1.0)
+    mask0, _, _ = densify_candidates(torch.zeros(10), torch.rand(10), DensifyConfig(metric="gof"))
+    assert not mask0.any()  # nothing above τ: no quantile candidates either (GOF would pick max M)
+    assert torch.equal(densify_candidates(grad, grad_abs, DensifyConfig(metric="paper", abs_grad_threshold=0.9))[0],
+                       (grad >= 2e-4) | (grad_abs >= 0.9))
+
+
+def test_quantile_matches_torch():
+    x = torch.randn(1001)
+    for q in (0.0, 0.13, 0.5, 0.999, 1.0):
+        assert abs(quantile(x, q).item() - torch.quantile(x, q).item()) < TOL32
+
+
+# ----------------------------------------------------------------------------- prune, reset, schedules
+def test_prune_thresholds():
+    cfg = DensifyConfig()
+    opac = torch.tensor([0.049, 0.051, 0.5, 0.5, 0.5])
+    scales = torch.tensor([[0.01] * 3, [0.01] * 3, [0.21, 0.01, 0.01], [0.01] * 3, [0.01] * 3])
+    radii = torch.tensor([0, 0, 0, 21, 20])
+    assert prune_mask(opac, scales, radii, EXTENT, 3000, cfg).tolist() == [True, False, False, False, False]
+    assert prune_mask(opac, scales, radii, EXTENT, 3100, cfg).tolist() == [True, False, True, True, False]
+    code = DensifyConfig(prune_screen_size=False)  # GOF's code: the screen test is dead
+    assert prune_mask(opac, scales, radii, EXTENT, 3100, code).tolist() == [True, False, True, False, False]
+
+
+def test_opacity_reset_value_and_moments():
+    gs = _gaussians(4)
+    with torch.no_grad():
+        gs.params["opacity_logits"].copy_(torch.tensor([_logit(0.9), _logit(0.005), _logit(0.3), _logit(0.02)]))
+        gs.params["log_scales"][0] = torch.tensor([0.1, 0.2, 0.05]).log()
+    gs.filter_3d = torch.tensor([0.05, 0.0, 0.1, 0.01])
+    opt = _stepped_optimizer(gs)
+    o_f_before = gs.opacities.detach().clone()
+    other = opt.state[gs.params["means"]]["exp_avg"].clone()
+    reset_opacity(gs, opt, 0.01)
+    expected = torch.minimum(o_f_before, torch.tensor(0.01))
+    assert torch.allclose(gs.opacities.detach(), expected, rtol=TOL_RESET, atol=0)
+    st = opt.state[gs.params["opacity_logits"]]
+    assert (st["exp_avg"] == 0).all() and (st["exp_avg_sq"] == 0).all()
+    assert torch.equal(opt.state[gs.params["means"]]["exp_avg"], other)
+
+
+def test_sh_degree_schedule():
+    assert [sh_degree_at(it, 1000, 3) for it in (1, 999, 1000, 2500, 3000, 9000)] == [0, 0, 1, 2, 3, 3]
+    gs = _gaussians(2)
+    assert Densifier().update_sh_degree(5000, gs) == 1 == gs.active_sh_degree  # model's max degree is 1
+
+
+def test_position_lr_schedule_and_optimizer_groups():
+    cfg = OptimConfig()
+    assert position_lr(0, cfg, EXTENT) == pytest.approx(1.6e-4 * EXTENT, rel=TOL_LR)
+    assert position_lr(30_000, cfg, EXTENT) == pytest.approx(1.6e-6 * EXTENT, rel=TOL_LR)
+    assert position_lr(60_000, cfg, EXTENT) == pytest.approx(1.6e-6 * EXTENT, rel=TOL_LR)  # held after the end
+    assert position_lr(15_000, cfg, EXTENT) == pytest.approx(math.sqrt(1.6e-4 * 1.6e-6) * EXTENT, rel=TOL_LR)
+    gs = _gaussians(3)
+    opt = make_optimizer(gs, cfg, EXTENT)
+    lrs = {g["name"]: g["lr"] for g in opt.param_groups}
+    assert lrs == pytest.approx({"means": 1.6e-4 * EXTENT, "quats": 1e-3, "log_scales": 5e-3, "opacity_logits": 0.05,
+                                 "sh_dc": 2.5e-3, "sh_rest": 1.25e-4}, rel=TOL_LR)
+    assert opt.defaults["eps"] == 1e-15
+    lr_end = position_lr(30_000, cfg, EXTENT)
+    assert update_learning_rate(opt, 30_000, cfg, EXTENT) == opt.param_groups[0]["lr"] == lr_end
+
+
+def test_state_dict_roundtrip():
+    gs, opt, grad = _scene_for_step()
+    dens = Densifier(DensifyConfig(metric="standard"))
+    dens.after_backward(_stats(8, grad), 599)
+    dens.step(600, gs, opt, EXTENT)
+    dens.after_backward(_stats(len(gs), torch.full((len(gs),), 1e-4)), 601)
+    other = Densifier(dens.config)
+    other.load_state_dict(dens.state_dict())
+    assert other.history == dens.history and torch.equal(other.stats.grad, dens.stats.grad)
+    assert torch.equal(torch.randn(3, generator=other.generator), torch.randn(3, generator=dens.generator))

@@ -1,0 +1,194 @@
+"""Loss terms against float64 numpy references (brute force, written independently of the torch code)."""
+
+import numpy as np
+import pytest
+import torch
+from scipy.signal import convolve2d
+
+from gof_warp.camera import Camera
+from gof_warp.errors import GofError
+from gof_warp.losses import (LossConfig, depth_normal_consistency, depth_to_normal, distortion_loss, dssim, l1,
+                             total_loss)
+
+TOL64 = 1e-10  # float64 torch vs float64 numpy: only summation-order rounding
+TOL_PLANE = 1e-9  # central differences of an exact plane lie in the plane: exact up to rounding
+DEPTH_GRAD_BOUND = 1.0  # per-pixel terms are O(1/(H W)); a large depth gradient means a normalize of ~0 blew up
+
+H, W = 13, 17
+
+
+def _camera(cx=7.3, cy=5.1, fx=21.0, fy=19.0):
+    """Off-centre principal point on purpose (pixel rays use (i + 0.5 - cx) / fx)."""
+    return Camera(R=np.eye(3), t=np.zeros(3), fx=fx, fy=fy, cx=cx, cy=cy, width=W, height=H)
+
+
+def _np_ssim(x, y, size=11, sigma=1.5):
+    """SSIM of [C, H, W] float64 arrays: full 2-D Gaussian window, zero padding, mean over everything."""
+    i = np.arange(size) - size // 2
+    g = np.exp(-(i**2) / (2 * sigma**2))
+    g /= g.sum()
+    win = np.outer(g, g)
+    f = lambda a: convolve2d(a, win, mode="same", boundary="fill")  # noqa: E731  (symmetric window)
+    c1, c2 = 0.01**2, 0.03**2
+    out = []
+    for a, b in zip(x, y):
+        mx, my = f(a), f(b)
+        sxx, syy, sxy = f(a * a) - mx**2, f(b * b) - my**2, f(a * b) - mx * my
+        out.append(((2 * mx * my + c1) * (2 * sxy + c2)) / ((mx**2 + my**2 + c1) * (sxx + syy + c2)))
+    return np.mean(out)
+
+
+def _np_points(depth, cam):
+    h, w = depth.shape
+    jj, ii = np.mgrid[0:h, 0:w]
+    rays = np.stack([(ii + 0.5 - cam.cx) / cam.fx, (jj + 0.5 - cam.cy) / cam.fy, np.ones((h, w))], -1)
+    return depth[..., None] * rays
+
+
+def _np_depth_normal(depth, cam):
+    """Per-pixel loops: N = normalize((P[v+1,u]-P[v-1,u]) x (P[v,u+1]-P[v,u-1])), 0 on the border."""
+    p = _np_points(depth, cam)
+    h, w = depth.shape
+    n = np.zeros((h, w, 3))
+    for v in range(1, h - 1):
+        for u in range(1, w - 1):
+            c = np.cross(p[v + 1, u] - p[v - 1, u], p[v, u + 1] - p[v, u - 1])
+            n[v, u] = c / np.linalg.norm(c)
+    return n
+
+
+def _smooth_depth(rng):
+    jj, ii = np.mgrid[0:H, 0:W]
+    return 2.0 + 0.3 * np.sin(ii / 3.0) + 0.2 * np.cos(jj / 2.5) + 0.01 * rng.random((H, W))
+
+
+def test_l1_and_distortion_match_numpy():
+    rng = np.random.default_rng(0)
+    a, b, d = rng.random((H, W, 3)), rng.random((H, W, 3)), rng.random((H, W))
+    assert abs(l1(torch.tensor(a), torch.tensor(b)).item() - np.abs(a - b).mean()) < TOL64
+    assert abs(distortion_loss(torch.tensor(d)).item() - d.mean()) < TOL64
+
+
+def test_dssim_matches_numpy_full_window():
+    rng = np.random.default_rng(1)
+    a = rng.random((H, W, 3))
+    b = np.clip(a + 0.2 * rng.standard_normal((H, W, 3)), 0, 1)
+    ref = 1.0 - _np_ssim(a.transpose(2, 0, 1), b.transpose(2, 0, 1))
+    assert abs(dssim(torch.tensor(a), torch.tensor(b)).item() - ref) < TOL64
+    assert abs(dssim(torch.tensor(a), torch.tensor(a)).item()) < TOL64
+
+
+def test_depth_to_normal_of_tilted_plane_is_plane_normal():
+    cam = _camera()
+    n_true = np.array([0.3, -0.5, -1.0])
+    n_true /= np.linalg.norm(n_true)  # faces the camera: n · (point on plane) < 0
+    x0 = np.array([0.1, 0.2, 3.0])
+    p = _np_points(np.ones((H, W)), cam)  # rays with z = 1
+    depth = (n_true @ x0) / (p @ n_true)
+    normals, valid = depth_to_normal(torch.tensor(depth), cam, return_valid=True)
+    normals = normals.numpy()
+    assert valid[1:-1, 1:-1].all() and not valid[0].any() and not valid[:, -1].any()
+    np.testing.assert_allclose(normals[1:-1, 1:-1], np.broadcast_to(n_true, (H - 2, W - 2, 3)), atol=TOL_PLANE)
+    assert np.all(normals[0] == 0) and np.all(normals[:, 0] == 0)
+
+
+def test_depth_to_normal_matches_loop_reference_and_faces_camera():
+    cam = _camera()
+    depth = _smooth_depth(np.random.default_rng(2))
+    got = depth_to_normal(torch.tensor(depth), cam).numpy()
+    np.testing.assert_allclose(got, _np_depth_normal(depth, cam), atol=TOL64)
+    facing = (got[1:-1, 1:-1] * _np_points(depth, cam)[1:-1, 1:-1]).sum(-1)
+    assert np.all(facing < 0)
+
+
+def _per_gaussian_pixels(rng, k=3):
+    """Per pixel k blended Gaussians: weights w [H, W, k] (sum < 1) and unit normals n [H, W, k, 3]."""
+    w = rng.random((H, W, k)) / k
+    w[:2, :3] = 0.0  # a few empty pixels
+    n = rng.standard_normal((H, W, k, 3))
+    n[..., 2] = -np.abs(n[..., 2]) - 0.5
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    return w, n
+
+
+def test_normal_consistency_paper_form_equals_per_gaussian_sum():
+    rng = np.random.default_rng(3)
+    cam = _camera()
+    depth = _smooth_depth(rng)
+    w, n = _per_gaussian_pixels(rng)
+    N = _np_depth_normal(depth, cam)
+    per_pixel = (w * (1.0 - np.einsum("hwkc,hwc->hwk", n, N))).sum(-1)
+    per_pixel[[0, -1], :] = 0.0
+    per_pixel[:, [0, -1]] = 0.0  # border: N undefined, no cost
+    ref = per_pixel.mean()
+    rendered_normal, alpha = (w[..., None] * n).sum(2), w.sum(-1)
+    got = depth_normal_consistency(torch.tensor(depth), torch.tensor(rendered_normal), cam, torch.tensor(alpha))
+    assert abs(got.item() - ref) < TOL64
+
+
+def test_normal_consistency_gof_form_matches_code_definition():
+    rng = np.random.default_rng(4)
+    cam = _camera()
+    depth = _smooth_depth(rng)
+    w, n = _per_gaussian_pixels(rng)
+    rendered = (w[..., None] * n).sum(2)
+    norm = np.linalg.norm(rendered, axis=-1, keepdims=True)
+    unit = np.where(norm > 0, rendered / np.maximum(norm, 1e-300), 0.0)
+    ref = (1.0 - (unit * _np_depth_normal(depth, cam)).sum(-1)).mean()  # border N = 0 -> term 1
+    got = depth_normal_consistency(torch.tensor(depth), torch.tensor(rendered), cam, form="gof")
+    assert abs(got.item() - ref) < TOL64
+    with pytest.raises(GofError):
+        depth_normal_consistency(torch.tensor(depth), torch.tensor(rendered), cam)  # paper form needs alpha
+
+
+def _render_out(rng, dtype=torch.float64):
+    depth = _smooth_depth(rng)
+    depth[4:7, 5:9] = 0.0  # a hole (no Gaussian): depth edges and a degenerate neighbourhood
+    depth[9, [3, 5]] = 0.0  # pixel (9, 4): both horizontal neighbours empty -> zero tangent
+    w, n = _per_gaussian_pixels(rng)
+    t = lambda a: torch.tensor(a, dtype=dtype, requires_grad=True)  # noqa: E731
+    return {"rgb": t(rng.random((H, W, 3))), "alpha": t(w.sum(-1)), "median_depth": t(depth),
+            "normal": t((w[..., None] * n).sum(2)), "distortion": t(rng.random((H, W)) * 1e-3)}
+
+
+@pytest.mark.parametrize("form", ["paper", "gof"])
+def test_total_loss_composition_schedule_and_switches(form):
+    rng = np.random.default_rng(5)
+    cam = _camera()
+    out = _render_out(rng)
+    gt = torch.tensor(rng.random((H, W, 3)))
+    cfg = LossConfig(normal_form=form)
+    rgb, g = out["rgb"].detach().numpy(), gt.numpy()
+    lc = 0.8 * np.abs(rgb - g).mean() + 0.2 * (1 - _np_ssim(rgb.transpose(2, 0, 1), g.transpose(2, 0, 1)))
+    loss, terms = total_loss(out, gt, cam, cfg, iteration=14_999)
+    assert abs(loss.item() - lc) < TOL64 and set(terms) == {"l1", "dssim", "total"}
+    loss, terms = total_loss(out, gt, cam, cfg, iteration=15_000)
+    n_ref = depth_normal_consistency(out["median_depth"], out["normal"], cam, out["alpha"], form=form).item()
+    expected = lc + 1000.0 * out["distortion"].detach().numpy().mean() + 0.05 * n_ref
+    assert abs(loss.item() - expected) < TOL64 and abs(terms["normal"].item() - n_ref) < TOL64
+    loss.backward()
+    for k, v in out.items():
+        if form == "gof" and k == "alpha":
+            assert v.grad is None  # the code's form ignores alpha
+            continue
+        assert torch.isfinite(v.grad).all(), f"non-finite gradient into {k}"
+    assert out["median_depth"].grad.abs().sum() > 0 and out["normal"].grad.abs().sum() > 0
+    off = LossConfig(lambda_dssim=0.0, lambda_distortion=0.0, lambda_normal=0.0)
+    loss, terms = total_loss(out, gt, cam, off, iteration=20_000)
+    assert set(terms) == {"l1", "total"} and abs(loss.item() - np.abs(rgb - g).mean()) < TOL64
+
+
+def test_float32_gradients_finite_with_holes():
+    rng = np.random.default_rng(6)
+    out = _render_out(rng, torch.float32)
+    loss, _ = total_loss(out, torch.rand(H, W, 3), _camera(), LossConfig(), iteration=30_000)
+    loss.backward()
+    assert all(torch.isfinite(v.grad).all() for v in out.values())
+    assert out["median_depth"].grad.abs().max() < DEPTH_GRAD_BOUND
+
+
+def test_bad_inputs_raise():
+    with pytest.raises(GofError):
+        LossConfig(normal_form="other")
+    with pytest.raises(GofError):
+        total_loss(_render_out(np.random.default_rng(7)), torch.rand(3, H, W), _camera(), LossConfig(), 1)
