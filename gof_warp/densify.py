@@ -117,15 +117,6 @@ class DensifyReport:
     filter_3d_due: bool = False  # the trainer should recompute the 3D filter now (GOF schedule)
 
 
-def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
-    """``[N, 4]`` quaternions (wxyz, any non-zero length) → ``[N, 3, 3]`` rotation matrices."""
-    w, x, y, z = torch.nn.functional.normalize(quats, dim=-1).unbind(-1)
-    rows = [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]
-    return torch.stack(rows, dim=-1).reshape(*quats.shape[:-1], 3, 3)
-
-
 def quantile(values: torch.Tensor, q: float) -> torch.Tensor:
     """``torch.quantile(values, q)`` (linear interpolation) for any length, via ``kthvalue``."""
     n = values.numel()

@@ -52,6 +52,15 @@ def rgb_to_sh_dc(rgb):
     return (rgb - 0.5) / SH_C0
 
 
+def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
+    """``[N, 4]`` quaternions (wxyz, any non-zero length) → ``[N, 3, 3]`` rotation matrices."""
+    w, x, y, z = torch.nn.functional.normalize(quats, dim=-1).unbind(-1)
+    rows = [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]
+    return torch.stack(rows, dim=-1).reshape(*quats.shape[:-1], 3, 3)
+
+
 def _default_device():
     return "cuda" if torch.cuda.is_available() else "cpu"
 
@@ -322,7 +331,7 @@ class Gaussians:
             cols[a] = np.zeros(n, np.float32)
         for c in range(3):
             cols[f"f_dc_{c}"] = p["sh_dc"][:, c]
-        rest = p["sh_rest"].transpose(0, 2, 1).reshape(n, -1)  # channel-major, as 3DGS
+        rest = p["sh_rest"].transpose(0, 2, 1).reshape(n, 3 * p["sh_rest"].shape[1])  # channel-major, as 3DGS
         for i in range(rest.shape[1]):
             cols[f"f_rest_{i}"] = rest[:, i]
         cols["opacity"] = p["opacity_logits"]
