@@ -54,7 +54,7 @@ from dataclasses import asdict, dataclass
 import torch
 
 from .errors import GofError
-from .model import Gaussians
+from .model import Gaussians, quat_to_rotmat
 from .optim import replace_params
 
 METRICS = ("gof", "paper", "standard")

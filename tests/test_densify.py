@@ -8,7 +8,8 @@ import pytest
 import torch
 from scipy.stats import chi2
 
-from gof_warp.densify import (Densifier, DensifyConfig, densify_candidates, prune_mask, quantile, quat_to_rotmat,
+from gof_warp.model import quat_to_rotmat
+from gof_warp.densify import (Densifier, DensifyConfig, densify_candidates, prune_mask, quantile,
                               reset_opacity, sample_children, sh_degree_at)
 from gof_warp.errors import GofError
 from gof_warp.model import PARAM_NAMES, Gaussians
