@@ -1,0 +1,271 @@
+"""GPU benchmark of the differentiable renderer (``gof_warp.render.rasterize``), plus a CUDA correctness check.
+
+    python benchmarks/render/bench_render.py --check            # CUDA (tiled and plain) vs float64 reference
+    python benchmarks/render/bench_render.py --sweep --out DIR  # 100k..3M Gaussians x 800x600, 1920x1080
+
+Each sweep point runs in its own process (clean peak-memory counters). The scene is a "realistic"
+synthetic distribution: flat Gaussians on the surfaces of a ground plane, a sphere and a box (tangent
+sizes ~ the point spacing, thickness 5 %), 5 % larger background Gaussians on a far sphere, opacities
+from a mixture of mostly-opaque and faint, SH degree 3; the camera looks at the objects from 3.5 units.
+Results: JSON lines with the machine named (GPU, driver, torch, warp versions).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+REPO = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "tests"))
+
+import warp as wp  # noqa: E402
+
+try:  # installed package (pip install -e .) maps kernels/ to gof_warp.kernels; a bare checkout does not
+    import gof_warp.kernels  # noqa: F401
+except ImportError:
+    import importlib.util
+
+    _spec = importlib.util.spec_from_file_location("gof_warp.kernels", REPO / "kernels" / "__init__.py",
+                                                   submodule_search_locations=[str(REPO / "kernels")])  # fmt: skip
+    sys.modules["gof_warp.kernels"] = importlib.util.module_from_spec(_spec)
+    _spec.loader.exec_module(sys.modules["gof_warp.kernels"])
+
+from gof_warp.camera import look_at  # noqa: E402
+from gof_warp.render import DensifyStats, RenderConfig, rasterize  # noqa: E402
+from gof_warp.kernels.render_types import camera_params_from, make_raster_settings  # noqa: E402
+from gof_warp.kernels.renderer import RenderOutputs, render_backward, render_forward  # noqa: E402
+
+OUTPUT_KEYS = ("rgb", "alpha", "depth", "median_depth", "normal", "distortion")
+SIZES = {"800x600": (800, 600), "1920x1080": (1920, 1080)}
+COUNTS = (100_000, 500_000, 1_000_000, 3_000_000)
+
+
+def _frames_from_normals(n: torch.Tensor, g: torch.Generator) -> torch.Tensor:
+    """Unit quaternions (wxyz) of frames whose third axis is ``n``, randomly spun about it."""
+    a = torch.where(n[:, :1].abs() < 0.9, torch.tensor([1.0, 0, 0]), torch.tensor([0, 1.0, 0]))
+    t1 = torch.nn.functional.normalize(torch.cross(n, a, dim=1), dim=1)
+    t2 = torch.cross(n, t1, dim=1)
+    phi = torch.rand(n.shape[0], 1, generator=g) * 2 * math.pi
+    t1, t2 = t1 * phi.cos() + t2 * phi.sin(), -t1 * phi.sin() + t2 * phi.cos()
+    R = torch.stack([t1, t2, n], dim=2)  # columns
+    w = torch.sqrt(torch.clamp(1 + R[:, 0, 0] + R[:, 1, 1] + R[:, 2, 2], min=1e-12)) / 2
+    q = torch.stack([w, (R[:, 2, 1] - R[:, 1, 2]) / (4 * w), (R[:, 0, 2] - R[:, 2, 0]) / (4 * w), (R[:, 1, 0] - R[:, 0, 1]) / (4 * w)], 1)
+    return torch.nn.functional.normalize(q, dim=1)
+
+
+def make_scene(n: int, seed: int = 0, device="cuda"):
+    """Activated parameters of ``n`` Gaussians on synthetic surfaces (see the module docstring)."""
+    g = torch.Generator().manual_seed(seed)
+    n_bg = n // 20
+    n_s = n - n_bg
+    areas = torch.tensor([16.0, 4 * math.pi * 0.36, 6 * 0.64])  # plane 4x4, sphere r=0.6, box 0.8^3
+    which = torch.multinomial(areas / areas.sum(), n_s, replacement=True, generator=g)
+    u = torch.rand(n_s, 3, generator=g)
+    pts = torch.zeros(n_s, 3)
+    nrm = torch.zeros(n_s, 3)
+    m = which == 0  # ground plane z = 0
+    pts[m] = torch.stack([u[m, 0] * 4 - 2, u[m, 1] * 4 - 2, torch.zeros(int(m.sum()))], 1)
+    nrm[m] = torch.tensor([0.0, 0, 1])
+    m = which == 1  # sphere
+    d = torch.nn.functional.normalize(torch.randn(int(m.sum()), 3, generator=g), dim=1)
+    pts[m] = torch.tensor([-0.3, 0.2, 0.6]) + 0.6 * d
+    nrm[m] = d
+    m = which == 2  # box [0.4,1.2]x[-1,-0.2]x[0,0.8]
+    face = torch.randint(0, 6, (int(m.sum()),), generator=g)
+    p = u[m] * 0.8
+    axis, side = face // 2, (face % 2).float()
+    p[torch.arange(p.shape[0]), axis] = side * 0.8
+    nb = torch.zeros_like(p)
+    nb[torch.arange(p.shape[0]), axis] = side * 2 - 1
+    pts[m] = p + torch.tensor([0.4, -1.0, 0.0])
+    nrm[m] = nb
+    spacing = math.sqrt(float(areas.sum()) / n_s)
+    tang = spacing * torch.exp(0.3 * torch.randn(n_s, 2, generator=g)) * 0.8
+    scales = torch.cat([tang, 0.05 * tang.mean(1, keepdim=True)], 1)
+    quats = _frames_from_normals(nrm, g)
+    # background: far sphere of radius 8, bigger splats
+    d = torch.nn.functional.normalize(torch.randn(n_bg, 3, generator=g), dim=1)
+    d[:, 2] = d[:, 2].abs()
+    bg_pts = 8.0 * d
+    bg_spacing = math.sqrt(2 * math.pi * 64 / max(n_bg, 1))
+    bg_tang = bg_spacing * torch.exp(0.3 * torch.randn(n_bg, 2, generator=g))
+    bg_scales = torch.cat([bg_tang, 0.05 * bg_tang.mean(1, keepdim=True)], 1)
+    means = torch.cat([pts, bg_pts])
+    scales = torch.cat([scales, bg_scales])
+    quats = torch.cat([quats, _frames_from_normals(-d, g)])
+    faint = torch.rand(n, generator=g) < 0.4
+    opac = torch.where(faint, 0.02 + 0.48 * torch.rand(n, generator=g), 0.5 + 0.5 * torch.rand(n, generator=g))
+    sh = 0.05 * torch.randn(n, 16, 3, generator=g)
+    sh[:, 0] = (torch.rand(n, 3, generator=g) - 0.5) * 3.0
+    return [x.float().contiguous().to(device) for x in (means, quats, scales, opac, sh)]
+
+
+def make_camera(width, height):
+    return look_at((2.6, -2.4, 1.6), (0.1, -0.1, 0.35), up=(0, 0, 1), fx=0.866 * width, width=width, height=height)
+
+
+def machine_info():
+    props = torch.cuda.get_device_properties(0)
+    return dict(gpu=props.name, sm_count=props.multi_processor_count, memory_gb=round(props.total_memory / 2**30, 1),
+                torch=torch.__version__, cuda=torch.version.cuda, warp=wp.__version__)  # fmt: skip
+
+
+def _loss_weights(out, seed=1):
+    g = torch.Generator(device=out["rgb"].device).manual_seed(seed)
+    return {k: torch.randn(out[k].shape, generator=g, device=out[k].device) for k in OUTPUT_KEYS}
+
+
+def _time(fn, iters, warmup=2):
+    for _ in range(warmup):
+        fn()
+    torch.cuda.synchronize()
+    start, end = torch.cuda.Event(enable_timing=True), torch.cuda.Event(enable_timing=True)
+    times = []
+    for _ in range(iters):
+        start.record()
+        fn()
+        end.record()
+        torch.cuda.synchronize()
+        times.append(start.elapsed_time(end))
+    return float(np.median(times)), float(np.min(times))
+
+
+def _stage_times(params, cam, tiled, iters=5, reduce_min_radius=8):
+    """Median per-stage milliseconds from ``profile`` events of the Warp entry points."""
+    settings = make_raster_settings(cam.width, cam.height, reduce_min_radius=reduce_min_radius)
+    camp = camera_params_from(cam)
+    types = (wp.vec3, wp.vec4, wp.vec3, None, wp.vec3)
+    wpar = [wp.from_torch(p, dtype=t) for p, t in zip(params, types)]
+    grads = [wp.from_torch(torch.zeros_like(p), dtype=t) for p, t in zip(params, types)]
+    stages = {}
+    for it in range(iters + 1):
+        prof_f, prof_b = [], []
+        out, state = render_forward(*wpar, 3, camp, settings, profile=prof_f, tiled=tiled)
+        gout = RenderOutputs(*[wp.full_like(a, wp.vec3(1.0) if a.dtype == wp.vec3 else 1.0) for a in out.arrays()])
+        render_backward(state, gout, tuple(grads), profile=prof_b)
+        wp.synchronize()
+        if it == 0:
+            continue  # warm-up
+        for prof in (prof_f, prof_b):
+            for (_, e0), (name, e1) in zip(prof[:-1], prof[1:]):
+                stages.setdefault(name, []).append(wp.get_event_elapsed_time(e0, e1))
+        entries = state.num_entries
+    return {k: float(np.median(v)) for k, v in stages.items()}, entries
+
+
+def bench_one(n, size, iters):
+    W, H = SIZES[size]
+    cam = make_camera(W, H)
+    params = make_scene(n)
+    res = dict(n=n, size=size, machine=machine_info())
+    torch.cuda.synchronize()
+    torch.cuda.reset_peak_memory_stats()
+    leaves = [p.clone().requires_grad_(True) for p in params]
+    stats = DensifyStats(n, device="cuda")
+
+    def fwd():
+        with torch.no_grad():
+            rasterize(*params, cam, stats=stats)
+
+    def fwd_bwd():
+        out = rasterize(*leaves, cam, stats=stats)
+        w = weights
+        sum((out[k] * w[k]).sum() for k in OUTPUT_KEYS).backward()
+
+    weights = _loss_weights(rasterize(*params, cam))
+    res["fwd_ms"], res["fwd_ms_min"] = _time(fwd, iters)
+    res["fwd_bwd_ms"], res["fwd_bwd_ms_min"] = _time(fwd_bwd, iters)
+    torch.cuda.synchronize()
+    res["peak_torch_mb"] = torch.cuda.max_memory_allocated() / 2**20
+    res["peak_warp_mb"] = wp.get_mempool_used_mem_high("cuda:0") / 2**20  # fresh process: Warp's temporaries only
+    res["params_mb"] = sum(p.numel() * 4 for p in params) / 2**20
+    res["stages_tiled_ms"], res["tile_entries"] = _stage_times(params, cam, tiled=True)
+    res["stages_plain_ms"], _ = _stage_times(params, cam, tiled=False)
+    res["raster_backward_ms_by_reduce_min_radius"] = {m: _stage_times(params, cam, tiled=True, reduce_min_radius=m)[0]["raster_backward"]
+                                                      for m in (0, 8, 32, 128, 1 << 30)}  # fmt: skip
+    out = rasterize(*params, cam)
+    res["mean_alpha"] = float(out["alpha"].mean())
+    res["entries_per_tile"] = res["tile_entries"] / (math.ceil(W / 16) * math.ceil(H / 16))
+    return res
+
+
+def check() -> dict:
+    """CUDA (shared-memory and plain kernels) vs the float64 brute-force reference, forward and gradients."""
+    from reference_render import GRADCHECK_CONFIG, random_scene, reference_render, weighted_loss
+    from reference_render import make_camera as ref_camera
+
+    report = {}
+    cam = ref_camera(width=53, height=37)
+    for name, cfg, rcfg in (("defaults", RenderConfig(), None), ("gradcheck", RenderConfig(alpha_min=0.0, transmittance_min=0.0, k_max=10.0), GRADCHECK_CONFIG)):
+        scene = random_scene(cam, 60, 3, seed=5)
+        ref = reference_render(*[scene[k] for k in ("means", "quats", "scales", "opacities", "sh")], cam, config=rcfg)
+        p64 = [scene[k].clone().requires_grad_(True) for k in ("means", "quats", "scales", "opacities", "sh")]
+        ref = reference_render(*p64, cam, config=rcfg)
+        g = torch.Generator().manual_seed(3)
+        weights = {k: torch.randn(ref[k].shape, generator=g, dtype=torch.float64) for k in OUTPUT_KEYS}
+        weighted_loss(ref, weights).backward()
+        ok_pix = ref["margin"] > 1e-3  # pixels with no decision within float32 noise of its threshold
+        for mode in ("tiled", "plain"):
+            import gof_warp.kernels.renderer as R
+
+            orig = R.use_tiled_kernels
+            R.use_tiled_kernels = lambda device, settings, tiled=None, _m=mode: _m == "tiled"  # noqa: E731
+            leaves = [x.detach().float().cuda().requires_grad_(True) for x in p64]
+            out = rasterize(*leaves, cam, config=cfg)
+            weighted_loss(out, {k: v.float().cuda() for k, v in weights.items()}).backward()
+            R.use_tiled_kernels = orig
+            fwd = {k: float(((out[k].double().cpu() - ref[k]).abs())[ok_pix].max()) for k in OUTPUT_KEYS}
+            grd = {k: float((l.grad.double().cpu() - p.grad).abs().max() / max(1.0, p.grad.abs().max())) for k, l, p in
+                   zip(("means", "quats", "scales", "opacities", "sh"), leaves, p64)}  # fmt: skip
+            report[f"{name}/{mode}"] = dict(forward_max_abs=fwd, grad_max_rel=grd, pixels_checked=int(ok_pix.sum()))
+    return report
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--check", action="store_true")
+    ap.add_argument("--sweep", action="store_true")
+    ap.add_argument("--one", nargs=2, metavar=("N", "SIZE"))
+    ap.add_argument("--iters", type=int, default=7)
+    ap.add_argument("--out", default=str(REPO / "benchmarks" / "render" / "results"))
+    args = ap.parse_args()
+    wp.init()
+    out_dir = Path(args.out)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    if args.check:
+        rep = check()
+        print(json.dumps(rep, indent=1))
+        (out_dir / "cuda_check.json").write_text(json.dumps(dict(machine=machine_info(), check=rep), indent=1))
+    if args.one:
+        res = bench_one(int(args.one[0]), args.one[1], args.iters)
+        print("RESULT " + json.dumps(res))
+    if args.sweep:
+        results = []
+        for size in SIZES:
+            for n in COUNTS:
+                t0 = time.time()
+                p = subprocess.run([sys.executable, __file__, "--one", str(n), size, "--iters", str(args.iters), "--out", str(out_dir)],
+                                   capture_output=True, text=True, env=os.environ)  # fmt: skip
+                line = [ln for ln in p.stdout.splitlines() if ln.startswith("RESULT ")]
+                if not line:
+                    print(p.stdout[-2000:], p.stderr[-4000:])
+                    continue
+                res = json.loads(line[0][7:])
+                results.append(res)
+                print(f"{size} n={n}: fwd {res['fwd_ms']:.2f} ms, fwd+bwd {res['fwd_bwd_ms']:.2f} ms, peak torch {res['peak_torch_mb']:.0f} MB "
+                      f"+ warp {res['peak_warp_mb']:.0f} MB, entries/tile {res['entries_per_tile']:.0f}, stages {res['stages_tiled_ms']} plain {res['stages_plain_ms']} ({time.time()-t0:.0f} s)", flush=True)  # fmt: skip
+                (out_dir / "sweep.json").write_text(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    main()

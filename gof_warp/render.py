@@ -1,0 +1,238 @@
+"""Differentiable ray–Gaussian rendering for torch (GOF Sec. 3.1–3.3): :func:`render`, :func:`rasterize`.
+
+The math, conventions and kernel structure are in ``docs/rendering.md``; the kernels in
+:mod:`gof_warp.kernels.renderer`. This module validates the torch inputs, wraps the Warp forward and the
+hand-written Warp backward in a ``torch.autograd.Function`` (launched on torch's current CUDA stream) and
+returns the per-pixel maps as ``[H, W, ...]`` tensors.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+import warp as wp
+
+from .camera import Camera
+from .kernels.render_types import camera_params_from, make_raster_settings
+from .kernels.renderer import RenderOutputs, render_backward, render_forward
+
+
+_PARAM_NAMES = ("means", "quats", "scales", "opacities", "sh")
+_PARAM_TYPES = (wp.vec3, wp.vec4, wp.vec3, None, wp.vec3)
+
+
+@dataclass
+class RenderConfig:
+    """Compositing thresholds (defaults: the official GOF/3DGS rasteriser, ``GOF_REFERENCE.md`` §1–2).
+
+    Attributes:
+        near: Gaussians with camera z ≤ near are culled and intersections with t* ≤ near skipped
+            (GOF hard-codes 0.2; scale-dependent, hence configurable).
+        alpha_min: (pixel, Gaussian) pairs with α < alpha_min are skipped (3DGS/GOF: 1/255).
+        alpha_max: α = min(alpha_max, opacity · E) (3DGS/GOF: 0.99).
+        transmittance_min: compositing stops before a Gaussian that would bring T below it (1e-4).
+        k_max: pairs whose ray passes farther than k_max Mahalanobis units from the mean are skipped;
+            also caps the binning ellipsoid. Default sqrt(2 ln 255) ≈ 3.33: the extent at which an
+            opacity-1 Gaussian falls below 1/255, so it never removes a pair alpha_min keeps.
+        tile_size: screen tile edge in pixels (16 as 3DGS).
+        background: RGB composited behind the Gaussians (GOF: black, or white with --white_background).
+    """
+
+    near: float = 0.2
+    alpha_min: float = 1.0 / 255.0
+    alpha_max: float = 0.99
+    transmittance_min: float = 1e-4
+    k_max: float = math.sqrt(2.0 * math.log(255.0))
+    tile_size: int = 16
+    background: tuple = (0.0, 0.0, 0.0)
+
+    def validate(self) -> None:
+        if not self.near > 0:
+            raise ValueError(f"RenderConfig.near must be > 0, got {self.near}")
+        if not 0 <= self.alpha_min <= self.alpha_max < 1:
+            raise ValueError(f"RenderConfig needs 0 <= alpha_min <= alpha_max < 1, got {self.alpha_min}, {self.alpha_max}")
+        if not 0 <= self.transmittance_min < 1:
+            raise ValueError(f"RenderConfig.transmittance_min must be in [0, 1), got {self.transmittance_min}")
+        if not self.k_max > 0 or not math.isfinite(self.k_max):
+            raise ValueError(f"RenderConfig.k_max must be finite and > 0, got {self.k_max}")
+        if int(self.tile_size) != self.tile_size or not 1 <= self.tile_size <= 32:
+            raise ValueError(f"RenderConfig.tile_size must be an integer in [1, 32], got {self.tile_size}")
+        if len(self.background) != 3:
+            raise ValueError(f"RenderConfig.background must have 3 entries, got {self.background}")
+
+
+class DensifyStats:
+    """Per-Gaussian densification statistics filled by the renderer (GOF Sec. 3.3, 3DGS Sec. 5.2).
+
+    Pass one to :func:`render`/:func:`rasterize` (``stats=``); it must be sized for the same ``N`` and
+    live on the same device. The forward writes ``radii`` (this render) and raises ``max_radii`` and
+    ``visible_count``; the backward **adds** into the gradient sums, so one object accumulates over
+    the views of a densification interval. With ``g_p = (∂L_p/∂u, ∂L_p/∂v)·(W/2, H/2)`` the gradient of
+    pixel p's outputs w.r.t. the projected mean at fixed depth (NDC units, through the ray–Gaussian
+    geometry; the SH view-direction dependence is not included, as in 3DGS):
+
+    Attributes:
+        grad2d: ``[N, 2]`` float32, Σ_p g_p (its norm is 3DGS's view-space gradient).
+        grad2d_abs: ``[N]`` float32, Σ_p ‖g_p‖₂ (the paper's per-pixel-norm metric).
+        radii: ``[N]`` int32 screen radius (pixels) of the latest render; 0 = not visible.
+        max_radii: ``[N]`` int32 max of ``radii`` over the renders.
+        visible_count: ``[N]`` int32 number of renders in which the Gaussian was visible.
+    """
+
+    def __init__(self, num_gaussians: int, device="cpu"):
+        n = int(num_gaussians)
+        self.grad2d = torch.zeros(n, 2, dtype=torch.float32, device=device)
+        self.grad2d_abs = torch.zeros(n, dtype=torch.float32, device=device)
+        self.radii = torch.zeros(n, dtype=torch.int32, device=device)
+        self.max_radii = torch.zeros(n, dtype=torch.int32, device=device)
+        self.visible_count = torch.zeros(n, dtype=torch.int32, device=device)
+
+    def __len__(self) -> int:
+        return self.radii.shape[0]
+
+    def reset(self) -> None:
+        for t in (self.grad2d, self.grad2d_abs, self.radii, self.max_radii, self.visible_count):
+            t.zero_()
+
+    def _record_radii(self, radii: torch.Tensor) -> None:
+        self.radii.copy_(radii)
+        torch.maximum(self.max_radii, radii, out=self.max_radii)
+        self.visible_count += (radii > 0).to(torch.int32)
+
+
+def _stream_scope(device: torch.device):
+    """Launch on torch's current stream on CUDA; a no-op scope on the CPU."""
+    if device.type == "cuda":
+        return wp.ScopedStream(wp.stream_from_torch(device))
+    return wp.ScopedDevice("cpu")
+
+
+def _wp(t: torch.Tensor, dtype=None):
+    return wp.from_torch(t.contiguous(), dtype=dtype)
+
+
+class _RasterizeFunction(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, means, quats, scales, opacities, sh, cam, settings, sh_degree, stats):
+        device = means.device
+        H, W = cam.height, cam.width
+        f32 = dict(dtype=torch.float32, device=device)
+        outs = [torch.empty(H * W, 3, **f32), torch.empty(H * W, **f32), torch.empty(H * W, **f32),
+                torch.empty(H * W, **f32), torch.empty(H * W, 3, **f32), torch.empty(H * W, **f32)]  # fmt: skip
+        types = (wp.vec3, None, None, None, wp.vec3, None)
+        with _stream_scope(device):
+            args = [_wp(x.detach(), t) for x, t in zip((means, quats, scales, opacities, sh), _PARAM_TYPES)]
+            out = RenderOutputs(*[_wp(o, t) for o, t in zip(outs, types)])
+            _, state = render_forward(*args, sh_degree, cam, settings, out=out)
+            radii = wp.to_torch(state.radii)
+            if stats is not None:
+                stats._record_radii(radii)
+        ctx.state, ctx.stats, ctx.types = state, stats, types
+        ctx.shapes = [x.shape for x in (means, quats, scales, opacities, sh)]
+        ctx.mark_non_differentiable(radii)
+        return (*[o.reshape(H, W, -1).squeeze(-1) if o.dim() == 1 else o.reshape(H, W, 3) for o in outs], radii.clone())
+
+    @staticmethod
+    def backward(ctx, g_rgb, g_alpha, g_accum, g_median, g_normal, g_dist, _g_radii):
+        state, stats = ctx.state, ctx.stats
+        if state is None:
+            raise RuntimeError("gof_warp.render: backward called twice through the same render (retain_graph is not supported)")
+        device = torch.device(wp.device_to_torch(state.device))
+        num_pixels = state.cam.height * state.cam.width
+        flat = []
+        for g, t in zip((g_rgb, g_alpha, g_accum, g_median, g_normal, g_dist), ctx.types):
+            shape = (num_pixels, 3) if t is wp.vec3 else (num_pixels,)
+            flat.append(torch.zeros(shape, dtype=torch.float32, device=device) if g is None else g.reshape(shape).float().contiguous())
+        grad_in = [torch.zeros(s, dtype=torch.float32, device=device) for s in ctx.shapes]
+        with _stream_scope(device):
+            grad_out = RenderOutputs(*[_wp(g, t) for g, t in zip(flat, ctx.types)])
+            wp_in = tuple(_wp(g, t) for g, t in zip(grad_in, _PARAM_TYPES))
+            g2d = g2abs = None
+            if stats is not None:
+                g2d, g2abs = _wp(stats.grad2d, wp.vec2), _wp(stats.grad2d_abs)
+            render_backward(state, grad_out, wp_in, g2d, g2abs)
+        ctx.state = None  # free the forward state
+        return (*grad_in, None, None, None, None)
+
+
+def _check_params(means, quats, scales, opacities, sh):
+    """Shapes, dtypes and devices of the activated parameters (clear ``ValueError``s)."""
+    params = dict(zip(_PARAM_NAMES, (means, quats, scales, opacities, sh)))
+    for name, x in params.items():
+        if not isinstance(x, torch.Tensor):
+            raise TypeError(f"rasterize: {name} must be a torch.Tensor, got {type(x).__name__}")
+        if x.dtype != torch.float32:
+            raise ValueError(f"rasterize: {name} must be float32, got {x.dtype}")
+        if x.device != means.device:
+            raise ValueError(f"rasterize: {name} is on {x.device} but means is on {means.device}")
+    n = means.shape[0] if means.dim() == 2 else -1
+    expected = dict(means=(n, 3), quats=(n, 4), scales=(n, 3), opacities=(n,))
+    for name, shape in expected.items():
+        if tuple(params[name].shape) != shape or n < 0:
+            raise ValueError(f"rasterize: {name} must have shape {list(shape)} (N={n}), got {list(params[name].shape)}")
+    if sh.dim() != 3 or sh.shape[0] != n or sh.shape[2] != 3 or sh.shape[1] not in (1, 4, 9, 16):
+        raise ValueError(f"rasterize: sh must have shape [N, K, 3] with N={n} and K in (1, 4, 9, 16), got {list(sh.shape)}")
+    if n > 0 and not bool((scales > 0).all()):
+        raise ValueError("rasterize: scales must be positive (activated)")
+
+
+def rasterize(means, quats, scales, opacities, sh, camera: Camera, *, sh_degree=None, config=None, stats=None) -> dict:
+    """Render activated Gaussian parameters from ``camera`` (differentiable w.r.t. all five tensors).
+
+    Args:
+        means: ``[N, 3]`` world-space centres. quats: ``[N, 4]`` unit quaternions, wxyz (used as
+            given). scales: ``[N, 3]`` positive. opacities: ``[N]`` in (0, 1). sh: ``[N, K, 3]`` SH
+            coefficients, ``K = (D+1)²``, D ≤ 3. All float32 on one device (CPU or CUDA).
+        camera: :class:`gof_warp.camera.Camera`.
+        sh_degree: active SH degree (default: the maximum ``sh`` holds).
+        config: :class:`RenderConfig` (default thresholds of GOF).
+        stats: optional :class:`DensifyStats` filled by this render's forward and backward.
+
+    Returns:
+        dict of ``[H, W]``/``[H, W, 3]`` float32 tensors: ``rgb``, ``alpha`` (1 − T), ``depth`` (expected
+        depth Σwt*/alpha, 0 where alpha = 0), ``accum_depth`` (Σwt*), ``median_depth``, ``normal``
+        (Σw n̂, camera space, not renormalised), ``distortion``; plus ``radii`` ``[N]`` int32 (not
+        differentiable).
+    """
+    if not isinstance(camera, Camera):
+        raise TypeError(f"rasterize: camera must be a gof_warp.camera.Camera, got {type(camera).__name__}")
+    config = RenderConfig() if config is None else config
+    if not isinstance(config, RenderConfig):
+        raise TypeError(f"rasterize: config must be a RenderConfig, got {type(config).__name__}")
+    config.validate()
+    _check_params(means, quats, scales, opacities, sh)
+    max_degree = int(round(math.sqrt(sh.shape[1]))) - 1
+    sh_degree = max_degree if sh_degree is None else int(sh_degree)
+    if not 0 <= sh_degree <= max_degree:
+        raise ValueError(f"rasterize: sh_degree {sh_degree} not in [0, {max_degree}] for sh with K={sh.shape[1]}")
+    if stats is not None:
+        if not isinstance(stats, DensifyStats):
+            raise TypeError(f"rasterize: stats must be a DensifyStats, got {type(stats).__name__}")
+        if len(stats) != means.shape[0] or stats.grad2d.device != means.device:
+            raise ValueError(f"rasterize: stats holds {len(stats)} Gaussians on {stats.grad2d.device}, need {means.shape[0]} on {means.device}")
+    cam = camera_params_from(camera)
+    settings = make_raster_settings(camera.width, camera.height, config.near, config.alpha_min, config.alpha_max,
+                                    config.transmittance_min, config.k_max, config.background, config.tile_size)  # fmt: skip
+    rgb, alpha, accum, median, normal, dist, radii = _RasterizeFunction.apply(
+        means, quats, scales, opacities, sh, cam, settings, sh_degree, stats
+    )
+    depth = torch.where(alpha > 0, accum / torch.where(alpha > 0, alpha, torch.ones_like(alpha)), torch.zeros_like(alpha))
+    return dict(rgb=rgb, alpha=alpha, depth=depth, accum_depth=accum, median_depth=median, normal=normal, distortion=dist, radii=radii)
+
+
+def render(gaussians, camera: Camera, *, config=None, stats=None, sh_degree=None) -> dict:
+    """Render a Gaussian model (any object with activated ``means``, ``rotations`` (unit wxyz),
+    ``scales``, ``opacities``, ``sh`` and ``active_sh_degree``, e.g. ``gof_warp.model.Gaussians``).
+
+    The activations are torch ops on the raw parameters, so gradients reach the raw parameters
+    (log-scales, opacity logits, unnormalised quaternions) by torch's chain rule. ``sh_degree``
+    overrides ``gaussians.active_sh_degree``. See :func:`rasterize` for the outputs.
+    """
+    for attr in ("means", "rotations", "scales", "opacities", "sh", "active_sh_degree"):
+        if not hasattr(gaussians, attr):
+            raise TypeError(f"render: gaussians has no attribute {attr!r} (expected a gof_warp.model.Gaussians)")
+    degree = gaussians.active_sh_degree if sh_degree is None else sh_degree
+    return rasterize(gaussians.means, gaussians.rotations, gaussians.scales, gaussians.opacities, gaussians.sh, camera,
+                     sh_degree=degree, config=config, stats=stats)  # fmt: skip

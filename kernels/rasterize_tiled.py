@@ -1,0 +1,114 @@
+"""CUDA variants of the per-pixel kernels that stage each tile's Gaussians in shared memory.
+
+One thread block per screen tile (``block_dim = TILE_PIXELS = 16 × 16``, launched with
+``wp.launch_tiled``). The block walks its tile's sorted list in batches of ``TILE_PIXELS`` entries: the
+Gaussian ids are loaded with ``wp.tile_load`` and the per-Gaussian data gathered with
+``wp.tile_load_indexed`` into shared-memory tiles, cooperatively (one element per thread), and every
+thread then reads the batch from shared memory. The per-entry math is the same ``@wp.func``s as the plain
+kernels (:func:`composite`, :func:`backward_step`), so both produce identical results. A block stops
+when all its pixels are done (a ``tile_sum`` of per-thread flags; it doubles as the barrier that keeps
+the next batch's loads from overwriting data still being read).
+
+Only for ``tile_size == 16`` on CUDA; the plain kernels serve every other case (and the CPU).
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from .gaussian_math import pixel_ray
+from .rasterize import composite, pixel_state_init, write_pixel
+from .rasterize_backward import BackState, backward_step, pixel_grads
+from .render_types import CameraParams, PixelAux, PixelMaps, RasterSettings, SplatGrads, Splats, TileLists
+
+wp.set_module_options({"enable_backward": False})
+
+TILE_SIZE = 16
+TILE_PIXELS = wp.constant(TILE_SIZE * TILE_SIZE)
+
+
+@wp.func
+def _block_pixel(tile: int, lane: int, settings: RasterSettings) -> wp.vec2i:
+    ty = tile / settings.tiles_x
+    tx = tile - ty * settings.tiles_x
+    return wp.vec2i(tx * TILE_SIZE + lane % TILE_SIZE, ty * TILE_SIZE + lane / TILE_SIZE)
+
+
+@wp.kernel
+def rasterize_forward_tiled(lists: TileLists, splats: Splats, cam: CameraParams, settings: RasterSettings, out: PixelMaps, aux: PixelAux):
+    """``wp.launch_tiled(dim=num_tiles, block_dim=TILE_PIXELS)``; same outputs as ``rasterize_forward``."""
+    tile, lane = wp.tid()
+    p = _block_pixel(tile, lane, settings)
+    inside = p[0] < cam.width and p[1] < cam.height
+    r = pixel_ray(p[0], p[1], cam.fx, cam.fy, cam.cx, cam.cy)
+    start = lists.range_start[tile]
+    end = lists.range_end[tile]
+    s = pixel_state_init(start, wp.where(inside, 0, 1))
+    # struct members as locals: tile_load_indexed does not accept struct fields directly (Warp 1.19)
+    values = lists.values
+    sP = splats.P
+    sO = splats.o_g
+    sC = splats.colour
+    sA = splats.opacity
+    for batch in range(start, end, TILE_PIXELS):
+        alive = wp.tile_sum(wp.tile(1 - s.done))
+        if wp.tile_extract(alive, 0) == 0:
+            break
+        ids = wp.tile_load(values, shape=(TILE_PIXELS,), offset=(batch,), storage="shared")
+        tP = wp.tile_load_indexed(sP, indices=ids, shape=(TILE_PIXELS,), axis=0, storage="shared")
+        tO = wp.tile_load_indexed(sO, indices=ids, shape=(TILE_PIXELS,), axis=0, storage="shared")
+        tC = wp.tile_load_indexed(sC, indices=ids, shape=(TILE_PIXELS,), axis=0, storage="shared")
+        tA = wp.tile_load_indexed(sA, indices=ids, shape=(TILE_PIXELS,), axis=0, storage="shared")
+        if s.done == 0:
+            for i in range(wp.min(TILE_PIXELS, end - batch)):
+                s = composite(s, batch + i, wp.tile_extract(tP, i), wp.tile_extract(tO, i), wp.tile_extract(tC, i),
+                              wp.tile_extract(tA, i), r, settings)  # fmt: skip
+                if s.done != 0:
+                    break
+    if inside:
+        write_pixel(s, p[1] * cam.width + p[0], settings, out, aux)
+
+
+@wp.kernel
+def rasterize_backward_tiled(lists: TileLists, splats: Splats, cam: CameraParams, settings: RasterSettings, aux: PixelAux,
+                             gout: PixelMaps, with_stats: int, grads: SplatGrads):  # fmt: skip
+    """``wp.launch_tiled(dim=num_tiles, block_dim=TILE_PIXELS)``; same result as ``rasterize_backward``."""
+    tile, lane = wp.tid()
+    p = _block_pixel(tile, lane, settings)
+    inside = p[0] < cam.width and p[1] < cam.height
+    pix = wp.where(inside, p[1] * cam.width + p[0], 0)
+    start = lists.range_start[tile]
+    my_last = wp.where(inside, aux.last_end[pix], start)
+    r = pixel_ray(p[0], p[1], cam.fx, cam.fy, cam.cx, cam.cy)
+    pg = pixel_grads(pix, settings, aux, gout)
+    b = BackState()
+    b.T = aux.final_T[pix]
+    block_last = wp.tile_extract(wp.tile_max(wp.tile(my_last)), 0)
+    mu_v = splats.mu_v
+    radius = splats.radius
+    # struct members as locals: tile_load_indexed does not accept struct fields directly (Warp 1.19)
+    values = lists.values
+    sP = splats.P
+    sO = splats.o_g
+    sC = splats.colour
+    sA = splats.opacity
+    for batch_end in range(block_last, start, -TILE_PIXELS):
+        batch = wp.max(start, batch_end - TILE_PIXELS)
+        ids = wp.tile_load(values, shape=(TILE_PIXELS,), offset=(batch,), storage="shared")
+        tP = wp.tile_load_indexed(sP, indices=ids, shape=(TILE_PIXELS,), axis=0, storage="shared")
+        tO = wp.tile_load_indexed(sO, indices=ids, shape=(TILE_PIXELS,), axis=0, storage="shared")
+        tC = wp.tile_load_indexed(sC, indices=ids, shape=(TILE_PIXELS,), axis=0, storage="shared")
+        tA = wp.tile_load_indexed(sA, indices=ids, shape=(TILE_PIXELS,), axis=0, storage="shared")
+        for i in range(batch_end - batch - 1, -1, -1):
+            e = batch + i
+            g = wp.tile_extract(ids, i)
+            z = float(0.0)
+            if with_stats != 0:
+                z = mu_v[g][2]
+            # every lane of the block is here (block-uniform loop); the reduce flag is warp-uniform (same g)
+            reduce = wp.where(radius[g] >= settings.reduce_min_radius, 1, 0)
+            b = backward_step(b, pg, e, g, wp.where(e < my_last, 1, 0), wp.tile_extract(tP, i), wp.tile_extract(tO, i),
+                              wp.tile_extract(tC, i), wp.tile_extract(tA, i), r, z, cam, settings, with_stats, reduce, lane,
+                              grads)  # fmt: skip
+        # keep the next batch's loads from overwriting shared data other threads still read
+        wp.tile_sum(wp.tile(0))

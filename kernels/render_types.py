@@ -1,0 +1,147 @@
+"""Structs passed to the renderer's kernels, and host helpers that fill them (no torch).
+
+``CameraParams`` holds a pinhole camera in the conventions of ``gof_warp.camera.Camera`` (world-to-camera
+``R, t``; OpenCV axes; pixel centres at ``i + 0.5``). ``RasterSettings`` holds the thresholds of the
+compositing rule (``docs/rendering.md``) and the tile grid.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import warp as wp
+
+
+@wp.struct
+class CameraParams:
+    R: wp.mat33  # world-to-camera rotation
+    t: wp.vec3  # world-to-camera translation
+    centre: wp.vec3  # camera centre in world space (= -Rᵀ t)
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+
+
+@wp.struct
+class RasterSettings:
+    near: float  # cull Gaussians with view z <= near, skip intersections with t* <= near
+    alpha_min: float  # skip (pixel, Gaussian) pairs with alpha < alpha_min
+    alpha_max: float  # alpha = min(alpha_max, opacity * E)
+    transmittance_min: float  # stop before a Gaussian that would bring T below this
+    k_max: float  # skip pairs whose Mahalanobis ray distance exceeds k_max (binning cap)
+    background: wp.vec3
+    tile_size: int
+    tiles_x: int
+    tiles_y: int
+    reduce_min_radius: int  # CUDA backward: warp-reduce the gradients of Gaussians at least this large (pixels)
+
+
+def make_camera_params(R, t, fx, fy, cx, cy, width, height) -> CameraParams:
+    """``CameraParams`` from host numbers (``R [3,3]``, ``t [3]`` world-to-camera)."""
+    R = np.asarray(R, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64)
+    cam = CameraParams()
+    cam.R = wp.mat33(*R.astype(np.float32).ravel())
+    cam.t = wp.vec3(*t.astype(np.float32))
+    cam.centre = wp.vec3(*(-R.T @ t).astype(np.float32))
+    cam.fx, cam.fy, cam.cx, cam.cy = float(fx), float(fy), float(cx), float(cy)
+    cam.width, cam.height = int(width), int(height)
+    return cam
+
+
+def camera_params_from(camera) -> CameraParams:
+    """``CameraParams`` from any object with ``R, t, fx, fy, cx, cy, width, height`` (e.g. ``Camera``)."""
+    return make_camera_params(camera.R, camera.t, camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height)
+
+
+DEFAULT_K_MAX = math.sqrt(2.0 * math.log(255.0))
+
+
+def make_raster_settings(
+    width: int,
+    height: int,
+    near: float = 0.2,
+    alpha_min: float = 1.0 / 255.0,
+    alpha_max: float = 0.99,
+    transmittance_min: float = 1e-4,
+    k_max: float = DEFAULT_K_MAX,
+    background=(0.0, 0.0, 0.0),
+    tile_size: int = 16,
+    reduce_min_radius: int = 8,
+) -> RasterSettings:
+    """``RasterSettings`` for a ``width`` × ``height`` image (defaults: GOF's, see ``RenderConfig``)."""
+    s = RasterSettings()
+    s.near, s.alpha_min, s.alpha_max = float(near), float(alpha_min), float(alpha_max)
+    s.transmittance_min, s.k_max = float(transmittance_min), float(k_max)
+    s.background = wp.vec3(*[float(b) for b in background])
+    s.tile_size = int(tile_size)
+    s.reduce_min_radius = int(reduce_min_radius)
+    s.tiles_x = (int(width) + s.tile_size - 1) // s.tile_size
+    s.tiles_y = (int(height) + s.tile_size - 1) // s.tile_size
+    return s
+
+
+@wp.struct
+class Splats:
+    """Per-Gaussian data the per-pixel kernels read (``[N]`` each)."""
+
+    P: wp.array(dtype=wp.mat33)  # S⁻¹ R_vᵀ
+    o_g: wp.array(dtype=wp.vec3)  # −P μ_v
+    colour: wp.array(dtype=wp.vec3)
+    opacity: wp.array(dtype=float)
+    mu_v: wp.array(dtype=wp.vec3)  # camera-space means (depth for the densification statistics)
+    radius: wp.array(dtype=wp.int32)  # screen radius in pixels
+
+
+@wp.struct
+class TileLists:
+    """Sorted Gaussian indices per tile: tile ``t`` owns ``values[range_start[t]:range_end[t]]``."""
+
+    values: wp.array(dtype=wp.int32)
+    range_start: wp.array(dtype=wp.int32)
+    range_end: wp.array(dtype=wp.int32)
+
+
+@wp.struct
+class PixelMaps:
+    """Per-pixel outputs (or their gradients), flat ``[H*W]`` row-major."""
+
+    rgb: wp.array(dtype=wp.vec3)
+    alpha: wp.array(dtype=float)
+    accum_depth: wp.array(dtype=float)
+    median_depth: wp.array(dtype=float)
+    normal: wp.array(dtype=wp.vec3)
+    distortion: wp.array(dtype=float)
+
+
+@wp.struct
+class PixelAux:
+    """Per-pixel forward state kept for the backward (``[H*W]``)."""
+
+    final_T: wp.array(dtype=float)
+    last_end: wp.array(dtype=wp.int32)  # list position after the last blended entry
+    median_pos: wp.array(dtype=wp.int32)  # list position of the median Gaussian, −1 if none
+    weight_sum: wp.array(dtype=float)  # A_N = Σ w
+
+
+@wp.struct
+class SplatGrads:
+    """Per-Gaussian gradient accumulators of the per-pixel backward (``[N]``, added into)."""
+
+    P: wp.array(dtype=wp.mat33)
+    o_g: wp.array(dtype=wp.vec3)
+    colour: wp.array(dtype=wp.vec3)
+    opacity: wp.array(dtype=float)
+    grad2d_abs: wp.array(dtype=float)  # Σ_p ‖g_p‖ (written only when statistics are requested)
+
+
+def make_struct(cls, **arrays):
+    """A Warp struct instance with its array fields set."""
+    s = cls()
+    for k, v in arrays.items():
+        setattr(s, k, v)
+    return s

@@ -1,0 +1,219 @@
+"""Host entry points of the differentiable ray–Gaussian renderer, on ``wp.array``s only (no torch).
+
+Pipeline (``docs/rendering.md``): ``preprocess_gaussians`` → ``screen_bounds`` → ``bin_gaussians``
+(scan, keys, radix sort, tile ranges) → ``rasterize_forward``. The backward is
+``rasterize_backward`` (hand-written, per pixel) → ``accumulate_grad2d`` → the automatic adjoint of
+``preprocess_gaussians``.
+
+Pure-Warp use with a tape (see ``examples/warp_tape_render.py``)::
+
+    tape = wp.Tape()
+    out = render_gaussians(means, quats, scales, opacities, sh, 0, cam, settings, tape=tape)
+    with tape:
+        wp.launch(my_loss, dim=..., inputs=[out.rgb], outputs=[loss])
+    tape.backward(loss)          # fills means.grad, quats.grad, scales.grad, opacities.grad, sh.grad
+
+The inputs must be created with ``requires_grad=True`` for their gradients to be written (gradients are
+accumulated, as everywhere in Warp). Per-pixel outputs are flat ``[H*W]`` arrays, row-major.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import warp as wp
+
+from .binning import bin_gaussians
+from .project import preprocess_gaussians, screen_bounds
+from .rasterize import rasterize_forward
+from .rasterize_backward import accumulate_grad2d, rasterize_backward
+from .rasterize_tiled import TILE_PIXELS, TILE_SIZE, rasterize_backward_tiled, rasterize_forward_tiled
+from .render_types import CameraParams, PixelAux, PixelMaps, RasterSettings, SplatGrads, Splats, TileLists, make_struct
+
+#: Bytes of per-Gaussian renderer state (mu_v 12, P 36, o_g 12, colour 12, rect 16, counts/radii/depth/
+#: offsets 16) and per (Gaussian, tile) entry (int64 key + int32 value, ×2 for the radix sort's scratch).
+BYTES_PER_GAUSSIAN = 104
+BYTES_PER_TILE_ENTRY = 24
+
+
+@dataclass
+class RenderOutputs:
+    """Per-pixel outputs, flat ``[H*W]`` (row-major), float32."""
+
+    rgb: wp.array  # vec3: Σ w c + T_N · background
+    alpha: wp.array  # 1 − T_N
+    accum_depth: wp.array  # Σ w t*
+    median_depth: wp.array  # t* where T crosses 0.5 (last blended if never, 0 if none)
+    normal: wp.array  # vec3: Σ w n̂ (camera space)
+    distortion: wp.array  # Σ_k 2 w_k (t_k A_{k−1} − B_{k−1}), weights detached
+
+    @classmethod
+    def allocate(cls, num_pixels: int, device, requires_grad: bool = False) -> "RenderOutputs":
+        def arr(dtype):
+            return wp.empty(num_pixels, dtype=dtype, device=device, requires_grad=requires_grad)
+
+        return cls(arr(wp.vec3), arr(float), arr(float), arr(float), arr(wp.vec3), arr(float))
+
+    def arrays(self) -> list:
+        return [getattr(self, f.name) for f in fields(self)]
+
+    def as_struct(self) -> PixelMaps:
+        return make_struct(PixelMaps, **{f.name: getattr(self, f.name) for f in fields(self)})
+
+
+@dataclass
+class RenderState:
+    """Everything the backward needs from the forward (kept alive between the two)."""
+
+    inputs: tuple  # (means, quats, scales, opacities, sh)
+    sh_degree: int
+    cam: CameraParams
+    settings: RasterSettings
+    mu_v: wp.array
+    P: wp.array
+    o_g: wp.array
+    colour: wp.array
+    radii: wp.array  # [N] int32, 0 = not visible
+    lists: TileLists  # sorted Gaussian indices per tile
+    splats: Splats
+    aux: PixelAux
+    num_entries: int  # Σ tiles touched
+    tiled: bool  # shared-memory (CUDA) kernels
+
+    @property
+    def device(self):
+        return self.mu_v.device
+
+
+def _mark(profile, name: str, device) -> None:
+    """Record a timing event named ``name`` (end of that stage) when profiling on CUDA."""
+    if profile is not None and device.is_cuda:
+        event = wp.Event(device, enable_timing=True)
+        wp.record_event(event)
+        profile.append((name, event))
+
+
+def _launch_raster(plain_kernel, tiled_kernel, tiled: bool, settings: RasterSettings, inputs: list, outputs: list, device):
+    """Launch the per-pixel kernel: one block per tile in shared-memory mode, else one thread per pixel."""
+    num_tiles = settings.tiles_x * settings.tiles_y
+    if tiled:
+        wp.launch_tiled(tiled_kernel, dim=[num_tiles], inputs=inputs, outputs=outputs, block_dim=int(TILE_PIXELS),
+                        device=device, record_tape=False)  # fmt: skip
+    else:
+        wp.launch(plain_kernel, dim=num_tiles * settings.tile_size**2, inputs=inputs, outputs=outputs, device=device, record_tape=False)
+
+
+def use_tiled_kernels(device, settings: RasterSettings, tiled: bool | None = None) -> bool:
+    """Shared-memory kernels: by default on CUDA with 16×16 tiles. ``tiled=True`` forces them (on the CPU
+    only with ``wp.config.enable_cpu_blocks``, which emulates the blocks: for testing)."""
+    if tiled is None:
+        return bool(device.is_cuda and settings.tile_size == TILE_SIZE)
+    if tiled and (settings.tile_size != TILE_SIZE or not (device.is_cuda or wp.config.enable_cpu_blocks)):
+        raise ValueError(f"the shared-memory kernels need tile_size {TILE_SIZE} and CUDA (or wp.config.enable_cpu_blocks)")
+    return bool(tiled)
+
+
+def render_forward(means, quats, scales, opacities, sh, sh_degree: int, cam: CameraParams, settings: RasterSettings,
+                   out: RenderOutputs | None = None, profile: list | None = None, tiled: bool | None = None,
+                   ) -> tuple[RenderOutputs, RenderState]:  # fmt: skip
+    """Render ``N`` Gaussians (activated parameters) into ``out`` (allocated when ``None``).
+
+    Args:
+        means ``[N] vec3`` world; quats ``[N] vec4`` unit wxyz; scales ``[N] vec3`` > 0; opacities ``[N]``;
+        sh ``[N, K] vec3`` with ``K ≥ (sh_degree+1)²``; cam, settings: see ``render_types``.
+        profile: optional list; on CUDA, ``(stage name, wp.Event)`` pairs marking the end of each stage
+            are appended (timings for benchmarks).
+        tiled: force the shared-memory (True) or plain (False) per-pixel kernels; default: see
+            :func:`use_tiled_kernels`.
+    """
+    device = means.device
+    n = means.shape[0]
+    num_pixels = cam.width * cam.height
+    _mark(profile, "start", device)
+    if out is None:
+        out = RenderOutputs.allocate(num_pixels, device)
+
+    def empty(dtype, size=n):
+        return wp.empty(size, dtype=dtype, device=device)
+
+    mu_v, P, o_g, colour = empty(wp.vec3), empty(wp.mat33), empty(wp.vec3), empty(wp.vec3)
+    rect, touched, radii, depth = empty(wp.vec4i), empty(wp.int32), empty(wp.int32), empty(float)
+    wp.launch(preprocess_gaussians, dim=n, inputs=[means, quats, scales, sh, int(sh_degree), cam.R, cam.t, cam.centre],
+              outputs=[mu_v, P, o_g, colour], device=device, record_tape=False)  # fmt: skip
+    wp.launch(screen_bounds, dim=n, inputs=[mu_v, quats, scales, opacities, cam, settings],
+              outputs=[rect, touched, radii, depth], device=device, record_tape=False)  # fmt: skip
+    _mark(profile, "preprocess", device)
+    num_tiles = settings.tiles_x * settings.tiles_y
+    values, range_start, range_end, count = bin_gaussians(rect, touched, depth, settings.tiles_x, num_tiles)
+    _mark(profile, "binning", device)
+
+    final_T, last_end = empty(float, num_pixels), empty(wp.int32, num_pixels)
+    median_pos, weight_sum = empty(wp.int32, num_pixels), empty(float, num_pixels)
+    tiled = use_tiled_kernels(device, settings, tiled)
+    lists = make_struct(TileLists, values=values, range_start=range_start, range_end=range_end)
+    splats = make_struct(Splats, P=P, o_g=o_g, colour=colour, opacity=opacities, mu_v=mu_v, radius=radii)
+    aux = make_struct(PixelAux, final_T=final_T, last_end=last_end, median_pos=median_pos, weight_sum=weight_sum)
+    _launch_raster(rasterize_forward, rasterize_forward_tiled, tiled, settings, [lists, splats, cam, settings], [out.as_struct(), aux], device)
+    _mark(profile, "raster_forward", device)
+    state = RenderState((means, quats, scales, opacities, sh), int(sh_degree), cam, settings, mu_v, P, o_g, colour,
+                        radii, lists, splats, aux, count, tiled)  # fmt: skip
+    return out, state
+
+
+def render_backward(state: RenderState, grad_out: RenderOutputs, grad_in: tuple, grad2d=None, grad2d_abs=None, profile=None):
+    """Accumulate the input gradients for the output gradients ``grad_out``.
+
+    Args:
+        grad_out: per-pixel output gradients (same layout as :class:`RenderOutputs`).
+        grad_in: ``(means, quats, scales, opacities, sh)`` gradient arrays, added into.
+        grad2d ``[N] vec2``, grad2d_abs ``[N]``: densification statistics, added into (optional, together).
+        profile: as in :func:`render_forward`.
+    """
+    device = state.device
+    _mark(profile, "start", device)
+    n = state.mu_v.shape[0]
+    cam, settings = state.cam, state.settings
+    gP = wp.zeros(n, dtype=wp.mat33, device=device)
+    g_og = wp.zeros(n, dtype=wp.vec3, device=device)
+    g_col = wp.zeros(n, dtype=wp.vec3, device=device)
+    with_stats = grad2d is not None
+    abs_arr = grad2d_abs if with_stats else wp.zeros(1, dtype=float, device=device)
+    grads = make_struct(SplatGrads, P=gP, o_g=g_og, colour=g_col, opacity=grad_in[3], grad2d_abs=abs_arr)
+    _launch_raster(rasterize_backward, rasterize_backward_tiled, state.tiled, settings,
+                   [state.lists, state.splats, cam, settings, state.aux, grad_out.as_struct(), int(with_stats)], [grads], device)  # fmt: skip
+    _mark(profile, "raster_backward", device)
+    if with_stats:
+        wp.launch(accumulate_grad2d, dim=n, inputs=[state.P, g_og, state.mu_v, cam], outputs=[grad2d], device=device, record_tape=False)
+    means, quats, scales, _, sh = state.inputs
+    wp.launch(preprocess_gaussians, dim=n,
+              inputs=[means, quats, scales, sh, state.sh_degree, cam.R, cam.t, cam.centre],
+              outputs=[state.mu_v, state.P, state.o_g, state.colour],
+              adj_inputs=[grad_in[0], grad_in[1], grad_in[2], grad_in[4], 0, wp.mat33(), wp.vec3(), wp.vec3()],
+              adj_outputs=[wp.zeros(n, dtype=wp.vec3, device=device), gP, g_og, g_col],
+              adjoint=True, device=device, record_tape=False)  # fmt: skip
+    _mark(profile, "preprocess_backward", device)
+
+
+def render_gaussians(means, quats, scales, opacities, sh, sh_degree: int, cam: CameraParams, settings: RasterSettings,
+                     tape: wp.Tape | None = None, grad2d=None, grad2d_abs=None) -> RenderOutputs:  # fmt: skip
+    """Forward render; with ``tape``, records the hand-written backward on it (``tape.record_func``).
+
+    The outputs then carry gradient buffers; ``tape.backward`` adds into ``means.grad, quats.grad,
+    scales.grad, opacities.grad, sh.grad`` (each must exist: create the inputs with ``requires_grad=True``)
+    and, when given, into the densification statistics ``grad2d [N] vec2`` / ``grad2d_abs [N]``.
+    Returns the outputs; the forward state is kept by the tape's closure.
+    """
+    out = RenderOutputs.allocate(cam.width * cam.height, means.device, requires_grad=tape is not None)
+    out, state = render_forward(means, quats, scales, opacities, sh, sh_degree, cam, settings, out=out)
+    if tape is not None:
+        inputs = (means, quats, scales, opacities, sh)
+        missing = [i for i, a in enumerate(inputs) if a.grad is None]
+        if missing:
+            raise ValueError(f"render_gaussians: inputs {missing} (means, quats, scales, opacities, sh) need requires_grad=True to record on a tape")
+
+        def backward():
+            grad_out = RenderOutputs(*[a.grad for a in out.arrays()])
+            render_backward(state, grad_out, tuple(a.grad for a in inputs), grad2d, grad2d_abs)
+
+        tape.record_func(backward=backward, arrays=out.arrays() + list(inputs))
+    return out
