@@ -38,6 +38,12 @@ class RenderConfig:
             opacity-1 Gaussian falls below 1/255, so it never removes a pair alpha_min keeps.
         tile_size: screen tile edge in pixels (16 as 3DGS).
         background: RGB composited behind the Gaussians (GOF: black, or white with --white_background).
+        distortion: ``"gof"`` (default): Σ_{j<i} w_i w_j (m_i − m_j)² on the NDC depth
+            m(t) = far (t − near) / ((far − near) t), as the official GOF/2DGS code computes it — the
+            form its λ_d (100 / 1000) is calibrated for; ``"paper"``: Σ_ij w_i w_j |t_i − t_j| on raw depth
+            (paper Eq. 13), whose gradient is ~10⁴ times larger at scene depths of a few units, so λ_d must
+            then be scaled down accordingly. Weights are detached in both (gradient only through t*).
+        far: the far plane of m(t) (GOF: 100).
     """
 
     near: float = 0.2
@@ -47,6 +53,8 @@ class RenderConfig:
     k_max: float = math.sqrt(2.0 * math.log(255.0))
     tile_size: int = 16
     background: tuple = (0.0, 0.0, 0.0)
+    distortion: str = "gof"
+    far: float = 100.0
 
     def validate(self) -> None:
         if not self.near > 0:
@@ -59,8 +67,20 @@ class RenderConfig:
             raise ValueError(f"RenderConfig.k_max must be finite and > 0, got {self.k_max}")
         if int(self.tile_size) != self.tile_size or not 1 <= self.tile_size <= 32:
             raise ValueError(f"RenderConfig.tile_size must be an integer in [1, 32], got {self.tile_size}")
+        if self.distortion not in ("gof", "paper"):
+            raise ValueError(f"RenderConfig.distortion must be 'gof' or 'paper', got {self.distortion!r}")
+        if not self.far > self.near:
+            raise ValueError(f"RenderConfig.far must be > near, got {self.far}")
         if len(self.background) != 3:
             raise ValueError(f"RenderConfig.background must have 3 entries, got {self.background}")
+
+
+def raster_settings_for(camera: Camera, config: RenderConfig, pixel_pad: float = 0.0):
+    """The kernels' ``RasterSettings`` for ``camera``'s image under ``config`` (``pixel_pad``: see
+    ``gof_warp.kernels.render_types``; 0 for rendering pixel centres)."""
+    return make_raster_settings(camera.width, camera.height, config.near, config.alpha_min, config.alpha_max,
+                                config.transmittance_min, config.k_max, config.background, config.tile_size,
+                                pixel_pad=pixel_pad, distortion=config.distortion, far=config.far)  # fmt: skip
 
 
 class DensifyStats:
@@ -213,8 +233,7 @@ def rasterize(means, quats, scales, opacities, sh, camera: Camera, *, sh_degree=
         if len(stats) != means.shape[0] or stats.grad2d.device != means.device:
             raise ValueError(f"rasterize: stats holds {len(stats)} Gaussians on {stats.grad2d.device}, need {means.shape[0]} on {means.device}")
     cam = camera_params_from(camera)
-    settings = make_raster_settings(camera.width, camera.height, config.near, config.alpha_min, config.alpha_max,
-                                    config.transmittance_min, config.k_max, config.background, config.tile_size)  # fmt: skip
+    settings = raster_settings_for(camera, config)
     rgb, alpha, accum, median, normal, dist, radii = _RasterizeFunction.apply(
         means, quats, scales, opacities, sh, cam, settings, sh_degree, stats
     )

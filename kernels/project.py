@@ -115,12 +115,14 @@ def screen_bounds(
         bu = _axis_bounds(mx, mz, Sigma[0, 0], Sigma[0, 2], Sigma[2, 2], k2, wp.float64(cam.fx), wp.float64(cam.cx))
         bv = _axis_bounds(my, mz, Sigma[1, 1], Sigma[1, 2], Sigma[2, 2], k2, wp.float64(cam.fy), wp.float64(cam.cy))
         half = wp.float64(0.5)
-        # pixel i is covered when its centre i + 0.5 lies in [lo, hi]; clamp before converting to int
+        pad = wp.float64(settings.pixel_pad)
+        # pixel i is covered when its centre i + 0.5 lies in [lo − pad, hi + pad] (pad 0.5: any point of
+        # the pixel, for rays through arbitrary points); clamp before converting to int
         lim = wp.float64(1.0e9)
-        x0 = wp.max(x0, int(wp.ceil(wp.clamp(bu[0] - half, -lim, lim))))
-        x1 = wp.min(x1, int(wp.floor(wp.clamp(bu[1] - half, -lim, lim))))
-        y0 = wp.max(y0, int(wp.ceil(wp.clamp(bv[0] - half, -lim, lim))))
-        y1 = wp.min(y1, int(wp.floor(wp.clamp(bv[1] - half, -lim, lim))))
+        x0 = wp.max(x0, int(wp.ceil(wp.clamp(bu[0] - half - pad, -lim, lim))))
+        x1 = wp.min(x1, int(wp.floor(wp.clamp(bu[1] - half + pad, -lim, lim))))
+        y0 = wp.max(y0, int(wp.ceil(wp.clamp(bv[0] - half - pad, -lim, lim))))
+        y1 = wp.min(y1, int(wp.floor(wp.clamp(bv[1] - half + pad, -lim, lim))))
         ext = wp.max(bu[1] - bu[0], bv[1] - bv[0]) * half
         radius = int(wp.ceil(wp.min(ext, lim)))
     if x0 > x1 or y0 > y1:

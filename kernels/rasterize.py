@@ -56,6 +56,8 @@ class PixelState:
     A: float  # Σ w
     B: float  # Σ w t*
     D: float  # distortion
+    Bf: float  # Σ w f (f = distortion_depth(t*))
+    Cf: float  # Σ w f²
     med: float  # median depth candidate
     med_p: int  # its list position (−1: none)
     med_found: int  # 1 once T crossed 0.5
@@ -74,6 +76,23 @@ def pixel_state_init(start: int, done: int) -> PixelState:
 
 
 @wp.func
+def distortion_depth(t: float, settings: RasterSettings) -> float:
+    """The depth the distortion compares: GOF's NDC depth ``m(t) = far (t − near) / ((far − near) t)``
+    (2DGS/GOF code), or ``t`` itself (the paper's formula)."""
+    if settings.distortion_ndc != 0:
+        return settings.far * (t - settings.near) / ((settings.far - settings.near) * t)
+    return t
+
+
+@wp.func
+def distortion_depth_grad(t: float, settings: RasterSettings) -> float:
+    """``d f / d t`` of :func:`distortion_depth`."""
+    if settings.distortion_ndc != 0:
+        return settings.far * settings.near / ((settings.far - settings.near) * t * t)
+    return 1.0
+
+
+@wp.func
 def composite(s: PixelState, e: int, Pk: wp.mat33, og: wp.vec3, col: wp.vec3, op: float, r: wp.vec3, settings: RasterSettings) -> PixelState:
     """Blend list entry ``e`` (Gaussian ``(Pk, og, col, op)``) into the pixel's state (GOF Sec. 3.1)."""
     h = ray_gaussian(Pk, og, r)
@@ -87,9 +106,15 @@ def composite(s: PixelState, e: int, Pk: wp.mat33, og: wp.vec3, col: wp.vec3, op
     w = alpha * s.T
     s.c = s.c + w * col
     s.n = s.n + w * safe_normalize(normal_direction(Pk, h.r_g, h.a))
-    s.D = s.D + 2.0 * w * (h.t * s.A - s.B)
+    f = distortion_depth(h.t, settings)
+    if settings.distortion_ndc != 0:
+        s.D = s.D + w * (f * f * s.A - 2.0 * f * s.Bf + s.Cf)
+    else:
+        s.D = s.D + 2.0 * w * (f * s.A - s.Bf)
     s.A = s.A + w
     s.B = s.B + w * h.t
+    s.Bf = s.Bf + w * f
+    s.Cf = s.Cf + w * f * f
     if s.med_found == 0:
         s.med = h.t
         s.med_p = e
@@ -112,6 +137,7 @@ def write_pixel(s: PixelState, pix: int, settings: RasterSettings, out: PixelMap
     aux.last_end[pix] = s.last
     aux.median_pos[pix] = s.med_p
     aux.weight_sum[pix] = s.A
+    aux.dist_sum[pix] = s.Bf
 
 
 @wp.kernel

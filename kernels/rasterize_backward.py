@@ -28,7 +28,7 @@ from __future__ import annotations
 import warp as wp
 
 from .gaussian_math import normal_direction, pixel_ray, ray_gaussian
-from .rasterize import gaussian_alpha, tile_pixel
+from .rasterize import distortion_depth, distortion_depth_grad, gaussian_alpha, tile_pixel
 from .render_types import CameraParams, PixelAux, PixelMaps, RasterSettings, SplatGrads, Splats, TileLists
 
 wp.set_module_options({"enable_backward": False})
@@ -54,6 +54,7 @@ class PixelGrads:
     gDist: float  # ∂L/∂distortion
     gMed: float  # ∂L/∂median_depth
     A_N: float  # Σ w
+    Bf_N: float  # Σ w f (distortion depth)
     median_pos: int
     bg_term: float  # T_N (∂L/∂rgb·background − ∂L/∂alpha)
 
@@ -74,6 +75,7 @@ def pixel_grads(pix: int, settings: RasterSettings, aux: PixelAux, gout: PixelMa
     pg.gDist = gout.distortion[pix]
     pg.gMed = gout.median_depth[pix]
     pg.A_N = aux.weight_sum[pix]
+    pg.Bf_N = aux.dist_sum[pix]
     pg.median_pos = aux.median_pos[pix]
     pg.bg_term = aux.final_T[pix] * (wp.dot(pg.gc, settings.background) - gout.alpha[pix])
     return pg
@@ -147,7 +149,12 @@ def backward_step(b: BackState, pg: PixelGrads, e: int, g: int, active: int, Pk:
         dL_dalpha = b.T * f - (b.S + pg.bg_term) / (1.0 - alpha)
         b.S = b.S + w * f
         A_km1 = pg.A_N - b.suffix_w - w
-        dL_dt = w * pg.gD + 2.0 * w * (A_km1 - b.suffix_w) * pg.gDist
+        # distortion, weights detached: paper ∂D/∂f_k = 2 w_k (A_{k−1} − (A_N − A_k)); GOF (squared)
+        # ∂D/∂f_k = 2 w_k (f_k A_N − Σ_j w_j f_j); then the chain through f(t)
+        dD_df = 2.0 * w * (A_km1 - b.suffix_w)
+        if settings.distortion_ndc != 0:
+            dD_df = 2.0 * w * (distortion_depth(h.t, settings) * pg.A_N - pg.Bf_N)
+        dL_dt = w * pg.gD + dD_df * distortion_depth_grad(h.t, settings) * pg.gDist
         if e == pg.median_pos:
             dL_dt += pg.gMed
         b.suffix_w = b.suffix_w + w

@@ -37,6 +37,9 @@ class RasterSettings:
     tile_size: int
     tiles_x: int
     tiles_y: int
+    pixel_pad: float  # bin a Gaussian into pixels within this many pixels of its box (0 = pixel centres)
+    distortion_ndc: int  # 1: GOF's Σ w_i w_j (m_i − m_j)² on NDC depth m(t); 0: the paper's Σ w_i w_j |t_i − t_j|
+    far: float  # far plane of the NDC depth map m(t) = far (t − near) / ((far − near) t)
     reduce_min_radius: int  # CUDA backward: warp-reduce the gradients of Gaussians at least this large (pixels)
 
 
@@ -72,6 +75,9 @@ def make_raster_settings(
     background=(0.0, 0.0, 0.0),
     tile_size: int = 16,
     reduce_min_radius: int = 8,
+    pixel_pad: float = 0.0,
+    distortion: str = "gof",
+    far: float = 100.0,
 ) -> RasterSettings:
     """``RasterSettings`` for a ``width`` × ``height`` image (defaults: GOF's, see ``RenderConfig``)."""
     s = RasterSettings()
@@ -79,6 +85,11 @@ def make_raster_settings(
     s.transmittance_min, s.k_max = float(transmittance_min), float(k_max)
     s.background = wp.vec3(*[float(b) for b in background])
     s.tile_size = int(tile_size)
+    s.pixel_pad = float(pixel_pad)
+    if distortion not in ("gof", "paper"):
+        raise ValueError(f"distortion must be 'gof' or 'paper', got {distortion!r}")
+    s.distortion_ndc = 1 if distortion == "gof" else 0
+    s.far = float(far)
     s.reduce_min_radius = int(reduce_min_radius)
     s.tiles_x = (int(width) + s.tile_size - 1) // s.tile_size
     s.tiles_y = (int(height) + s.tile_size - 1) // s.tile_size
@@ -126,6 +137,7 @@ class PixelAux:
     last_end: wp.array(dtype=wp.int32)  # list position after the last blended entry
     median_pos: wp.array(dtype=wp.int32)  # list position of the median Gaussian, −1 if none
     weight_sum: wp.array(dtype=float)  # A_N = Σ w
+    dist_sum: wp.array(dtype=float)  # Σ w f(t*), f the distortion's depth map (NDC m or t)
 
 
 @wp.struct

@@ -113,6 +113,35 @@ def use_tiled_kernels(device, settings: RasterSettings, tiled: bool | None = Non
     return bool(tiled)
 
 
+def prepare_view(means, quats, scales, opacities, sh, sh_degree: int, cam: CameraParams, settings: RasterSettings,
+                 profile: list | None = None) -> tuple[Splats, TileLists, int]:
+    """Per-view preprocessing and tile binning, shared by rendering and the opacity field.
+
+    Returns ``(splats, lists, count)``: camera-space per-Gaussian data (``[N]`` each), the depth-sorted
+    Gaussian indices of every tile, and the number of (Gaussian, tile) entries. Memory:
+    ``BYTES_PER_GAUSSIAN · N + BYTES_PER_TILE_ENTRY · count``.
+    """
+    device = means.device
+    n = means.shape[0]
+
+    def empty(dtype):
+        return wp.empty(n, dtype=dtype, device=device)
+
+    mu_v, P, o_g, colour = empty(wp.vec3), empty(wp.mat33), empty(wp.vec3), empty(wp.vec3)
+    rect, touched, radii, depth = empty(wp.vec4i), empty(wp.int32), empty(wp.int32), empty(float)
+    wp.launch(preprocess_gaussians, dim=n, inputs=[means, quats, scales, sh, int(sh_degree), cam.R, cam.t, cam.centre],
+              outputs=[mu_v, P, o_g, colour], device=device, record_tape=False)  # fmt: skip
+    wp.launch(screen_bounds, dim=n, inputs=[mu_v, quats, scales, opacities, cam, settings],
+              outputs=[rect, touched, radii, depth], device=device, record_tape=False)  # fmt: skip
+    _mark(profile, "preprocess", device)
+    num_tiles = settings.tiles_x * settings.tiles_y
+    values, range_start, range_end, count = bin_gaussians(rect, touched, depth, settings.tiles_x, num_tiles)
+    _mark(profile, "binning", device)
+    lists = make_struct(TileLists, values=values, range_start=range_start, range_end=range_end)
+    splats = make_struct(Splats, P=P, o_g=o_g, colour=colour, opacity=opacities, mu_v=mu_v, radius=radii)
+    return splats, lists, count
+
+
 def render_forward(means, quats, scales, opacities, sh, sh_degree: int, cam: CameraParams, settings: RasterSettings,
                    out: RenderOutputs | None = None, profile: list | None = None, tiled: bool | None = None,
                    ) -> tuple[RenderOutputs, RenderState]:  # fmt: skip
@@ -136,23 +165,15 @@ def render_forward(means, quats, scales, opacities, sh, sh_degree: int, cam: Cam
     def empty(dtype, size=n):
         return wp.empty(size, dtype=dtype, device=device)
 
-    mu_v, P, o_g, colour = empty(wp.vec3), empty(wp.mat33), empty(wp.vec3), empty(wp.vec3)
-    rect, touched, radii, depth = empty(wp.vec4i), empty(wp.int32), empty(wp.int32), empty(float)
-    wp.launch(preprocess_gaussians, dim=n, inputs=[means, quats, scales, sh, int(sh_degree), cam.R, cam.t, cam.centre],
-              outputs=[mu_v, P, o_g, colour], device=device, record_tape=False)  # fmt: skip
-    wp.launch(screen_bounds, dim=n, inputs=[mu_v, quats, scales, opacities, cam, settings],
-              outputs=[rect, touched, radii, depth], device=device, record_tape=False)  # fmt: skip
-    _mark(profile, "preprocess", device)
-    num_tiles = settings.tiles_x * settings.tiles_y
-    values, range_start, range_end, count = bin_gaussians(rect, touched, depth, settings.tiles_x, num_tiles)
-    _mark(profile, "binning", device)
+    splats, lists, count = prepare_view(means, quats, scales, opacities, sh, sh_degree, cam, settings, profile)
+    mu_v, P, o_g, colour, radii = splats.mu_v, splats.P, splats.o_g, splats.colour, splats.radius
 
     final_T, last_end = empty(float, num_pixels), empty(wp.int32, num_pixels)
     median_pos, weight_sum = empty(wp.int32, num_pixels), empty(float, num_pixels)
+    dist_sum = empty(float, num_pixels)
     tiled = use_tiled_kernels(device, settings, tiled)
-    lists = make_struct(TileLists, values=values, range_start=range_start, range_end=range_end)
-    splats = make_struct(Splats, P=P, o_g=o_g, colour=colour, opacity=opacities, mu_v=mu_v, radius=radii)
-    aux = make_struct(PixelAux, final_T=final_T, last_end=last_end, median_pos=median_pos, weight_sum=weight_sum)
+    aux = make_struct(PixelAux, final_T=final_T, last_end=last_end, median_pos=median_pos, weight_sum=weight_sum,
+                      dist_sum=dist_sum)
     _launch_raster(rasterize_forward, rasterize_forward_tiled, tiled, settings, [lists, splats, cam, settings], [out.as_struct(), aux], device)
     _mark(profile, "raster_forward", device)
     state = RenderState((means, quats, scales, opacities, sh), int(sh_degree), cam, settings, mu_v, P, o_g, colour,

@@ -49,6 +49,15 @@ class RefConfig:
     transmittance_min: float = 1e-4
     k_max: float = math.sqrt(2.0 * math.log(255.0))
     background: tuple = (0.0, 0.0, 0.0)
+    distortion: str = "gof"  # "gof": Σ_{j<k} w_k w_j (m_k − m_j)² on NDC depth m; "paper": Σ 2 w_k w_j (t_k − t_j)
+    far: float = 100.0
+
+
+def distortion_depth(t, config):
+    """The depth the distortion compares: NDC ``m(t) = far (t − near)/((far − near) t)`` ("gof") or ``t``."""
+    if getattr(config, "distortion", "gof") == "gof":
+        return config.far * (t - config.near) / ((config.far - config.near) * t)
+    return t
 
 
 #: Thresholds off, as the spec prescribes for gradient checks.
@@ -149,7 +158,7 @@ def _ray_gaussian(mu_v, R_v, scales, rays):
     return -B / A, C - B * B / A, n / n.norm(dim=-1, keepdim=True)
 
 
-def _composite(order, alpha, valid, t, colors, normals, background, transmittance_min):
+def _composite(order, alpha, valid, t, colors, normals, background, transmittance_min, config):
     """Front-to-back compositing of the sorted Gaussians; returns per-pixel sums and the margins."""
     P = alpha.shape[0]
     T = torch.ones(P, dtype=torch.float64)
@@ -161,7 +170,9 @@ def _composite(order, alpha, valid, t, colors, normals, background, transmittanc
     accum = torch.zeros(P, dtype=torch.float64)
     dist = torch.zeros(P, dtype=torch.float64)
     A_prev = torch.zeros(P, dtype=torch.float64)  # Σ_{j<k} w_j (detached)
-    B_prev = torch.zeros(P, dtype=torch.float64)  # Σ_{j<k} w_j t_j (w detached)
+    B_prev = torch.zeros(P, dtype=torch.float64)  # Σ_{j<k} w_j f_j (w detached, f = distortion depth)
+    C_prev = torch.zeros(P, dtype=torch.float64)  # Σ_{j<k} w_j f_j²
+    squared = getattr(config, "distortion", "gof") == "gof"
     margin = torch.full((P,), math.inf, dtype=torch.float64)
     weights = [None] * alpha.shape[1]
     for k in order.tolist():
@@ -181,9 +192,14 @@ def _composite(order, alpha, valid, t, colors, normals, background, transmittanc
         normal = normal + w[:, None] * normals[:, k]
         accum = accum + w * tk
         wd = w.detach()
-        dist = dist + 2.0 * wd * (tk * A_prev - B_prev)
+        fk = distortion_depth(tk, config)
+        if squared:
+            dist = dist + wd * (fk * fk * A_prev - 2.0 * fk * B_prev + C_prev)
+        else:
+            dist = dist + 2.0 * wd * (fk * A_prev - B_prev)
         A_prev = A_prev + wd
-        B_prev = B_prev + wd * tk
+        B_prev = B_prev + wd * fk
+        C_prev = C_prev + wd * fk * fk
         T = torch.where(blend, T_next_if, T)
         margin = torch.where(blend, torch.minimum(margin, (T.detach() - 0.5).abs() / 0.5), margin)
         med_idx = torch.where(blend & ~found, torch.full_like(med_idx, k), med_idx)
@@ -249,7 +265,7 @@ def reference_render(means, quats, scales, opacities, sh, camera, sh_degree=None
     valid = (z > config.near)[None] & (t > config.near) & (d2 <= config.k_max**2) & (alpha >= config.alpha_min)
     order = torch.argsort(z, stable=True)
     bg = f64(config.background)
-    comp = _composite(order, alpha, valid, t, colors, normals, bg, config.transmittance_min)
+    comp = _composite(order, alpha, valid, t, colors, normals, bg, config.transmittance_min, config)
     a_out = 1.0 - comp["T"]
     safe = torch.where(a_out > 0, a_out, torch.ones_like(a_out))
     depth = torch.where(a_out > 0, comp["accum"] / safe, torch.zeros_like(a_out))

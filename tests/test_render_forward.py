@@ -35,6 +35,7 @@ TOL = dict(rgb=5e-6, alpha=5e-6, normal=5e-6, accum_depth=2e-5, depth=2e-5, medi
 BACKGROUND = (0.3, 0.6, 0.1)
 CASES = {  # camera kwargs, scene kwargs, config kwargs, active SH degree
     "sh0_offcentre": (dict(width=37, height=29), dict(n=16, sh_degree=0, seed=1), {}, None),
+    "paper_distortion": (dict(width=37, height=29), dict(n=16, sh_degree=0, seed=5), dict(distortion="paper"), None),
     "sh3_nonsquare_pp_far": (
         dict(width=45, height=22, fx=30.0, fy=44.0, cx=36.0, cy=4.4),
         dict(n=16, sh_degree=3, seed=2),

@@ -77,6 +77,10 @@ def test_gradient_of_each_output_matches_reference(output):
     _compare_gradients([output])
 
 
+def test_gradient_of_paper_form_distortion_matches_reference():
+    _compare_gradients(["distortion"], config=dataclasses.replace(GRAD_CONFIG, distortion="paper"))
+
+
 def test_gradient_with_active_alpha_max_clamp():
     """A low clamp that bites on many pixels: the derivative through a clamped α must be 0 (the spec)."""
     ref = _compare_gradients(["rgb", "alpha"], dataclasses.replace(GRAD_CONFIG, alpha_max=0.6))

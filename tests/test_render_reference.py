@@ -5,6 +5,7 @@ what makes that comparison mean "the renderer follows the spec"."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -18,6 +19,7 @@ from reference_render import (
     GRADCHECK_CONFIG,
     OUTPUT_NAMES,
     RefConfig,
+    distortion_depth,
     make_camera,
     quat_to_rotmat,
     random_scene,
@@ -173,7 +175,8 @@ def test_two_gaussians_composite_in_depth_order(alpha_near):
     far, near = 3.0 * r, 1.5 * r
     sh = np.array([[[0.9, -0.3, 0.1]], [[-0.4, 0.6, 0.2]]])
     p = _one([((far - cam.t) @ cam.R).tolist(), ((near - cam.t) @ cam.R).tolist()], [0.4, 0.3], [0.6, alpha_near], sh)
-    out = reference_render(**p, camera=cam, config=RefConfig(background=(0.1, 0.2, 0.3)))
+    out = reference_render(**p, camera=cam, config=RefConfig(background=(0.1, 0.2, 0.3), distortion="paper"))
+    gof = reference_render(**p, camera=cam, config=RefConfig(background=(0.1, 0.2, 0.3)))
     c = np.maximum(0, sh[:, 0] * 0.28209479177387814 + 0.5)
     w1 = alpha_near
     w0 = 0.6 * (1 - alpha_near)
@@ -184,6 +187,8 @@ def test_two_gaussians_composite_in_depth_order(alpha_near):
     assert px["accum_depth"] == pytest.approx(w1 * 1.5 + w0 * 3.0, abs=EXACT)
     assert px["median_depth"] == pytest.approx(1.5 if alpha_near >= 0.5 else 3.0, abs=EXACT)
     assert px["distortion"] == pytest.approx(2 * w0 * w1 * (3.0 - 1.5), abs=EXACT)
+    m = lambda t: 100.0 * (t - 0.2) / (99.8 * t)  # noqa: E731  GOF's NDC depth (near 0.2, far 100)
+    assert gof["distortion"][j, i].item() == pytest.approx(w0 * w1 * (m(3.0) - m(1.5)) ** 2, abs=EXACT)
     assert np.abs(px["weights"] - [w0, w1]).max() < EXACT
 
 
@@ -252,10 +257,12 @@ def test_autograd_matches_central_differences(output):
         assert abs(fd - ad) <= FD_RTOL * scale, (output, name, fd, ad)
 
 
-def test_distortion_gradient_flows_only_through_t_star():
-    """Autograd of the distortion = d/dθ of Σ_{j before k} 2 w_k w_j (t_k − t_j) with w frozen at θ₀."""
+@pytest.mark.parametrize("form", ["paper", "gof"])
+def test_distortion_gradient_flows_only_through_t_star(form):
+    """Autograd of the distortion = d/dθ of the pairwise sum (paper: Σ_{j before k} 2 w_k w_j (t_k − t_j);
+    GOF: Σ_{j before k} w_k w_j (m_k − m_j)²) with the weights w frozen at θ₀."""
     cam, scene = _grad_scene()
-    cfg = GRADCHECK_CONFIG
+    cfg = dataclasses.replace(GRADCHECK_CONFIG, distortion=form)
     out0 = reference_render(**scene, camera=cam, config=cfg)
     w0 = out0["weights"]
     z = (scene["means"] @ torch.tensor(cam.R).T + torch.tensor(cam.t))[:, 2]
@@ -265,7 +272,9 @@ def test_distortion_gradient_flows_only_through_t_star():
 
     def frozen(p):
         t = reference_render(**p, camera=cam, config=cfg)["t_star"]
-        pair = 2 * w0[..., :, None] * w0[..., None, :] * (t[..., None, :] - t[..., :, None]) * before
+        f = distortion_depth(t, cfg)
+        diff = f[..., None, :] - f[..., :, None]
+        pair = w0[..., :, None] * w0[..., None, :] * (2 * diff if form == "paper" else diff**2) * before
         return (Wd * pair.sum((-1, -2))).sum()
 
     assert frozen(scene).item() == pytest.approx((Wd * out0["distortion"]).sum().item(), abs=EXACT)
