@@ -1,0 +1,80 @@
+"""The Gaussian opacity field at 3D points (GOF Sec. 3.2, appendix Algorithm 2), tile-binned.
+
+For a view and a point ``x`` with camera-space position ``x_v`` (depth ``z = x_v.z``), the ray through
+``x``'s projection is ``t · r`` with ``r = x_v / z``; each Gaussian on the point's tile list (depth-sorted,
+shared with rendering) contributes ``α = min(alpha_max, opacity · G(min(t*, z)))`` where
+``G(t) = exp(−½ ‖o_g + t r_g‖²)`` — it rises along the ray until its maximum at ``t*`` and then stays
+flat — composited front to back like colour: ``O += α T``, ``T ← T (1 − α)``. The same per-pair rules
+as rendering apply (skip ``t* ≤ near``, ``d² > k_max²``, ``α < alpha_min``), so far along a pixel's ray
+the field equals that pixel's rendered alpha. Compositing stops once ``T < transmittance_min`` (the
+remaining contribution is below that bound; GOF composites to the end).
+
+The field of a point over several views is the minimum over the views in whose image it projects (in
+front of the near plane): :func:`opacity_min_over_view` lowers a running minimum, one launch per view.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from .render_types import CameraParams, RasterSettings, Splats, TileLists
+
+
+@wp.func
+def opacity_along_ray(lists: TileLists, splats: Splats, tile: int, r: wp.vec3, z: float, settings: RasterSettings) -> float:
+    """Composited opacity at depth ``z`` on the camera-space ray ``t · r`` (``r.z = 1``) of ``tile``."""
+    T = float(1.0)
+    O = float(0.0)
+    k_max2 = settings.k_max * settings.k_max
+    for e in range(lists.range_start[tile], lists.range_end[tile]):
+        k = lists.values[e]
+        og = splats.o_g[k]
+        rg = splats.P[k] * r
+        A = wp.dot(rg, rg)
+        B = wp.dot(og, rg)
+        C = wp.dot(og, og)
+        t_star = -B / A
+        if t_star <= settings.near:
+            continue
+        if C - B * B / A > k_max2:
+            continue
+        t = wp.min(t_star, z)
+        x_g = og + t * rg
+        alpha = wp.min(settings.alpha_max, splats.opacity[k] * wp.exp(-0.5 * wp.dot(x_g, x_g)))
+        if alpha < settings.alpha_min:
+            continue
+        O += alpha * T
+        T *= 1.0 - alpha
+        if T < settings.transmittance_min:
+            break
+    return O
+
+
+@wp.kernel
+def opacity_min_over_view(
+    points: wp.array(dtype=wp.vec3),
+    lists: TileLists,
+    splats: Splats,
+    cam: CameraParams,
+    settings: RasterSettings,
+    field: wp.array(dtype=float),
+    seen: wp.array(dtype=wp.int32),
+):
+    """``field[i] ← min(field[i], O_view(points[i]))`` for points this view sees; ``seen[i] += 1`` then.
+
+    Inputs: ``points [M] vec3`` world space, the view's tile lists and splats (from the renderer's
+    preprocessing and binning, with ``settings.pixel_pad ≥ 0.5`` so off-centre rays are covered).
+    """
+    i = wp.tid()
+    x_v = cam.R * points[i] + cam.t
+    z = x_v[2]
+    if z <= settings.near:
+        return
+    u = cam.fx * x_v[0] / z + cam.cx
+    v = cam.fy * x_v[1] / z + cam.cy
+    if u < 0.0 or v < 0.0 or u >= float(cam.width) or v >= float(cam.height):
+        return
+    tile = (int(v) // settings.tile_size) * settings.tiles_x + int(u) // settings.tile_size
+    O = opacity_along_ray(lists, splats, tile, x_v / z, z, settings)
+    field[i] = wp.min(field[i], O)
+    seen[i] = seen[i] + 1
