@@ -70,12 +70,16 @@ class TSDFVolume:
         return out
 
 
-def gaussian_bounds(means: np.ndarray, percentile: float, padding: float) -> np.ndarray:
-    """Robust axis-aligned box ``(min xyz, max xyz)`` of the centres, padded."""
+def gaussian_bounds(means: np.ndarray, percentile: float, padding: float, extent: np.ndarray | None = None) -> np.ndarray:
+    """Robust axis-aligned box ``(min xyz, max xyz)`` of the Gaussians, padded.
+
+    ``extent`` ``[N]`` (e.g. 3 × the largest scale) widens each centre into a cube before the percentiles.
+    """
     if len(means) == 0:
         raise GofError("cannot bound an empty set of Gaussians")
-    lo = np.percentile(means, percentile, axis=0)
-    hi = np.percentile(means, 100 - percentile, axis=0)
+    e = np.zeros((len(means), 1)) if extent is None else np.asarray(extent, float).reshape(-1, 1)
+    lo = np.percentile(means - e, percentile, axis=0)
+    hi = np.percentile(means + e, 100 - percentile, axis=0)
     pad = padding * (hi - lo).max()
     return np.concatenate([lo - pad, hi + pad])
 
@@ -93,9 +97,9 @@ def fuse_tsdf(gaussians, views, config: TSDFConfig | None = None, render_config:
     render_config = render_config or RenderConfig()
     if not views:
         raise GofError("TSDF fusion needs at least one view")
-    means = gaussians.means.detach().cpu().numpy()
     box = np.asarray(config.bounds, float) if config.bounds is not None else gaussian_bounds(
-        means, config.bounds_percentile, config.bounds_padding)
+        gaussians.means.detach().cpu().numpy(), config.bounds_percentile, config.bounds_padding,
+        3.0 * gaussians.scales.detach().max(dim=1).values.cpu().numpy())
     if box.shape != (6,) or np.any(box[3:] <= box[:3]):
         raise GofError(f"TSDF bounds must be (xmin, ymin, zmin, xmax, ymax, zmax) with max > min, got {box.tolist()}")
     size = box[3:] - box[:3]

@@ -1,0 +1,270 @@
+"""``python -m gof_warp.extract RUN [--scene SCENE] [--out MESH.ply] [--method tetra|cubes|tsdf] ...``
+
+Mesh extraction from trained Gaussians (GOF Sec. 3.4, appendix Algorithms 1–3):
+
+* ``tetra`` (GOF): points from each Gaussian's centre and 3σ-box corners → Delaunay tetrahedra (cell
+  filter) → opacity field at the points → marching tetrahedra with binary search on crossing edges.
+* ``cubes``: the same opacity field on a dense grid → marching cubes (+ the same binary search).
+* ``tsdf``: fusion of rendered median depths (the 2DGS/3DGS baseline) → marching cubes.
+
+``RUN`` is a training output folder (``point_cloud.ply`` + ``cameras.json``) or any Gaussian PLY in the
+3DGS layout together with ``--scene`` for the cameras. Writes the mesh (PLY) and ``<mesh>.json`` with
+vertex/face counts and per-stage time and peak memory.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import resource
+import sys
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .camera import Camera
+from .errors import GofError
+from .io_utils import atomic_path, write_json_atomic
+from .opacity_field import OpacityFieldConfig, opacity_field
+from .render import RenderConfig
+from .tetra import TetraConfig, tetrahedral_grid
+from .tsdf import TSDFConfig, extract_tsdf_mesh, fuse_tsdf
+
+log = logging.getLogger("gof_warp.extract")
+METHODS = ("tetra", "cubes", "tsdf")
+
+
+@dataclass
+class MeshConfig:
+    """Mesh extraction settings (defaults: GOF's — level 0.5, 8 bisection steps)."""
+
+    method: str = "tetra"
+    levels: tuple[float, ...] = (0.5,)
+    binary_steps: int = 8
+    cubes_resolution: int = 256  # grid nodes along the longest side (method "cubes")
+    crop: tuple[float, ...] | None = None  # (xmin, ymin, zmin, xmax, ymax, zmax): drop faces outside
+    min_component_faces: int = 0  # drop connected components with fewer faces (0 = keep all)
+    tetra: TetraConfig = field(default_factory=TetraConfig)
+    tsdf: TSDFConfig = field(default_factory=TSDFConfig)
+    field: OpacityFieldConfig = field(default_factory=OpacityFieldConfig)
+
+    def validate(self):
+        if self.method not in METHODS:
+            raise GofError(f"mesh method must be one of {METHODS}, got {self.method!r}")
+        if not self.levels or not all(0.0 < float(v) < 1.0 for v in self.levels):
+            raise GofError(f"levels must be opacities in (0, 1), got {self.levels}")
+        if self.binary_steps < 0:
+            raise GofError(f"binary_steps must be >= 0, got {self.binary_steps}")
+
+
+class StageTimer:
+    """Wall time and peak memory (host RSS, CUDA allocations) per named stage."""
+
+    def __init__(self):
+        self.stages: dict[str, dict] = {}
+
+    @contextmanager
+    def __call__(self, name: str):
+        cuda = torch.cuda.is_available()
+        if cuda:
+            torch.cuda.synchronize()
+            torch.cuda.reset_peak_memory_stats()
+        t0 = time.perf_counter()
+        log.info("%s ...", name)
+        yield
+        if cuda:
+            torch.cuda.synchronize()
+        entry = {"time_s": round(time.perf_counter() - t0, 4),
+                 "host_peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)}
+        if cuda:
+            entry["gpu_peak_allocated_mb"] = round(torch.cuda.max_memory_allocated() / 2**20, 1)
+        self.stages[name] = entry
+        log.info("%s: %.2f s", name, entry["time_s"])
+
+
+def _postprocess(verts, faces, config: MeshConfig):
+    """Crop and small-component removal; returns compacted ``(verts, faces)``."""
+    keep = np.ones(len(faces), bool)
+    if config.crop is not None:
+        box = np.asarray(config.crop, float)
+        inside = np.all((verts >= box[:3]) & (verts <= box[3:]), axis=1)
+        keep &= inside[faces].all(axis=1)
+    faces = faces[keep]
+    if config.min_component_faces > 0 and len(faces):
+        import trimesh
+
+        labels = trimesh.graph.connected_component_labels(trimesh.graph.face_adjacency(faces), node_count=len(faces))
+        counts = np.bincount(labels)
+        faces = faces[counts[labels] >= config.min_component_faces]
+    used = np.unique(faces)
+    remap = np.full(len(verts), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    return verts[used], remap[faces].astype(np.int32)
+
+
+def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = None, *,
+                 render_config: RenderConfig | None = None, views=None, timer: StageTimer | None = None):
+    """Extract one mesh per level from trained Gaussians.
+
+    Args:
+        gaussians: :class:`~gof_warp.model.Gaussians` (on the device to compute on).
+        cameras: the training cameras (the opacity field is the minimum over them).
+        views: :class:`~gof_warp.scene.View` list for TSDF masks (optional; cameras alone otherwise).
+    Returns:
+        list of ``(vertices [V, 3] float32, faces [F, 3] int32)``, one per ``config.levels``.
+    """
+    from .marching import marching_cubes, marching_tetrahedra
+    from .scene import View
+
+    config = config or MeshConfig()
+    config.validate()
+    render_config = render_config or RenderConfig()
+    timer = timer or StageTimer()
+    if len(gaussians) == 0:
+        raise GofError("the model has no Gaussians: nothing to extract")
+
+    def field_fn(points):
+        return opacity_field(gaussians, cameras, points, config=config.field, render_config=render_config)
+
+    meshes = []
+    if config.method == "tetra":
+        with timer("tetra_points+delaunay"):
+            points, tets, _, _ = tetrahedral_grid(gaussians.means.detach(), gaussians.rotations.detach(),
+                                                  gaussians.scales.detach(), gaussians.opacities.detach(),
+                                                  cameras=cameras, config=config.tetra)
+        log.info("%d points, %d tetrahedra", len(points), len(tets))
+        with timer("opacity_field"):
+            values = field_fn(points)
+        with timer("marching_tetrahedra"):
+            meshes = marching_tetrahedra(torch.as_tensor(points, device=gaussians.device), tets, values, field_fn,
+                                         levels=config.levels, binary_steps=config.binary_steps)
+        timer.stages["counts"] = {"points": int(len(points)), "tetrahedra": int(len(tets))}
+    elif config.method == "cubes":
+        from .tsdf import gaussian_bounds
+
+        box = np.asarray(config.crop, float) if config.crop is not None else gaussian_bounds(
+            gaussians.means.detach().cpu().numpy(), 0.5, 0.05, 3.0 * gaussians.scales.detach().max(dim=1).values.cpu().numpy())
+        size = box[3:] - box[:3]
+        res = tuple(int(max(2, round(config.cubes_resolution * s / size.max()))) for s in size)
+        for level in config.levels:
+            with timer(f"marching_cubes@{level}"):
+                meshes.append(marching_cubes(lambda p: field_fn(p).cpu().numpy(), np.stack([box[:3], box[3:]]), res,
+                                             level=level, binary_steps=config.binary_steps))
+    else:
+        views = views or [View(camera=c, image=np.zeros((c.height, c.width, 3), np.uint8), name=c.name) for c in cameras]
+        with timer("tsdf_fusion"):
+            volume = fuse_tsdf(gaussians, views, config.tsdf, render_config)
+        with timer("tsdf_marching_cubes"):
+            v, f, _ = extract_tsdf_mesh(volume, binary_steps=config.binary_steps)
+        meshes = [(v, f)]
+    return [_postprocess(np.asarray(v, np.float32), np.asarray(f, np.int64), config) for v, f in meshes]
+
+
+def save_mesh(path, verts: np.ndarray, faces: np.ndarray) -> None:
+    """Write a triangle mesh as binary PLY, atomically."""
+    import trimesh
+
+    mesh = trimesh.Trimesh(vertices=verts, faces=faces, process=False)
+    with atomic_path(path) as tmp:
+        mesh.export(tmp, file_type="ply")
+
+
+def load_run(run: Path, scene: str | None, device: str):
+    """``(gaussians, cameras, views, render_config)`` from a run folder or a PLY (+ ``--scene``)."""
+    from .model import Gaussians
+
+    views = None
+    render_config = RenderConfig()
+    if run.is_dir():
+        ply = run / "point_cloud.ply"
+        if not ply.is_file():
+            raise GofError(f"{run} has no point_cloud.ply (is it a training output folder?)")
+        cfg_file = run / "config.yaml"
+        if cfg_file.is_file():
+            from .config import from_dict, load_yaml
+
+            render_config = from_dict(RenderConfig, load_yaml(cfg_file).get("render", {}), f"{cfg_file}: render")
+    elif run.suffix.lower() == ".ply" and run.is_file():
+        ply = run
+    else:
+        raise GofError(f"{run} is neither a run folder nor a .ply file")
+    gaussians = Gaussians.load_ply(ply, device=device)
+    if scene is not None:
+        from .data import load_scene
+
+        s = load_scene(scene)
+        views = s.train
+        cameras = s.train_cameras
+    elif run.is_dir() and (run / "cameras.json").is_file():
+        cameras = cameras_from_json(run / "cameras.json")
+    else:
+        raise GofError(f"no cameras for {run}: pass --scene SCENE (the scene the model was trained on)")
+    return gaussians, cameras, views, render_config
+
+
+def cameras_from_json(path: Path) -> list[Camera]:
+    try:
+        data = json.loads(path.read_text())
+        return [Camera(R=np.array(c["R"]), t=np.array(c["t"]), fx=c["fx"], fy=c["fy"], cx=c["cx"], cy=c["cy"],
+                       width=c["width"], height=c["height"], name=c["name"]) for c in data["train"]]
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise GofError(f"{path}: cannot read cameras: {e}") from None
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m gof_warp.extract", description=__doc__.split("\n\n")[1])
+    ap.add_argument("run", help="training output folder, or a 3DGS-layout Gaussian PLY (with --scene)")
+    ap.add_argument("--scene", default=None, help="scene folder for the cameras (and masks for TSDF)")
+    ap.add_argument("--out", default=None, help="mesh path (default RUN/mesh_<method>.ply)")
+    ap.add_argument("--method", default="tetra", choices=METHODS)
+    ap.add_argument("--levels", type=float, nargs="+", default=[0.5])
+    ap.add_argument("--binary-steps", type=int, default=8)
+    ap.add_argument("--resolution", type=int, default=None, help="grid resolution for cubes/tsdf")
+    ap.add_argument("--delaunay", default="scipy", choices=("scipy", "cgal", "auto"))
+    ap.add_argument("--opacity-min", type=float, default=None, help="drop Gaussians below this opacity first")
+    ap.add_argument("--min-component-faces", type=int, default=0)
+    ap.add_argument("--device", default="auto")
+    ap.add_argument("--quiet", action="store_true")
+    a = ap.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING if a.quiet else logging.INFO, format="%(message)s")
+    try:
+        from .train import pick_device
+
+        device = pick_device(a.device)
+        run = Path(a.run)
+        cfg = MeshConfig(method=a.method, levels=tuple(a.levels), binary_steps=a.binary_steps,
+                         min_component_faces=a.min_component_faces,
+                         tetra=TetraConfig(backend=a.delaunay, opacity_min=a.opacity_min))
+        if a.resolution:
+            cfg.cubes_resolution = a.resolution
+            cfg.tsdf.resolution = a.resolution
+        cfg.validate()
+        gaussians, cameras, views, render_config = load_run(run, a.scene, device)
+        timer = StageTimer()
+        t0 = time.perf_counter()
+        meshes = extract_mesh(gaussians, cameras, cfg, render_config=render_config, views=views, timer=timer)
+        total = time.perf_counter() - t0
+        base = Path(a.out) if a.out else (run if run.is_dir() else run.parent) / f"mesh_{a.method}.ply"
+        outputs = []
+        for level, (v, f) in zip(cfg.levels if a.method != "tsdf" else (0.0,), meshes):
+            path = base if len(meshes) == 1 else base.with_name(f"{base.stem}_{level:g}{base.suffix}")
+            save_mesh(path, v, f)
+            outputs.append({"path": str(path), "level": level, "vertices": int(len(v)), "faces": int(len(f))})
+            print(f"wrote {path}: {len(v)} vertices, {len(f)} faces")
+        write_json_atomic(base.with_suffix(".json"), {
+            "method": a.method, "binary_steps": a.binary_steps, "num_gaussians": len(gaussians),
+            "num_views": len(cameras), "device": device, "total_time_s": round(total, 3),
+            "stages": timer.stages, "meshes": outputs})
+    except GofError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
