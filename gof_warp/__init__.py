@@ -1,7 +1,19 @@
 """gof_warp: Gaussian Opacity Fields (Yu, Sattler, Geiger 2024) on NVIDIA Warp.
 
-Public API (torch-facing, host side). The pure Warp kernels live in :mod:`gof_warp.kernels`.
+Public API (torch-facing, host side); the pure Warp kernels live in :mod:`gof_warp.kernels`.
+
+* scenes: :class:`Camera`, :class:`Scene`, :class:`View`, :func:`load_scene`, :class:`DataConfig`
+* model: :class:`Gaussians` (3DGS PLY in/out)
+* rendering: :func:`render`, :func:`rasterize`, :class:`RenderConfig`, :class:`DensifyStats`
+* surfaces: :func:`opacity_field`, :func:`extract_mesh`
+* evaluation: :func:`evaluate_mesh`, :func:`image_metrics`
+
+Names are imported on first use, so ``import gof_warp`` stays cheap (torch and Warp load when needed).
 """
+
+from __future__ import annotations
+
+import importlib
 
 from .camera import Camera, camera_extent, look_at
 from .errors import GofError, ModelError, PlyError, SceneError
@@ -9,14 +21,28 @@ from .scene import Scene, View
 
 __version__ = "0.1.0"
 
-__all__ = [
-    "Camera",
-    "GofError",
-    "ModelError",
-    "PlyError",
-    "Scene",
-    "SceneError",
-    "View",
-    "camera_extent",
-    "look_at",
-]
+_LAZY = {
+    "load_scene": "data", "DataConfig": "data", "detect_format": "data",
+    "Gaussians": "model",
+    "render": "render", "rasterize": "render", "RenderConfig": "render", "DensifyStats": "render",
+    "opacity_field": "opacity_field", "OpacityFieldConfig": "opacity_field",
+    "extract_mesh": "extract", "MeshConfig": "extract",
+    "evaluate_mesh": "geometry_metrics", "mesh_statistics": "geometry_metrics",
+    "image_metrics": "metrics", "psnr": "metrics", "ssim": "metrics",
+    "make_scene": "synthetic",
+}
+
+__all__ = ["Camera", "GofError", "ModelError", "PlyError", "Scene", "SceneError", "View", "camera_extent", "look_at",
+           *_LAZY]
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'gof_warp' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))

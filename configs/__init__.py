@@ -1,0 +1,1 @@
+"""YAML presets of gof_warp.trainer.TrainConfig (plain data; installed as gof_warp.configs)."""

@@ -1,0 +1,334 @@
+"""The GOF optimisation loop (paper Sec. 3.3 and implementation details) as a small class.
+
+:class:`Trainer` wires the stage objects together — renderer, losses, densification policy, optimizer,
+3D filter, decoupled appearance — and owns checkpoints and the run folder. It holds no policy of its
+own: each decision lives in its stage module (``losses``, ``densify``, ``optim``, ``filter3d``).
+
+Run folder layout::
+
+    RUN/config.yaml          resolved configuration (plain data)
+    RUN/cameras.json         train/test cameras (world-to-camera, intrinsics)
+    RUN/checkpoints/         ckpt_<it>.pt, written atomically, resumable bit-for-bit on CPU
+    RUN/point_cloud.ply      final Gaussians (3DGS layout, with GOF's filter_3D column)
+    RUN/metrics.json         time, speed, memory, Gaussian count over training, test PSNR/SSIM
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import resource
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import torch
+
+from .appearance import AppearanceModel
+from .checkpoint import list_checkpoints, load_checkpoint, save_checkpoint
+from .config import dump_yaml, from_dict, to_dict
+from .data import DataConfig
+from .densify import DensifyConfig, Densifier
+from .errors import GofError
+from .filter3d import update_filter_3d
+from .io_utils import ensure_writable_dir, write_json_atomic, write_text_atomic
+from .losses import LossConfig, total_loss
+from .metrics import image_metrics, psnr
+from .model import Gaussians
+from .optim import OptimConfig, make_optimizer, update_learning_rate
+from .render import DensifyStats, RenderConfig, render
+from .scene import Scene
+
+log = logging.getLogger(__name__)
+
+
+class TrainingError(GofError):
+    """Training cannot go on (e.g. the loss became NaN); the last good checkpoint is kept."""
+
+
+@dataclass
+class ModelConfig:
+    """Initialisation of the Gaussians (3DGS/GOF: SfM points, else random points in a box)."""
+
+    sh_degree: int = 3
+    init_opacity: float = 0.1
+    random_init_points: int = 100_000  # used when the scene has no initial points (3DGS Blender: 100k)
+    init_box: tuple[float, ...] | None = None  # (xmin, ymin, zmin, xmax, ymax, zmax); None = from cameras
+    use_filter_3d: bool = True  # Mip-Splatting 3D smoothing filter, as GOF
+
+
+@dataclass
+class TrainConfig:
+    """Everything a training run needs; presets in ``configs/*.yaml`` are this, serialised."""
+
+    iterations: int = 30_000
+    seed: int = 0
+    appearance: bool = False  # decoupled appearance (GOF: on for DTU and Tanks and Temples)
+    checkpoint_every: int = 5000
+    checkpoint_keep: int = 2
+    log_every: int = 100
+    data: DataConfig = field(default_factory=DataConfig)
+    model: ModelConfig = field(default_factory=ModelConfig)
+    render: RenderConfig = field(default_factory=RenderConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    optim: OptimConfig = field(default_factory=OptimConfig)
+    densify: DensifyConfig = field(default_factory=DensifyConfig)
+
+
+def default_init_box(scene: Scene) -> np.ndarray:
+    """A box around what the cameras look at: the least-squares closest point to all principal axes,
+    with half-size 0.5 × the mean camera distance to it (object-centric captures)."""
+    cams = scene.train_cameras
+    centres = np.stack([c.center for c in cams])
+    axes = np.stack([c.R[2] for c in cams])  # viewing directions in world space
+    A = np.zeros((3, 3))
+    b = np.zeros(3)
+    for c, d in zip(centres, axes):
+        P = np.eye(3) - np.outer(d, d)
+        A += P
+        b += P @ c
+    focus = np.linalg.lstsq(A, b, rcond=None)[0] if len(cams) > 1 else centres[0] + axes[0]
+    half = 0.5 * float(np.mean(np.linalg.norm(centres - focus, axis=1)))
+    return np.concatenate([focus - half, focus + half])
+
+
+def initial_gaussians(scene: Scene, cfg: ModelConfig, seed: int, device) -> Gaussians:
+    """SfM points when the scene has them, else ``random_init_points`` uniform in the init box."""
+    if scene.points is not None and len(scene.points) > 0:
+        return Gaussians.from_points(scene.points, scene.point_colors, sh_degree=cfg.sh_degree,
+                                     init_opacity=cfg.init_opacity, device=device)
+    box = np.asarray(cfg.init_box, float) if cfg.init_box is not None else default_init_box(scene)
+    if box.shape != (6,) or np.any(box[3:] <= box[:3]):
+        raise GofError(f"model.init_box must be (xmin, ymin, zmin, xmax, ymax, zmax) with max > min, got {box.tolist()}")
+    return Gaussians.random_in_box(cfg.random_init_points, box[:3], box[3:], seed=seed, sh_degree=cfg.sh_degree,
+                                   init_opacity=cfg.init_opacity, device=device)
+
+
+def _image_tensor(image: np.ndarray, device) -> torch.Tensor:
+    return torch.from_numpy(image).to(device=device, dtype=torch.float32) / 255.0
+
+
+def _peak_memory() -> dict:
+    out = {"host_peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
+    if torch.cuda.is_available():
+        out["gpu_peak_allocated_mb"] = torch.cuda.max_memory_allocated() / 2**20
+        out["gpu_peak_reserved_mb"] = torch.cuda.max_memory_reserved() / 2**20
+    return out
+
+
+class Trainer:
+    """One training run on one scene, writing into ``out_dir``.
+
+    Args:
+        scene: the loaded :class:`~gof_warp.scene.Scene`.
+        config: the resolved :class:`TrainConfig`.
+        out_dir: the run folder (created; must be writable).
+        device: torch device string.
+    """
+
+    def __init__(self, scene: Scene, config: TrainConfig, out_dir, device: str):
+        self.scene, self.config, self.device = scene, config, torch.device(device)
+        self.out_dir = ensure_writable_dir(out_dir)
+        self.render_config = dataclasses.replace(config.render, background=tuple(float(c) for c in scene.background))
+        self.render_config.validate()
+        self.cameras = scene.train_cameras
+        self.images = [_image_tensor(v.image, self.device) for v in scene.train]
+        self.iteration = 0
+        self.elapsed = 0.0
+        self.history: list[dict] = []
+        self._rng = np.random.default_rng(config.seed)
+        self._stack: list[int] = []
+        torch.manual_seed(config.seed)
+        self.gaussians = initial_gaussians(scene, config.model, config.seed, self.device)
+        if config.model.use_filter_3d:
+            update_filter_3d(self.gaussians, self.cameras, near=self.render_config.near)
+        self.optimizer = make_optimizer(self.gaussians, config.optim, scene.extent)
+        self.densifier = Densifier(config.densify)
+        self.appearance = None
+        self.appearance_optimizer = None
+        if config.appearance:
+            self.appearance = AppearanceModel(len(scene.all_views)).to(self.device)
+            self.appearance_optimizer = torch.optim.Adam([
+                {"params": self.appearance.embedding.parameters(), "lr": config.optim.appearance_embedding_lr},
+                {"params": [p for n, p in self.appearance.named_parameters() if not n.startswith("embedding")],
+                 "lr": config.optim.appearance_network_lr},
+            ], eps=config.optim.eps)
+
+    # ------------------------------------------------------------------ one iteration
+    def _next_view(self) -> int:
+        """GOF's sampling: pop a random view from a stack that is refilled when empty."""
+        if not self._stack:
+            self._stack = self._rng.permutation(len(self.cameras)).tolist()
+        return self._stack.pop()
+
+    def step(self) -> dict:
+        """Run iteration ``self.iteration + 1``; returns its loss terms (floats)."""
+        cfg = self.config
+        it = self.iteration + 1
+        g = self.gaussians
+        update_learning_rate(self.optimizer, it, cfg.optim, self.scene.extent)
+        self.densifier.update_sh_degree(it, g)
+        idx = self._next_view()
+        cam, gt = self.cameras[idx], self.images[idx]
+        stats = DensifyStats(len(g), device=self.device) if it < cfg.densify.stop_iter else None
+        out = render(g, cam, config=self.render_config, stats=stats)
+        l1_pair = None
+        if self.appearance is not None:
+            chw = out["rgb"].permute(2, 0, 1)
+            corrected = self.appearance.apply(chw, idx)
+            if corrected.numel():
+                l1_pair = (corrected.permute(1, 2, 0), AppearanceModel.crop(gt.permute(2, 0, 1)).permute(1, 2, 0))
+        loss, terms = total_loss(out, gt, cam, cfg.loss, it, l1_pair=l1_pair)
+        if not torch.isfinite(loss):
+            raise TrainingError(
+                f"the loss became {loss.item()} at iteration {it} (view {cam.name!r}); training stopped. "
+                f"The last good checkpoint in {self.out_dir / 'checkpoints'} is kept: lower the learning rates "
+                "or check the input images, then resume with --resume")
+        loss.backward()
+        with torch.no_grad():
+            if stats is not None:
+                self.densifier.after_backward(stats, it)
+            report = self.densifier.step(it, g, self.optimizer, self.scene.extent)
+            if len(g) == 0:
+                raise TrainingError(f"every Gaussian was pruned at iteration {it}: check the scene's near plane "
+                                    "(render.near), background colour and densify.min_opacity")
+            if cfg.model.use_filter_3d and report.filter_3d_due:
+                update_filter_3d(g, self.cameras, near=self.render_config.near)
+        self.optimizer.step()
+        self.optimizer.zero_grad(set_to_none=True)
+        if self.appearance_optimizer is not None:
+            self.appearance_optimizer.step()
+            self.appearance_optimizer.zero_grad(set_to_none=True)
+        self.iteration = it
+        result = {k: float(v) for k, v in terms.items()}
+        result["psnr"] = float(psnr(out["rgb"].detach(), gt))
+        result["num_gaussians"] = len(g)
+        return result
+
+    # ------------------------------------------------------------------ the run
+    def run(self, progress: Callable[[int, dict], None] | None = None) -> dict:
+        """Train to ``config.iterations``, checkpointing; then evaluate and write the outputs."""
+        cfg = self.config
+        self._write_static_files()
+        t0 = time.perf_counter() - self.elapsed
+        last = {}
+        while self.iteration < cfg.iterations:
+            last = self.step()
+            it = self.iteration
+            self.elapsed = time.perf_counter() - t0
+            if it % cfg.log_every == 0 or it == cfg.iterations:
+                entry = {"iteration": it, "elapsed_s": round(self.elapsed, 3), **{k: round(v, 6) for k, v in last.items()}}
+                self.history.append(entry)
+            if progress is not None:
+                progress(it, {**last, "its_per_s": it / self.elapsed if self.elapsed > 0 else math.nan})
+            if cfg.checkpoint_every > 0 and it % cfg.checkpoint_every == 0 and it < cfg.iterations:
+                self.save_checkpoint()
+        train_time = self.elapsed
+        self.save_checkpoint()
+        self.gaussians.save_ply(self.out_dir / "point_cloud.ply")
+        metrics = {
+            "iterations": cfg.iterations,
+            "train_time_s": round(train_time, 3),
+            "its_per_s": round(cfg.iterations / train_time, 3) if train_time > 0 else None,
+            "num_gaussians": len(self.gaussians),
+            "device": str(self.device),
+            **{k: round(v, 1) for k, v in _peak_memory().items()},
+            "final_train_psnr": round(last.get("psnr", float("nan")), 3) if last else None,
+            "test": self.evaluate(),
+            "history": self.history,
+        }
+        write_json_atomic(self.out_dir / "metrics.json", metrics)
+        return metrics
+
+    @torch.no_grad()
+    def evaluate(self, views=None) -> dict:
+        """PSNR/SSIM (LPIPS when its weights are present locally) on the test views (train if none)."""
+        views = list(self.scene.test if views is None else views)
+        split = "test"
+        if not views:
+            views, split = list(self.scene.train), "train (no test views)"
+        preds, gts, masks = [], [], None
+        for v in views:
+            out = render(self.gaussians, v.camera, config=self.render_config)
+            preds.append(out["rgb"].clamp(0, 1).permute(2, 0, 1))
+            gts.append(_image_tensor(v.image, self.device).permute(2, 0, 1))
+        result = image_metrics(preds, gts, masks)
+        return {"split": split, "views": len(views), **result}
+
+    # ------------------------------------------------------------------ files and checkpoints
+    def _write_static_files(self):
+        write_text_atomic(self.out_dir / "config.yaml", dump_yaml(self.config))
+        cams = {split: [{"name": v.name, "width": v.camera.width, "height": v.camera.height,
+                         "fx": v.camera.fx, "fy": v.camera.fy, "cx": v.camera.cx, "cy": v.camera.cy,
+                         "R": v.camera.R.tolist(), "t": v.camera.t.tolist()} for v in views]
+                for split, views in (("train", self.scene.train), ("test", self.scene.test))}
+        write_json_atomic(self.out_dir / "cameras.json", {"convention": "world-to-camera, OpenCV axes", **cams,
+                                                          "extent": self.scene.extent})
+
+    def state_dict(self) -> dict:
+        g = self.gaussians
+        return {
+            "iteration": self.iteration,
+            "elapsed": self.elapsed,
+            "config": to_dict(self.config),
+            "params": {k: v.detach().clone() for k, v in g.params.items()},
+            "max_sh_degree": g.max_sh_degree,
+            "active_sh_degree": g.active_sh_degree,
+            "filter_3d": None if g.filter_3d is None else g.filter_3d.clone(),
+            "optimizer": self.optimizer.state_dict(),
+            "densifier": self.densifier.state_dict(),
+            "appearance": None if self.appearance is None else self.appearance.state_dict(),
+            "appearance_optimizer": None if self.appearance_optimizer is None else self.appearance_optimizer.state_dict(),
+            "view_rng": self._rng.bit_generator.state,
+            "view_stack": list(self._stack),
+            "torch_rng": torch.get_rng_state(),
+            "cuda_rng": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None,
+            "history": list(self.history),
+        }
+
+    def load_state_dict(self, state: dict) -> None:
+        p = state["params"]
+        self.gaussians = Gaussians(**{k: v.to(self.device) for k, v in p.items()}, max_sh_degree=state["max_sh_degree"],
+                                   active_sh_degree=state["active_sh_degree"],
+                                   filter_3d=None if state["filter_3d"] is None else state["filter_3d"].to(self.device))
+        self.optimizer = make_optimizer(self.gaussians, self.config.optim, self.scene.extent)
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.densifier.load_state_dict(state["densifier"])
+        if self.appearance is not None and state["appearance"] is not None:
+            self.appearance.load_state_dict(state["appearance"])
+            self.appearance_optimizer.load_state_dict(state["appearance_optimizer"])
+        self._rng.bit_generator.state = state["view_rng"]
+        self._stack = list(state["view_stack"])
+        torch.set_rng_state(state["torch_rng"])
+        if state["cuda_rng"] is not None and torch.cuda.is_available():
+            torch.cuda.set_rng_state_all(state["cuda_rng"])
+        self.history = list(state["history"])
+        self.iteration = int(state["iteration"])
+        self.elapsed = float(state["elapsed"])
+
+    def save_checkpoint(self) -> Path:
+        for name, t in self.gaussians.params.items():
+            if not torch.isfinite(t).all():
+                raise TrainingError(f"parameter {name} has NaN/inf at iteration {self.iteration}; checkpoint not written "
+                                    "(the previous one is kept)")
+        return save_checkpoint(self.out_dir, self.iteration, self.state_dict(), keep=self.config.checkpoint_keep)
+
+    def resume(self) -> int:
+        """Load the newest checkpoint of ``out_dir``; returns its iteration."""
+        state = load_checkpoint(self.out_dir, map_location=self.device)
+        saved = to_dict(from_dict(TrainConfig, state["config"], "checkpoint config"))
+        now = to_dict(self.config)
+        saved.pop("iterations"), now.pop("iterations")  # training may be extended on resume
+        if saved != now:
+            diff = sorted(k for k in now if now[k] != saved.get(k))
+            raise GofError(f"the checkpoint in {self.out_dir} was written with a different config (sections {diff}); "
+                           "resume with the same config (RUN/config.yaml) or start a new run")
+        self.load_state_dict(state)
+        return self.iteration
+
+
+def has_checkpoints(run_dir) -> bool:
+    return bool(list_checkpoints(run_dir))

@@ -1,0 +1,121 @@
+"""Training loop: runs end to end, resumes bit-for-bit, stops cleanly on NaN, CLI errors before training."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from gof_warp.checkpoint import list_checkpoints, load_checkpoint
+from gof_warp.config import merge
+from gof_warp.data import load_scene
+from gof_warp.errors import GofError
+from gof_warp.synthetic import make_scene
+from gof_warp.trainer import TrainConfig, Trainer, TrainingError
+
+# A schedule compressed so that every mechanism (densify, prune, opacity reset, SH increase, 3D filter,
+# regularisers, checkpoints) happens within a few dozen iterations on 32x32 images.
+TINY = {
+    "iterations": 24,
+    "checkpoint_every": 12,
+    "log_every": 4,
+    "model": {"sh_degree": 1, "random_init_points": 300},
+    "optim": {"means_lr_max_steps": 24},
+    "densify": {"start_iter": 3, "stop_iter": 20, "interval": 4, "opacity_reset_interval": 16,
+                "sh_degree_interval": 8, "filter_3d_interval": 4, "filter_3d_until_iter": 22,
+                "prune_big_after": 10, "grad_threshold": 1e-6, "max_gaussians": 2000},
+    "loss": {"regularization_from_iter": 8},
+}
+
+
+@pytest.fixture(scope="module")
+def tiny_scene(tmp_path_factory):
+    path = make_scene("default", tmp_path_factory.mktemp("scene") / "s", views=6, resolution=(32, 32), device="cpu")
+    return load_scene(path)
+
+
+def _config(**top):
+    return merge(merge(TrainConfig(), TINY), top)
+
+
+def test_training_runs_and_writes_outputs(tiny_scene, tmp_path):
+    trainer = Trainer(tiny_scene, _config(), tmp_path / "run", "cpu")
+    n0 = len(trainer.gaussians)
+    metrics = trainer.run()
+    run = tmp_path / "run"
+    for name in ("point_cloud.ply", "metrics.json", "config.yaml", "cameras.json"):
+        assert (run / name).is_file(), name
+    saved = json.loads((run / "metrics.json").read_text())
+    assert saved["iterations"] == 24 and saved["num_gaussians"] == len(trainer.gaussians)
+    assert saved["test"]["views"] == len(tiny_scene.test) and saved["test"]["psnr"] > 5
+    assert [h["iteration"] for h in saved["history"]] == list(range(4, 25, 4))
+    assert saved["history"][-1]["num_gaussians"] == len(trainer.gaussians)
+    assert len(trainer.gaussians) != n0, "densification never changed the model"
+    assert trainer.gaussians.active_sh_degree == 1
+    assert trainer.gaussians.filter_3d is not None and torch.isfinite(trainer.gaussians.filter_3d).all()
+    assert "distortion" in trainer.history[-1] and "normal" in trainer.history[-1]
+    assert metrics["test"]["psnr"] == saved["test"]["psnr"]
+
+
+def test_resume_reproduces_the_uninterrupted_run(tiny_scene, tmp_path):
+    straight = Trainer(tiny_scene, _config(), tmp_path / "a", "cpu")
+    straight.run()
+    first = Trainer(tiny_scene, _config(iterations=12), tmp_path / "b", "cpu")
+    first.run()
+    assert [it for it, _ in list_checkpoints(tmp_path / "b")] == [12]
+    second = Trainer(tiny_scene, _config(), tmp_path / "b", "cpu")
+    assert second.resume() == 12
+    second.run()
+    for name, value in straight.gaussians.params.items():
+        assert torch.equal(value, second.gaussians.params[name]), f"{name} differs after resume"
+    assert torch.equal(straight.gaussians.filter_3d, second.gaussians.filter_3d)
+
+
+def test_resume_refuses_a_different_config(tiny_scene, tmp_path):
+    Trainer(tiny_scene, _config(iterations=4, checkpoint_every=0), tmp_path / "r", "cpu").run()
+    other = Trainer(tiny_scene, merge(_config(), {"loss": {"lambda_normal": 0.5}}), tmp_path / "r", "cpu")
+    with pytest.raises(GofError, match="different config"):
+        other.resume()
+
+
+def test_nan_loss_stops_and_keeps_the_last_good_checkpoint(tiny_scene, tmp_path):
+    trainer = Trainer(tiny_scene, _config(iterations=4), tmp_path / "n", "cpu")
+    trainer.run()
+    ckpt = list_checkpoints(tmp_path / "n")[-1][1]
+    before = ckpt.read_bytes()
+    for image in trainer.images:  # a corrupt input image makes the loss NaN
+        image[:] = float("nan")
+    with pytest.raises(TrainingError, match="loss became nan at iteration 5"):
+        trainer.step()
+    with torch.no_grad():
+        trainer.gaussians.params["means"][0, 0] = float("nan")
+    with pytest.raises(TrainingError, match="checkpoint not written"):
+        trainer.save_checkpoint()
+    assert ckpt.read_bytes() == before
+    assert load_checkpoint(tmp_path / "n")["iteration"] == 4
+
+
+def _cli(*args, cwd):
+    return subprocess.run([sys.executable, "-m", "gof_warp.train", *args], cwd=cwd, capture_output=True, text=True,
+                          timeout=300)
+
+
+def test_cli_reports_bad_input_before_training(tmp_path):
+    proc = _cli(str(tmp_path / "no_such_scene"), "--out", str(tmp_path / "o"), cwd=tmp_path)
+    assert proc.returncode == 2 and "error:" in proc.stderr and "no_such_scene" in proc.stderr
+    assert "Traceback" not in proc.stderr
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    proc = _cli(str(tmp_path), "--out", str(blocker / "run"), cwd=tmp_path)
+    assert proc.returncode == 2 and "cannot create output folder" in proc.stderr
+    proc = _cli(str(tmp_path), "--out", str(tmp_path / "o2"), "loss.lambda_nromal=1", cwd=tmp_path)
+    assert proc.returncode == 2 and "lambda_nromal" in proc.stderr
+    proc = _cli(str(tmp_path), "--out", str(tmp_path / "o3"), "--config", "nope", cwd=tmp_path)
+    assert proc.returncode == 2 and "unknown config preset 'nope'" in proc.stderr
+
+
+def test_cli_refuses_to_overwrite_a_run_without_resume(tiny_scene, tmp_path):
+    Trainer(tiny_scene, _config(iterations=2, checkpoint_every=0), tmp_path / "run", "cpu").run()
+    proc = _cli(tiny_scene.source, "--out", str(tmp_path / "run"), cwd=tmp_path)
+    assert proc.returncode == 2 and "--resume" in proc.stderr
