@@ -336,5 +336,5 @@ class Densifier:
         if state["generator"] is not None:
             device, gstate = state["generator"]
             self.generator = torch.Generator(device=device)
-            self.generator.set_state(gstate)
+            self.generator.set_state(gstate.cpu())  # a CPU byte tensor even for a CUDA generator
 

@@ -124,6 +124,7 @@ class DensifyStats:
 
 def _stream_scope(device: torch.device):
     """Launch on torch's current stream on CUDA; a no-op scope on the CPU."""
+    wp.init()  # stream_from_torch needs Warp's runtime (idempotent)
     if device.type == "cuda":
         return wp.ScopedStream(wp.stream_from_torch(device))
     return wp.ScopedDevice("cpu")

@@ -302,9 +302,9 @@ class Trainer:
             self.appearance_optimizer.load_state_dict(state["appearance_optimizer"])
         self._rng.bit_generator.state = state["view_rng"]
         self._stack = list(state["view_stack"])
-        torch.set_rng_state(state["torch_rng"])
+        torch.set_rng_state(state["torch_rng"].cpu())  # RNG states are CPU byte tensors, whatever map_location did
         if state["cuda_rng"] is not None and torch.cuda.is_available():
-            torch.cuda.set_rng_state_all(state["cuda_rng"])
+            torch.cuda.set_rng_state_all([s.cpu() for s in state["cuda_rng"]])
         self.history = list(state["history"])
         self.iteration = int(state["iteration"])
         self.elapsed = float(state["elapsed"])

@@ -105,6 +105,7 @@ def fuse_tsdf(gaussians, views, config: TSDFConfig | None = None, render_config:
     size = box[3:] - box[:3]
     voxel = float(config.voxel_size or size.max() / config.resolution)
     res = np.maximum(2, np.ceil(size / voxel).astype(int) + 1)
+    wp.init()
     wdev = str(device or ("cuda:0" if gaussians.device.type == "cuda" else "cpu"))
     log.info("TSDF grid %s voxels of %.4g (%.1f MB)", res.tolist(), voxel, res.prod() * 20 / 2**20)
     shape = tuple(int(r) for r in res)
