@@ -17,7 +17,7 @@ import argparse
 import logging
 import sys
 
-from .errors import GofError
+from .cli import run_command
 from .geometry_metrics import evaluate_mesh
 from .io_utils import write_json_atomic
 
@@ -77,7 +77,8 @@ def format_report(report: dict) -> str:
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s")
-    try:
+
+    def body():
         crop = None if args.crop is None else (args.crop[:3], args.crop[3:])
         report = evaluate_mesh(args.mesh, args.gt, tau=args.tau, density=args.density, max_dist=args.max_dist,
                                crop=crop, truncate=args.truncate, method=args.method, seed=args.seed)
@@ -85,10 +86,8 @@ def main(argv=None) -> int:
         if args.json:
             write_json_atomic(args.json, report)
             print(f"\nwrote {args.json}")
-    except GofError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    return 0
+
+    return run_command(body)
 
 
 if __name__ == "__main__":

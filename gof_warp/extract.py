@@ -28,6 +28,7 @@ import numpy as np
 import torch
 
 from .camera import Camera
+from .cli import configure_output, run_command
 from .errors import GofError
 from .io_utils import atomic_path, write_json_atomic
 from .opacity_field import OpacityFieldConfig, opacity_field
@@ -231,8 +232,9 @@ def main(argv=None) -> int:
     ap.add_argument("--device", default="auto")
     ap.add_argument("--quiet", action="store_true")
     a = ap.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING if a.quiet else logging.INFO, format="%(message)s")
-    try:
+    configure_output(a.quiet)
+
+    def body():
         from .train import pick_device
 
         device = pick_device(a.device)
@@ -260,10 +262,8 @@ def main(argv=None) -> int:
             "method": a.method, "binary_steps": a.binary_steps, "num_gaussians": len(gaussians),
             "num_views": len(cameras), "device": device, "total_time_s": round(total, 3),
             "stages": timer.stages, "meshes": outputs})
-    except GofError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    return 0
+
+    return run_command(body)
 
 
 if __name__ == "__main__":

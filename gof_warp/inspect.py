@@ -14,7 +14,7 @@ import sys
 
 import numpy as np
 
-from .errors import GofError
+from .cli import configure_output, run_command
 
 _PINHOLE = ("PINHOLE", "SIMPLE_PINHOLE")
 
@@ -68,13 +68,10 @@ def main(argv=None) -> int:
     parser.add_argument("--device", default=None, help="Warp device for undistortion (default: cuda if available)")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     args = parser.parse_args(argv)
-
-    import warp as wp
-
-    wp.config.log_level = wp.LOG_WARNING  # the CLI's stdout is the summary, not Warp's banner
+    configure_output(quiet=True)  # the CLI's stdout is the summary, not Warp's banner
     from .data import DataConfig, load_scene
 
-    try:
+    def body():
         config = DataConfig(
             downscale=args.downscale,
             test_every=args.test_every,
@@ -82,11 +79,9 @@ def main(argv=None) -> int:
             undistort=args.undistort,
         )
         info = describe(load_scene(args.scene, config, device=args.device))
-    except GofError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    print(json.dumps(info, indent=2) if args.json else format_text(info))
-    return 0
+        print(json.dumps(info, indent=2) if args.json else format_text(info))
+
+    return run_command(body)
 
 
 if __name__ == "__main__":

@@ -18,6 +18,7 @@ from importlib import resources
 from pathlib import Path
 
 from .config import ConfigError, from_dict, load_yaml, merge, parse_override
+from .cli import configure_output, run_command
 from .errors import GofError
 
 log = logging.getLogger("gof_warp.train")
@@ -90,15 +91,8 @@ def main(argv=None) -> int:
     ap.add_argument("--resume", action="store_true", help="continue from the newest checkpoint in --out")
     ap.add_argument("--quiet", action="store_true")
     a = ap.parse_intermixed_args(argv)
-    logging.basicConfig(level=logging.WARNING if a.quiet else logging.INFO, format="%(message)s")
-    try:
-        return _run(a)
-    except GofError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("\ninterrupted: the newest checkpoint in the run folder is intact; continue with --resume", file=sys.stderr)
-        return 130
+    configure_output(a.quiet)
+    return run_command(lambda: _run(a), "the newest checkpoint in the run folder is intact; continue with --resume")
 
 
 def _run(a) -> int:

@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-import torch
 
 from gof_warp.camera import look_at
 from gof_warp.model import Gaussians

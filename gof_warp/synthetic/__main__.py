@@ -10,9 +10,9 @@ Examples::
 from __future__ import annotations
 
 import argparse
-import logging
 import sys
 
+from ..cli import configure_output, run_command
 from ..errors import GofError
 
 
@@ -39,12 +39,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO, format="%(message)s")
-    if args.quiet:
-        import warp as wp
+    configure_output(args.quiet)
 
-        wp.config.log_level = wp.LOG_WARNING  # Warp's start-up banner and module-load lines
-    try:
+    def body():
         from . import get_preset, list_presets, make_scene
 
         if args.list:
@@ -55,12 +52,10 @@ def main(argv=None) -> int:
             raise GofError("--out is required (the folder to write the scene into)")
         out = make_scene(args.preset, args.out, views=args.views, resolution=args.resolution, seed=args.seed,
                          device=args.device, force=args.force, mesh_path=args.mesh, supersample=args.supersample)
-    except GofError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    if not args.quiet:
-        print(out)
-    return 0
+        if not args.quiet:
+            print(out)
+
+    return run_command(body)
 
 
 if __name__ == "__main__":
