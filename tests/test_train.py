@@ -119,3 +119,19 @@ def test_cli_refuses_to_overwrite_a_run_without_resume(tiny_scene, tmp_path):
     Trainer(tiny_scene, _config(iterations=2, checkpoint_every=0), tmp_path / "run", "cpu").run()
     proc = _cli(tiny_scene.source, "--out", str(tmp_path / "run"), cwd=tmp_path)
     assert proc.returncode == 2 and "--resume" in proc.stderr
+
+
+def test_decoupled_appearance_trains_and_stays_out_of_the_render(tiny_scene, tmp_path):
+    from gof_warp.appearance import AppearanceModel
+
+    trainer = Trainer(tiny_scene, _config(iterations=6, appearance=True, checkpoint_every=0), tmp_path / "app", "cpu")
+    before = {k: v.clone() for k, v in trainer.appearance.state_dict().items()}
+    trainer.run()
+    after = trainer.appearance.state_dict()
+    assert any(not torch.equal(before[k], after[k]) for k in before), "the appearance model never trained"
+    # the gain covers the centre crop whose sides are multiples of 32 and lies in (0, 1)
+    render = torch.rand(3, 70, 45)
+    gain = trainer.appearance.gain(render, 0)
+    assert gain.shape == (3, 64, 32) and bool(((gain > 0) & (gain < 1)).all())
+    assert AppearanceModel.crop(render).shape == (3, 64, 32)
+    assert trainer.appearance.gain(torch.rand(3, 20, 20), 0).numel() == 0  # below 32 px: no crop, no gain
