@@ -114,8 +114,12 @@ def _image_tensor(image: np.ndarray, device) -> torch.Tensor:
 def _peak_memory() -> dict:
     out = {"host_peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
     if torch.cuda.is_available():
+        import warp as wp
+
         out["gpu_peak_allocated_mb"] = torch.cuda.max_memory_allocated() / 2**20
         out["gpu_peak_reserved_mb"] = torch.cuda.max_memory_reserved() / 2**20
+        # the renderer's temporaries live in Warp's own memory pool, which torch does not see
+        out["gpu_peak_warp_pool_mb"] = wp.get_mempool_used_mem_high("cuda:0") / 2**20
     return out
 
 
