@@ -83,7 +83,10 @@ class StageTimer:
         entry = {"time_s": round(time.perf_counter() - t0, 4),
                  "host_peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)}
         if cuda:
+            import warp as wp
+
             entry["gpu_peak_allocated_mb"] = round(torch.cuda.max_memory_allocated() / 2**20, 1)
+            entry["gpu_warp_pool_high_mb"] = round(wp.get_mempool_used_mem_high("cuda:0") / 2**20, 1)  # since start
         self.stages[name] = entry
         log.info("%s: %.2f s", name, entry["time_s"])
 
@@ -134,10 +137,12 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
 
     meshes = []
     if config.method == "tetra":
+        substages: dict = {}
         with timer("tetra_points+delaunay"):
             points, tets, _, _ = tetrahedral_grid(gaussians.means.detach(), gaussians.rotations.detach(),
                                                   gaussians.scales.detach(), gaussians.opacities.detach(),
-                                                  cameras=cameras, config=config.tetra)
+                                                  cameras=cameras, config=config.tetra, stats=substages)
+        timer.stages["tetra_points+delaunay"]["substages_s"] = substages
         log.info("%d points, %d tetrahedra", len(points), len(tets))
         with timer("opacity_field"):
             values = field_fn(points)
@@ -228,6 +233,8 @@ def main(argv=None) -> int:
     ap.add_argument("--resolution", type=int, default=None, help="grid resolution for cubes/tsdf")
     ap.add_argument("--delaunay", default="scipy", choices=("scipy", "cgal", "auto"))
     ap.add_argument("--opacity-min", type=float, default=None, help="drop Gaussians below this opacity first")
+    ap.add_argument("--corner-min-extent", type=float, default=None,
+                    help="tetra: only the centre point for Gaussians whose 3-sigma extent is below this (world units)")
     ap.add_argument("--min-component-faces", type=int, default=0)
     ap.add_argument("--device", default="auto")
     ap.add_argument("--quiet", action="store_true")
@@ -241,7 +248,8 @@ def main(argv=None) -> int:
         run = Path(a.run)
         cfg = MeshConfig(method=a.method, levels=tuple(a.levels), binary_steps=a.binary_steps,
                          min_component_faces=a.min_component_faces,
-                         tetra=TetraConfig(backend=a.delaunay, opacity_min=a.opacity_min))
+                         tetra=TetraConfig(backend=a.delaunay, opacity_min=a.opacity_min,
+                                           corner_min_extent=a.corner_min_extent))
         if a.resolution:
             cfg.cubes_resolution = a.resolution
             cfg.tsdf.resolution = a.resolution

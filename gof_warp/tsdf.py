@@ -22,7 +22,7 @@ import warp as wp
 
 from .errors import GofError
 from .kernels.render_types import camera_params_from
-from .kernels.tsdf import integrate_tsdf
+from .kernels.tsdf import integrate_tsdf, sample_grid_trilinear
 from .marching import marching_cubes
 from .render import RenderConfig, render
 
@@ -125,22 +125,48 @@ def fuse_tsdf(gaussians, views, config: TSDFConfig | None = None, render_config:
     return TSDFVolume(tsdf.numpy(), weight.numpy(), rgb.numpy(), box[:3].copy(), voxel)
 
 
+class GridSampler:
+    """Trilinear samples of a scalar grid ``[X, Y, Z]`` (node ``(i, j, k)`` at ``origin + voxel_size ·
+    (i, j, k)``) on a Warp device, with :meth:`TSDFVolume.sample`'s semantics (points clamped onto the
+    grid). Calling it with ``points`` (``wp.array`` of ``vec3`` ``[M]``) returns ``wp.array(float32)`` ``[M]``
+    on ``device``: the field of :func:`~gof_warp.marching.marching_cubes` with ``field_input="warp"``.
+    Memory: the grid on the device (4 B/voxel) plus 4 B per sampled point."""
+
+    def __init__(self, grid: np.ndarray, origin, voxel_size: float, device):
+        grid = np.asarray(grid, np.float32)
+        if grid.ndim != 3 or min(grid.shape) < 2:
+            raise GofError(f"grid must be [X, Y, Z] with every side >= 2, got shape {grid.shape}")
+        wp.init()
+        self.device = str(device)
+        self.grid = wp.array(grid, dtype=wp.float32, device=self.device)
+        self.origin = wp.vec3(*np.asarray(origin, np.float32))
+        self.voxel_size = float(voxel_size)
+
+    def __call__(self, points: wp.array) -> wp.array:
+        values = wp.empty(points.shape[0], dtype=wp.float32, device=self.device)
+        wp.launch(sample_grid_trilinear, dim=points.shape[0], device=self.device,
+                  inputs=[self.grid, self.origin, self.voxel_size, points.to(self.device)], outputs=[values])
+        return values
+
+
 def extract_tsdf_mesh(volume: TSDFVolume, *, binary_steps: int = 0, device=None):
     """Zero level set of the TSDF: ``(vertices [V, 3], faces [F, 3], colours [V, 3] in [0, 1])``.
 
-    Faces touching a cube with an unobserved corner (weight 0) are dropped (Open3D's rule).
+    Faces touching a cube with an unobserved corner (weight 0) are dropped (Open3D's rule). The grid and
+    the binary search's trilinear samples live on the Warp ``device`` (default CUDA when available).
     """
     res = np.array(volume.tsdf.shape)
     observed = volume.weight > 0
     field_grid = np.where(observed, -volume.tsdf, -1.0).astype(np.float32)  # inside = value >= 0
-
-    def field(points):
-        return volume.sample(np.asarray(points, np.float64), field_grid).astype(np.float32)
+    wp.init()
+    device = str(device or ("cuda" if wp.get_cuda_device_count() > 0 else "cpu"))
+    field = GridSampler(field_grid, volume.origin, volume.voxel_size, device)
+    del field_grid
 
     lower = volume.origin
     upper = volume.origin + volume.voxel_size * (res - 1)
     verts, faces = marching_cubes(field, np.stack([lower, upper]), tuple(int(r) for r in res), level=0.0,
-                                  binary_steps=binary_steps, device=device)
+                                  binary_steps=binary_steps, field_input="warp", device=device)
     if len(faces) == 0:
         return verts, faces, np.zeros((0, 3), np.float32)
     cell = np.clip(np.floor((verts - lower) / volume.voxel_size).astype(np.int64), 0, res - 2)

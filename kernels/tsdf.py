@@ -53,3 +53,34 @@ def integrate_tsdf(
     tsdf[i, j, k] = (tsdf[i, j, k] * w + value) / (w + 1.0)
     rgb[i, j, k] = (rgb[i, j, k] * w + colour[py, px]) / (w + 1.0)
     weight[i, j, k] = w + 1.0
+
+
+@wp.kernel
+def sample_grid_trilinear(
+    grid: wp.array3d(dtype=float),
+    origin: wp.vec3,
+    voxel_size: float,
+    points: wp.array(dtype=wp.vec3),
+    values: wp.array(dtype=float),
+):
+    """One thread per point: trilinear interpolation of ``grid`` ``[X, Y, Z]`` (node ``(i, j, k)`` at
+    ``origin + voxel_size · (i, j, k)``) at ``points`` ``[M]``; points outside the grid are clamped onto
+    its boundary (as ``TSDFVolume.sample``). Needs ``X, Y, Z >= 2``; writes ``values`` ``[M]``."""
+    m = wp.tid()
+    x = (points[m] - origin) / voxel_size
+    i0 = wp.vec3i(0, 0, 0)
+    f = wp.vec3(0.0, 0.0, 0.0)
+    for a in range(3):
+        upper = grid.shape[a] - 1
+        xa = wp.clamp(x[a], 0.0, float(upper))
+        ia = wp.min(int(wp.floor(xa)), upper - 1)  # cell [ia, ia + 1] always inside the grid
+        i0[a] = ia
+        f[a] = xa - float(ia)
+    i, j, k = i0[0], i0[1], i0[2]
+    c00 = grid[i, j, k] * (1.0 - f[0]) + grid[i + 1, j, k] * f[0]
+    c10 = grid[i, j + 1, k] * (1.0 - f[0]) + grid[i + 1, j + 1, k] * f[0]
+    c01 = grid[i, j, k + 1] * (1.0 - f[0]) + grid[i + 1, j, k + 1] * f[0]
+    c11 = grid[i, j + 1, k + 1] * (1.0 - f[0]) + grid[i + 1, j + 1, k + 1] * f[0]
+    c0 = c00 * (1.0 - f[1]) + c10 * f[1]
+    c1 = c01 * (1.0 - f[1]) + c11 * f[1]
+    values[m] = c0 * (1.0 - f[2]) + c1 * f[2]
