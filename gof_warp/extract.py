@@ -15,6 +15,7 @@ vertex/face counts and per-stage time and peak memory.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import resource
@@ -132,8 +133,8 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
     if len(gaussians) == 0:
         raise GofError("the model has no Gaussians: nothing to extract")
 
-    def field_fn(points):
-        return opacity_field(gaussians, cameras, points, config=config.field, render_config=render_config)
+    def field_fn(points, field_config=config.field):
+        return opacity_field(gaussians, cameras, points, config=field_config, render_config=render_config)
 
     meshes = []
     if config.method == "tetra":
@@ -151,15 +152,19 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
                                          levels=config.levels, binary_steps=config.binary_steps)
         timer.stages["counts"] = {"points": int(len(points)), "tetrahedra": int(len(tets))}
     elif config.method == "cubes":
-        from .tsdf import gaussian_bounds
+        from .tsdf import scene_bounds
 
-        box = np.asarray(config.crop, float) if config.crop is not None else gaussian_bounds(
-            gaussians.means.detach().cpu().numpy(), 0.5, 0.05, 3.0 * gaussians.scales.detach().max(dim=1).values.cpu().numpy())
+        box = np.asarray(config.crop, float) if config.crop is not None else scene_bounds(
+            gaussians, cameras, near=render_config.near)
         size = box[3:] - box[:3]
         res = tuple(int(max(2, round(config.cubes_resolution * s / size.max()))) for s in size)
         for level in config.levels:
             with timer(f"marching_cubes@{level}"):
-                meshes.append(marching_cubes(lambda p: field_fn(p).cpu().numpy(), np.stack([box[:3], box[3:]]), res,
+                # a dense grid reaches space no camera sees: count it as empty there (GOF's "unseen = 1" is
+                # meant for tetra points, which the frustum mask already keeps in view; on a grid it builds
+                # walls at the frustum boundaries)
+                grid_field = dataclasses.replace(config.field, unseen_value=0.0)
+                meshes.append(marching_cubes(lambda p: field_fn(p, grid_field).cpu().numpy(), np.stack([box[:3], box[3:]]), res,
                                              level=level, binary_steps=config.binary_steps))
     else:
         views = views or [View(camera=c, image=np.zeros((c.height, c.width, 3), np.uint8), name=c.name) for c in cameras]

@@ -75,7 +75,7 @@ def opacity_field(gaussians, cameras: Sequence[Camera], points, *, config: Opaci
     if not cameras:
         raise GofError("the opacity field needs at least one camera")
     m = pts.shape[0]
-    field = torch.full((m,), float(config.unseen_value), dtype=torch.float32, device=device)
+    field = torch.ones(m, dtype=torch.float32, device=device)  # running minimum (O <= 1); unseen set at the end
     seen = torch.zeros(m, dtype=torch.int32, device=device)
     if m == 0:
         return (field, seen) if return_seen else field

@@ -84,6 +84,29 @@ def gaussian_bounds(means: np.ndarray, percentile: float, padding: float, extent
     return np.concatenate([lo - pad, hi + pad])
 
 
+def scene_bounds(gaussians, cameras, *, percentile: float = 0.5, padding: float = 0.05, near: float = 0.2,
+                 max_widening: float = 10.0) -> np.ndarray:
+    """The box a dense grid (TSDF, marching cubes) should cover: the Gaussians some camera sees (frustum
+    test on the centres), each widened by its 3σ extent, capped at ``max_widening`` × the median 3σ extent
+    and at a tenth of the diagonal of the centres' box (itself widened by the median extent), robust
+    percentiles, padded. A few huge or unseen Gaussians cannot swamp it: a grid larger than the scene also
+    reaches space that every view sees only through the scene, which GOF's field calls "inside"."""
+    from .tetra import frustum_mask
+
+    means = gaussians.means.detach()
+    extent = 3.0 * gaussians.scales.detach().max(dim=1).values
+    if cameras:
+        seen = frustum_mask(means.double(), cameras, near, 1e6)
+        if bool(seen.any()):
+            means, extent = means[seen], extent[seen]
+    e = extent.cpu().numpy().astype(np.float64)
+    m = means.cpu().numpy().astype(np.float64)
+    median = float(np.median(e)) if len(e) else 0.0
+    core = gaussian_bounds(m, percentile, 0.0, np.full(len(m), median))
+    cap = min(max_widening * median, 0.1 * float(np.linalg.norm(core[3:] - core[:3])))
+    return gaussian_bounds(m, percentile, padding, np.minimum(e, cap))
+
+
 @torch.no_grad()
 def fuse_tsdf(gaussians, views, config: TSDFConfig | None = None, render_config: RenderConfig | None = None,
               device=None) -> TSDFVolume:
@@ -97,9 +120,9 @@ def fuse_tsdf(gaussians, views, config: TSDFConfig | None = None, render_config:
     render_config = render_config or RenderConfig()
     if not views:
         raise GofError("TSDF fusion needs at least one view")
-    box = np.asarray(config.bounds, float) if config.bounds is not None else gaussian_bounds(
-        gaussians.means.detach().cpu().numpy(), config.bounds_percentile, config.bounds_padding,
-        3.0 * gaussians.scales.detach().max(dim=1).values.cpu().numpy())
+    box = np.asarray(config.bounds, float) if config.bounds is not None else scene_bounds(
+        gaussians, [v.camera for v in views], percentile=config.bounds_percentile, padding=config.bounds_padding,
+        near=render_config.near)
     if box.shape != (6,) or np.any(box[3:] <= box[:3]):
         raise GofError(f"TSDF bounds must be (xmin, ymin, zmin, xmax, ymax, zmax) with max > min, got {box.tolist()}")
     size = box[3:] - box[:3]

@@ -8,7 +8,7 @@ import torch
 
 from gof_warp.camera import look_at
 from gof_warp.model import Gaussians
-from gof_warp.opacity_field import opacity_field
+from gof_warp.opacity_field import OpacityFieldConfig, opacity_field
 from gof_warp.render import RenderConfig, render
 
 # float32 kernel vs float64 reference: sums of ≤ 30 terms of O(1) → ~1e-6; decisions near the alpha_min
@@ -92,6 +92,10 @@ def test_field_matches_float64_brute_force():
                           g.opacities.numpy().astype(np.float64), cams, points, cfg)
     np.testing.assert_allclose(got.numpy(), ref, atol=FIELD_TOL)
     assert seen[-1] == 0 and seen[-2] == 0 and got[-1] == 1.0
+    # another value for unseen points changes only those points
+    zero = opacity_field(g, cams, points, config=OpacityFieldConfig(unseen_value=0.0), render_config=cfg)
+    np.testing.assert_array_equal(zero.numpy()[seen.numpy() > 0], got.numpy()[seen.numpy() > 0])
+    assert zero[-1] == 0.0 and zero[-2] == 0.0
     assert (ref > 0.05).sum() > 50 and (ref < 0.01).sum() > 50, "the scene must exercise both regimes"
 
 

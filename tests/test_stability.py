@@ -79,3 +79,12 @@ def test_cases_build_the_degenerate_values_they_name():
     assert float(g.raw_opacities.max()) < 1e-5
     with pytest.raises(ValueError, match="unknown stability case"):
         make_case("nope")
+
+
+def test_dense_grid_bounds_ignore_huge_and_unseen_gaussians(reports):
+    """cubes/TSDF size their grid from the Gaussians the cameras see, with capped 3σ widening."""
+    for case in ("huge_scales", "far_outside"):
+        for method in ("cubes", "tsdf"):
+            r = reports[case][method]
+            assert r["outcome"] == "ok" and r["faces"] > 100 and r["faces_far"] == 0, (case, method, r)
+            assert np.all(np.abs(r["bbox_min"]) < FAR_RADIUS) and np.all(np.abs(r["bbox_max"]) < FAR_RADIUS), (case, method)
