@@ -170,6 +170,20 @@ class Camera:
         """Horizontal and vertical field of view in radians (from the focal lengths and image size)."""
         return 2 * np.arctan(self.width / (2 * self.fx)), 2 * np.arctan(self.height / (2 * self.fy))
 
+    def to_dict(self) -> dict:
+        """Plain data (JSON-able): name, size, intrinsics, world-to-camera ``R``/``t``."""
+        return {"name": self.name, "width": self.width, "height": self.height, "fx": self.fx, "fy": self.fy,
+                "cx": self.cx, "cy": self.cy, "R": self.R.tolist(), "t": self.t.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Camera":
+        """Inverse of :meth:`to_dict`."""
+        try:
+            return cls(R=np.array(d["R"]), t=np.array(d["t"]), fx=d["fx"], fy=d["fy"], cx=d["cx"], cy=d["cy"],
+                       width=d["width"], height=d["height"], name=d.get("name", ""))
+        except (KeyError, TypeError) as e:
+            raise SceneError(f"camera record {d.get('name', '?') if isinstance(d, dict) else d!r} is incomplete: {e}") from None
+
     def __repr__(self) -> str:
         c = self.center
         return (

@@ -32,6 +32,7 @@ from .camera import Camera
 from .cli import configure_output, run_command
 from .errors import GofError
 from .io_utils import atomic_path, write_json_atomic
+from .marching import compact_mesh
 from .opacity_field import OpacityFieldConfig, opacity_field
 from .render import RenderConfig
 from .tetra import TetraConfig, tetrahedral_grid
@@ -106,10 +107,8 @@ def _postprocess(verts, faces, config: MeshConfig):
         labels = trimesh.graph.connected_component_labels(trimesh.graph.face_adjacency(faces), node_count=len(faces))
         counts = np.bincount(labels)
         faces = faces[counts[labels] >= config.min_component_faces]
-    used = np.unique(faces)
-    remap = np.full(len(verts), -1, np.int64)
-    remap[used] = np.arange(len(used))
-    return verts[used], remap[faces].astype(np.int32)
+    verts, faces, _ = compact_mesh(verts, faces)
+    return verts, faces
 
 
 def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = None, *,
@@ -221,8 +220,7 @@ def load_run(run: Path, scene: str | None, device: str):
 def cameras_from_json(path: Path) -> list[Camera]:
     try:
         data = json.loads(path.read_text())
-        return [Camera(R=np.array(c["R"]), t=np.array(c["t"]), fx=c["fx"], fy=c["fy"], cx=c["cx"], cy=c["cy"],
-                       width=c["width"], height=c["height"], name=c["name"]) for c in data["train"]]
+        return [Camera.from_dict(c) for c in data["train"]]
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise GofError(f"{path}: cannot read cameras: {e}") from None
 

@@ -75,6 +75,14 @@ def _field_kind(points) -> str:
     return "numpy"
 
 
+def compact_mesh(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Keep only the vertices some face uses. Returns ``(verts [V', 3], faces [F, 3] int32, kept [V'] indices)``."""
+    used = np.unique(faces)
+    remap = np.full(len(verts), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    return verts[used], remap[faces].astype(np.int32), used
+
+
 def _empty_mesh() -> tuple[np.ndarray, np.ndarray]:
     return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32)
 

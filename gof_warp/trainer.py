@@ -265,9 +265,7 @@ class Trainer:
     # ------------------------------------------------------------------ files and checkpoints
     def _write_static_files(self):
         write_text_atomic(self.out_dir / "config.yaml", dump_yaml(self.config))
-        cams = {split: [{"name": v.name, "width": v.camera.width, "height": v.camera.height,
-                         "fx": v.camera.fx, "fy": v.camera.fy, "cx": v.camera.cx, "cy": v.camera.cy,
-                         "R": v.camera.R.tolist(), "t": v.camera.t.tolist()} for v in views]
+        cams = {split: [v.camera.to_dict() for v in views]
                 for split, views in (("train", self.scene.train), ("test", self.scene.test))}
         write_json_atomic(self.out_dir / "cameras.json", {"convention": "world-to-camera, OpenCV axes", **cams,
                                                           "extent": self.scene.extent})

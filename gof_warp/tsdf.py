@@ -23,7 +23,7 @@ import warp as wp
 from .errors import GofError
 from .kernels.render_types import camera_params_from
 from .kernels.tsdf import integrate_tsdf, sample_grid_trilinear
-from .marching import marching_cubes
+from .marching import compact_mesh, marching_cubes
 from .render import RenderConfig, render
 
 log = logging.getLogger(__name__)
@@ -200,9 +200,6 @@ def extract_tsdf_mesh(volume: TSDFVolume, *, binary_steps: int = 0, device=None)
         ok &= observed[c[:, 0], c[:, 1], c[:, 2]]
     keep = ok[faces].all(axis=1)
     faces = faces[keep]
-    used = np.unique(faces)
-    remap = np.full(len(verts), -1, np.int64)
-    remap[used] = np.arange(len(used))
-    verts = verts[used]
+    verts, faces, _ = compact_mesh(verts, faces)
     colours = volume.sample(verts.astype(np.float64), volume.rgb).astype(np.float32)
-    return verts, remap[faces].astype(np.int32), colours
+    return verts, faces, colours

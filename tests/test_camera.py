@@ -66,3 +66,13 @@ def test_camera_extent_is_3dgs_radius():
     assert camera_extent(cams) == pytest.approx(expected)
     with pytest.raises(SceneError):
         camera_extent([])
+
+
+def test_dict_round_trip_and_incomplete_record():
+    cam = look_at([1.0, -2.0, 0.5], [0, 0, 0], fx=321.5, fy=300.25, cx=40.3, cy=30.1, width=81, height=59, name="v7")
+    back = Camera.from_dict(cam.to_dict())
+    np.testing.assert_array_equal(back.R, cam.R)
+    np.testing.assert_array_equal(back.t, cam.t)
+    assert (back.fx, back.fy, back.cx, back.cy, back.width, back.height, back.name) == (321.5, 300.25, 40.3, 30.1, 81, 59, "v7")
+    with pytest.raises(SceneError, match="incomplete"):
+        Camera.from_dict({"name": "x", "R": np.eye(3).tolist()})

@@ -89,9 +89,7 @@ def run_folder(tmp_path_factory):
                                  np.full((2, 3), 0.15), [0.95, 0.95], device="cpu")
     g.save_ply(run / "point_cloud.ply")
     cams = _ring_cameras(n=8, size=40)
-    cam_json = [{"name": c.name, "width": c.width, "height": c.height, "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy,
-                 "R": c.R.tolist(), "t": c.t.tolist()} for c in cams]
-    (run / "cameras.json").write_text(json.dumps({"train": cam_json, "test": []}))
+    (run / "cameras.json").write_text(json.dumps({"train": [c.to_dict() for c in cams], "test": []}))
     return run
 
 
