@@ -235,6 +235,8 @@ def main(argv=None) -> int:
     ap.add_argument("--binary-steps", type=int, default=8)
     ap.add_argument("--resolution", type=int, default=None, help="grid resolution for cubes/tsdf")
     ap.add_argument("--delaunay", default="scipy", choices=("scipy", "cgal", "auto"))
+    ap.add_argument("--delaunay-workers", type=int, default=TetraConfig.delaunay_workers,
+                    help="threads for scipy's Delaunay in chunks (0: every CPU; 1: one Qhull call)")
     ap.add_argument("--opacity-min", type=float, default=None, help="drop Gaussians below this opacity first")
     ap.add_argument("--corner-min-extent", type=float, default=None,
                     help="tetra: only the centre point for Gaussians whose 3-sigma extent is below this (world units)")
@@ -252,7 +254,8 @@ def main(argv=None) -> int:
         cfg = MeshConfig(method=a.method, levels=tuple(a.levels), binary_steps=a.binary_steps,
                          min_component_faces=a.min_component_faces,
                          tetra=TetraConfig(backend=a.delaunay, opacity_min=a.opacity_min,
-                                           corner_min_extent=a.corner_min_extent))
+                                           corner_min_extent=a.corner_min_extent,
+                                           delaunay_workers=a.delaunay_workers))
         if a.resolution:
             cfg.cubes_resolution = a.resolution
             cfg.tsdf.resolution = a.resolution

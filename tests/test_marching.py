@@ -17,7 +17,8 @@ from scipy.spatial.transform import Rotation
 from gof_warp.camera import look_at
 from gof_warp.errors import GofError
 from gof_warp.marching import marching_cubes, marching_tetrahedra
-from gof_warp.tetra import (TetraConfig, delaunay, filter_cells, orient_and_drop_degenerate, tetra_points,
+from gof_warp.delaunay import delaunay, orient_and_drop_degenerate
+from gof_warp.tetra import (TetraConfig, filter_cells, tetra_points,
                             tetrahedral_grid)
 
 EXACT_TOL = 2e-6  # float32 rounding of a point on a unit-size edge

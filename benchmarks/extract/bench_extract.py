@@ -11,8 +11,9 @@ subset, or copies jittered by one σ beyond 54k; synthetic opacities uniform in 
         --machine "1x H200" --out benchmarks/extract/results_extract_h200.json
 
 A reduction is ``none`` or comma-separated ``key=value`` with keys ``opacity_min``,
-``corner_min_extent`` (world units) and ``corner_frac`` (``corner_min_extent`` as a fraction of the
-diagonal of the Gaussians' robust box). Reductions apply to ``tetra`` only; ``cubes``/``tsdf`` run once.
+``corner_min_extent`` (world units), ``corner_frac`` (``corner_min_extent`` as a fraction of the
+diagonal of the Gaussians' robust box) and ``workers`` (``TetraConfig.delaunay_workers``: Delaunay in
+chunks on that many threads, 0 = every CPU; not a reduction, but set per run the same way). Reductions apply to ``tetra`` only; ``cubes``/``tsdf`` run once.
 Memory per stage: ``host_peak_rss_mb`` (process maximum so far, from ``extract.StageTimer``),
 ``peak_rss_above_start_mb`` (sampled every 5 ms), ``gpu_peak_allocated_mb`` (torch), and
 ``warp_mempool_high_mb`` (Warp's CUDA mempool high-water mark so far; Warp has no reset).
@@ -41,7 +42,7 @@ from gof_warp.model import Gaussians
 from gof_warp.tetra import TetraConfig
 from gof_warp.tsdf import gaussian_bounds
 
-REDUCTION_KEYS = ("opacity_min", "corner_min_extent", "corner_frac")
+REDUCTION_KEYS = ("opacity_min", "corner_min_extent", "corner_frac", "workers")
 
 
 class BenchTimer(StageTimer):
@@ -72,6 +73,8 @@ def parse_reduction(spec: str, diagonal: float) -> TetraConfig:
             raise SystemExit(f"bad reduction {spec!r}: use none or key=value with keys {REDUCTION_KEYS}")
         if key == "corner_frac":
             cfg.corner_min_extent = float(value) * diagonal
+        elif key == "workers":  # Delaunay threads (0: every CPU)
+            cfg.delaunay_workers = int(value)
         else:
             setattr(cfg, key, float(value))
     return cfg

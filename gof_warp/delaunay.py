@@ -1,0 +1,371 @@
+"""Delaunay tetrahedralisation of the tetrahedral-grid points: one Qhull call, CGAL, or Qhull in parallel chunks.
+
+Delaunay dominates GOF's extraction (one Qhull call takes ~53 s per million points on one core). With
+``workers > 1`` large point sets can be triangulated in **chunks on several threads** (scipy's Qhull
+releases the GIL) and stitched:
+
+1. The points are split into ``K`` cells by median cuts along the widest axis (a k-d tree). A cell's
+   *core* owns the space of its box (half-open; cells on the outside reach to infinity); its *halo box*
+   grows the core until it holds ``halo_fraction`` × the core's points more.
+2. Each chunk triangulates the points of its halo box (Qhull). A local tetrahedron is kept by the chunk
+   whose core holds its owner point — the circumcentre when the circumradius is at most ``rho`` (the
+   smallest halo width), else the centroid; both are the same in every chunk, so no tetrahedron is kept
+   twice — and only if it is a tetrahedron of the global Delaunay tetrahedralisation: its circumsphere
+   lies in the halo box (then every point inside the sphere would be a local point, and there is none),
+   or a KD-tree over all points finds no point inside the sphere.
+
+What this gives, measured (``tests/test_delaunay.py``, ``benchmarks/extract/README.md``): every kept
+tetrahedron is a global Delaunay one (no overlaps); a global tetrahedron is found when all its vertices lie
+in the halo of the core holding its owner point — always for the small ones, which are the ones GOF's cell
+filter keeps. The large ones that no chunk sees (edges longer than the halo, in empty space) are missing:
+``stats`` counts the faces left unmatched between chunks and the fraction of the convex hull's volume
+covered. On points in general position inside a smooth hull the result equals one Qhull call; where 4+
+points are cocircular/cospherical (the corners of a 3σ box face) the tetrahedralisation is not unique and
+chunks may pick another diagonal than one Qhull call would. Flat (zero-volume) tetrahedra are dropped in
+every path, duplicate points merged onto their lowest index, and every tetrahedron is positively oriented.
+
+Memory: Qhull peaks at ~360 B per tetrahedron of a chunk (~6.6 tetrahedra per point) times the chunks in
+flight (= ``workers``); the KD-tree ~40 B per point; the kept tetrahedra 16 B each.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import os
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import GofError
+
+log = logging.getLogger(__name__)
+
+# A tetrahedron is degenerate (zero volume) when |6 V| <= this × (longest edge)³: Qhull's "Qt" output
+# contains flat simplices whose float64 volume is a rounding residue (~1e-16 relative).
+DEGENERATE_REL_VOLUME = 1e-10
+# A point counts as inside a circumsphere when nearer its centre than R (1 - this); nearer to the sphere
+# is cospherical to rounding: Qhull itself keeps tetrahedra with points up to ~3e-9 R inside on 3σ-box
+# corners (float32 inputs, tests/test_delaunay.py), whose sphere-test is decided by rounding.
+SPHERE_RTOL = 1e-7
+CGAL_FILE_PRECISION = 17  # digits: doubles round-trip exactly through CGAL's text output
+BACKENDS = ("scipy", "cgal", "auto")
+PARALLEL_MIN_POINTS = 200_000  # below this one Qhull call is as fast as the chunked path
+CHUNK_POINTS = 150_000  # target points per chunk core (auto chunk count); ~5 s of Qhull on one core
+HALO_FRACTION = 0.5  # a chunk triangulates its core's points and this fraction more around it
+_FACES = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])  # face i is opposite vertex i (Qhull's order)
+
+
+def default_workers() -> int:
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+# ---------------------------------------------------------------------------------------------- geometry
+def check_points(points) -> np.ndarray:
+    """``points [P, 3]`` as float64, finite, at least 4 of them; ``GofError`` otherwise."""
+    p = np.asarray(points)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise GofError(f"points must have shape [P, 3], got {p.shape}")
+    p = p.astype(np.float64)
+    if not np.all(np.isfinite(p)):
+        raise GofError("points has NaN/inf entries")
+    if p.shape[0] < 4:
+        raise GofError(f"Delaunay needs at least 4 points, got {p.shape[0]}")
+    return p
+
+
+def tet_geometry(tets: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(6 × signed volume [T], flat [T] bool, circumcentre [T, 3], circumradius [T])`` (float64). Flat:
+    ``|6V| <= DEGENERATE_REL_VOLUME × longest edge³``; their circumcentre is the centroid and radius inf."""
+    a = p[tets[:, 0]]
+    u, v, w = p[tets[:, 1]] - a, p[tets[:, 2]] - a, p[tets[:, 3]] - a
+    vxw, wxu, uxv = np.cross(v, w), np.cross(w, u), np.cross(u, v)
+    vol6 = np.einsum("ij,ij->i", u, vxw)
+    edges2 = [np.einsum("ij,ij->i", e, e) for e in (u, v, w, v - u, w - u, w - v)]
+    flat = np.abs(vol6) <= DEGENERATE_REL_VOLUME * np.max(edges2, axis=0) ** 1.5
+    safe = np.where(flat, 1.0, vol6)
+    rel = (edges2[0][:, None] * vxw + edges2[1][:, None] * wxu + edges2[2][:, None] * uxv) / (2.0 * safe[:, None])
+    rel[flat] = (u[flat] + v[flat] + w[flat]) / 4.0
+    radius = np.where(flat, np.inf, np.linalg.norm(rel, axis=1))
+    return vol6, flat, a + rel, radius
+
+
+def _orient(tets: np.ndarray, vol6: np.ndarray) -> np.ndarray:
+    t = np.ascontiguousarray(tets, dtype=np.int32)
+    neg = vol6 < 0
+    t[neg] = t[neg][:, [0, 1, 3, 2]]
+    return t
+
+
+def orient_and_drop_degenerate(tets: np.ndarray, points: np.ndarray, chunk_size: int = 1 << 20) -> np.ndarray:
+    """Drop zero-volume tetrahedra and swap two vertices of the negative ones, so every returned tetrahedron has
+    positive volume. ``[T, 4]`` → ``[T', 4]`` int32."""
+    p = np.asarray(points, np.float64)
+    out = []
+    for s in range(0, tets.shape[0], chunk_size):
+        t = np.asarray(tets[s : s + chunk_size])
+        vol6, flat, _, _ = tet_geometry(t, p)
+        out.append(_orient(t[~flat], vol6[~flat]))
+    result = np.concatenate(out) if out else np.zeros((0, 4), np.int32)
+    if result.shape[0] < tets.shape[0]:
+        log.info("delaunay: dropped %d degenerate tetrahedra", tets.shape[0] - result.shape[0])
+    return result
+
+
+# ---------------------------------------------------------------------------------------------- one call
+def _qhull(p: np.ndarray):
+    from scipy.spatial import Delaunay, QhullError
+
+    try:
+        return Delaunay(p)
+    except QhullError as e:
+        first = str(e).strip().splitlines()[0] if str(e).strip() else ""
+        raise GofError(f"Delaunay failed: the {p.shape[0]} points are degenerate (coplanar/collinear?): {first}") from e
+
+
+def _canonical_vertices(tri, p: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """Global index of each local vertex, duplicates mapped to their lowest global index (Qhull keeps one
+    copy of a duplicated point and lists the others as "coplanar", with the copy it kept)."""
+    glob = ids.copy()
+    cop = tri.coplanar
+    if cop.shape[0]:
+        pt, vtx = cop[:, 0], cop[:, 2]
+        dup = np.all(p[ids[pt]] == p[ids[vtx]], axis=1)
+        np.minimum.at(glob, vtx[dup], ids[pt[dup]])
+    return glob
+
+
+def _read_numbers(f, n_lines: int, dtype, block: int = 1 << 20) -> np.ndarray:
+    """Next ``n_lines`` whitespace-separated number lines of a text file, in blocks."""
+    parts = []
+    for start in range(0, n_lines, block):
+        text = b"".join(itertools.islice(f, min(block, n_lines - start))).decode()
+        parts.append(np.fromstring(text, dtype=dtype, sep=" "))  # text mode (not deprecated), 4x split()
+    return np.concatenate(parts) if parts else np.zeros(0, dtype)
+
+
+def _delaunay_cgal(p: np.ndarray) -> np.ndarray:
+    """CGAL's ``Delaunay_triangulation_3`` (pip ``cgal``, SWIG bindings, GPLv3): insert all points, write
+    the triangulation as text (full precision), read finite cells, map CGAL's vertices back to our indices
+    by their exact coordinates (duplicates map to their first copy)."""
+    try:
+        from CGAL.CGAL_Kernel import Point_3
+        from CGAL.CGAL_Triangulation_3 import Delaunay_triangulation_3
+    except ImportError as e:
+        raise GofError("backend='cgal' needs the optional CGAL bindings (GPLv3): pip install 'gof_warp[cgal]'") from e
+    tri = Delaunay_triangulation_3()
+    tri.insert([Point_3(x, y, z) for x, y, z in p.tolist()])
+    if tri.dimension() < 3:
+        raise GofError(f"Delaunay failed: the {p.shape[0]} points are degenerate (dimension {tri.dimension()})")
+    with tempfile.TemporaryDirectory(prefix="gof_cgal_") as tmp:
+        path = os.path.join(tmp, "triangulation.txt")
+        tri.write_to_file(path, CGAL_FILE_PRECISION)
+        del tri
+        with open(path, "rb") as f:  # dimension, n, n vertex lines, n_cells, n_cells cell lines, neighbours
+            int(f.readline())
+            n = int(f.readline())
+            xyz = _read_numbers(f, n, np.float64).reshape(n, 3)
+            n_cells = int(f.readline())
+            cells = _read_numbers(f, n_cells, np.int64).reshape(n_cells, 4)
+    cells = cells[(cells != 0).all(axis=1)] - 1  # index 0 is the infinite vertex
+    unique, first = np.unique(p, axis=0, return_index=True)
+    order = np.lexsort(xyz.T[::-1])
+    if unique.shape != xyz.shape or not np.array_equal(unique, xyz[order]):
+        raise RuntimeError("CGAL's vertices do not match the input points")
+    to_input = np.empty(n, np.int64)
+    to_input[order] = first
+    return to_input[cells]
+
+
+# ---------------------------------------------------------------------------------------------- chunks
+def kd_boxes(p: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Split the points into ``k`` cells by median cuts along each cell's widest axis. Returns cores
+    ``(lo [k, 3], hi [k, 3])`` (a point x is in a core when lo <= x < hi; outer sides are ±inf)."""
+    cells = [(np.arange(p.shape[0]), np.full(3, -np.inf), np.full(3, np.inf))]
+    while len(cells) < k:
+        cells.sort(key=lambda c: -c[0].shape[0])
+        idx, lo, hi = cells.pop(0)
+        q = p[idx]
+        axis = int(np.argmax(q.max(0) - q.min(0)))
+        cut = float(np.median(q[:, axis]))
+        below = q[:, axis] < cut
+        if below.all() or not below.any():  # all on one value along the widest axis: cannot split further
+            cells.append((idx, lo, hi))
+            break
+        hi_a, lo_b = hi.copy(), lo.copy()
+        hi_a[axis] = lo_b[axis] = cut
+        cells += [(idx[below], lo, hi_a), (idx[~below], lo_b, hi)]
+    return np.array([c[1] for c in cells]), np.array([c[2] for c in cells])
+
+
+def _halo_width(p: np.ndarray, lo: np.ndarray, hi: np.ndarray, fraction: float) -> float:
+    """The distance around a core box that takes in ``fraction`` × its own number of points more (L∞)."""
+    outside = np.max(np.maximum(lo - p, p - hi), axis=1)  # <= 0 inside
+    core = int(np.sum(outside < 0))
+    dist = outside[outside >= 0]
+    k = min(max(1, round(fraction * core)), dist.size) - 1
+    return float(np.partition(dist, k)[k]) if dist.size else 0.0
+
+
+def _in_box(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, closed: bool) -> np.ndarray:
+    upper = x <= hi if closed else x < hi
+    return np.all((x >= lo) & upper, axis=1)
+
+
+@dataclass
+class _Piece:
+    """What one chunk contributes: kept tetrahedra (global ids, oriented, non-flat) and the faces of
+    its kept tetrahedra (flat ones included) whose neighbour it did not keep."""
+
+    tets: np.ndarray  # [T, 4] int32
+    volume6: float  # sum of 6 V of the kept tetrahedra
+    faces: np.ndarray  # [F, 3] sorted global ids
+    on_hull: np.ndarray  # [F] bool: the face has no local neighbour (it lies on the piece's hull)
+    apex: np.ndarray  # [F] global id of the kept tetrahedron's vertex opposite the face
+    unsafe: int  # kept-by-ownership tetrahedra whose sphere left the halo (checked with the KD-tree)
+    rejected: int  # of those, found not Delaunay
+
+
+def _triangulate_piece(p: np.ndarray, ids: np.ndarray, owns, halo_lo, halo_hi, tree, rho: float) -> _Piece:
+    """Qhull on ``p[ids]``; keep the tetrahedra whose owner point ``owns`` (the circumcentre when the
+    circumradius is <= ``rho``, else the centroid) and that are global Delaunay tetrahedra (circumsphere in
+    the halo box, else checked with the KD-tree)."""
+    tri = _qhull(p[ids])
+    glob = _canonical_vertices(tri, p, ids)
+    t = glob[tri.simplices]
+    vol6, flat, centre, radius = tet_geometry(t, p)
+    small = radius <= rho
+    keep = owns(np.where(small[:, None], centre, p[t].mean(axis=1)))
+    inside = np.all((centre - radius[:, None] >= halo_lo) & (centre + radius[:, None] <= halo_hi), axis=1)
+    check = np.flatnonzero(keep & ~flat & ~inside)
+    rejected = 0
+    if check.size:
+        dist, _ = tree.query(centre[check], k=1)
+        bad = check[dist < radius[check] * (1.0 - SPHERE_RTOL)]
+        keep[bad] = False
+        rejected = int(bad.size)
+    nb = tri.neighbors
+    kept_nb = np.where(nb >= 0, keep[np.maximum(nb, 0)], False)
+    border_t, border_f = np.nonzero(keep[:, None] & ~kept_nb)
+    faces = np.sort(t[border_t[:, None], _FACES[border_f]], axis=1).astype(np.int32)
+    solid = keep & ~flat
+    return _Piece(_orient(t[solid], vol6[solid]), float(np.abs(vol6[solid]).sum()), faces,
+                  nb[border_t, border_f] < 0, t[border_t, border_f], int(check.size), rejected)
+
+
+def _unmatched_faces(pieces: list[_Piece], p: np.ndarray, hull_vertices: np.ndarray) -> np.ndarray:
+    """Border faces seen once that are not on the convex hull, ``[U, 3]``. Faces seen more than twice
+    (overlapping pieces; should not happen) are counted in the log."""
+    faces = np.concatenate([pc.faces for pc in pieces])
+    on_hull = np.concatenate([pc.on_hull for pc in pieces])
+    apex = np.concatenate([pc.apex for pc in pieces])
+    if faces.shape[0] == 0:
+        return faces
+    order = np.lexsort(faces.T[::-1])
+    f = faces[order]
+    new = np.ones(f.shape[0], bool)
+    new[1:] = np.any(f[1:] != f[:-1], axis=1)
+    group = np.cumsum(new) - 1
+    count = np.bincount(group)
+    if np.any(count > 2):
+        log.warning("delaunay: %d faces shared by more than two tetrahedra", int(np.sum(count > 2)))
+    single = order[count[group] == 1]
+    cand = single[on_hull[single]]
+    if cand.size:  # a hull face has every point (all hull vertices) on its apex's side
+        a, b, c = (p[faces[cand, i]] for i in range(3))
+        n = np.cross(b - a, c - a)
+        n *= np.sign(np.einsum("ij,ij->i", n, p[apex[cand]] - a))[:, None]
+        scale = np.linalg.norm(n, axis=1) * np.max(np.ptp(p[hull_vertices], axis=0))
+        beyond = (p[hull_vertices] @ n.T) - np.einsum("ij,ij->i", n, a)  # [H, C] (< 0: outside)
+        is_hull = np.all(beyond >= -1e-9 * scale, axis=0)
+        single = np.concatenate([single[~on_hull[single]], cand[~is_hull]])
+    return faces[single]
+
+
+def delaunay_chunked(p: np.ndarray, chunks: int, workers: int, halo_fraction: float = HALO_FRACTION,
+                     stats: dict | None = None) -> np.ndarray:
+    """The exact global Delaunay tetrahedralisation of float64 ``p [P, 3]`` from ``chunks`` pieces on ``workers``
+    threads (see the module docstring). Returns positively oriented non-flat ``tets [T, 4] int32``."""
+    from scipy.spatial import ConvexHull, cKDTree
+
+    stats = {} if stats is None else stats
+    t0 = time.perf_counter()
+    with ThreadPoolExecutor(max(1, workers)) as pool:
+        tree_job = pool.submit(cKDTree, p, balanced_tree=False, compact_nodes=False)
+        lo, hi = kd_boxes(p, chunks)
+        halo = np.array([_halo_width(p, lo[c], hi[c], halo_fraction) for c in range(lo.shape[0])])
+        rho = float(halo.min())  # tetrahedra with circumradius <= rho are owned by their circumcentre
+        halo_lo, halo_hi = lo - halo[:, None], hi + halo[:, None]
+        tree = tree_job.result()
+
+        def run_chunk(c):
+            ids = np.flatnonzero(_in_box(p, halo_lo[c], halo_hi[c], closed=True))
+            return _triangulate_piece(p, ids, lambda x: _in_box(x, lo[c], hi[c], closed=False),
+                                      halo_lo[c], halo_hi[c], tree, rho)
+
+        pieces = list(pool.map(run_chunk, range(lo.shape[0])))
+    t1 = time.perf_counter()
+    hull = ConvexHull(p)
+    unmatched = _unmatched_faces(pieces, p, hull.vertices)
+    tets = np.concatenate([pc.tets for pc in pieces])
+    coverage = sum(pc.volume6 for pc in pieces) / 6.0 / hull.volume if hull.volume > 0 else 1.0
+    stats.update(delaunay_chunks=int(lo.shape[0]), delaunay_workers=int(workers), delaunay_rho=rho, delaunay_checked=sum(pc.unsafe for pc in pieces),
+                 delaunay_rejected=sum(pc.rejected for pc in pieces), delaunay_unmatched_faces=int(unmatched.shape[0]),
+                 delaunay_volume_coverage=float(coverage), delaunay_chunks_s=round(t1 - t0, 3),
+                 delaunay_stitch_s=round(time.perf_counter() - t1, 3))
+    if unmatched.shape[0] or abs(coverage - 1.0) > 1e-6:
+        log.info("delaunay: %d faces between chunks unmatched (holes); tetrahedra cover %.6f of the hull",
+                 unmatched.shape[0], coverage)
+    return tets
+
+
+# ---------------------------------------------------------------------------------------------- public
+def delaunay(points, backend: str = "scipy", *, workers: int | None = 1, chunks: int | None = None,
+             halo_fraction: float = HALO_FRACTION, stats: dict | None = None) -> np.ndarray:
+    """Delaunay tetrahedralisation of ``points [P, 3]`` → ``tets [T, 4] int32``, positively oriented,
+    zero-volume tetrahedra dropped.
+
+    ``backend``: ``"scipy"`` (Qhull, BSD, default), ``"cgal"`` (optional extra ``gof_warp[cgal]``, GPLv3;
+    one call: its Python bindings export cells through a text file) or ``"auto"`` (CGAL if importable, else
+    scipy). ``workers``: threads (``None``: every CPU this process may use); with scipy, more than one worker
+    and ``P >= PARALLEL_MIN_POINTS`` the points are triangulated in chunks on the threads and stitched (module
+    docstring: the large empty-space tetrahedra no chunk sees are missing); ``chunks`` sets their number
+    (default ~``CHUNK_POINTS`` per chunk, at least two per worker; 1: one call).
+    Duplicate points are merged onto their lowest index. ``stats``: the parallel path's counters are written
+    into it. Raises ``GofError`` for fewer than 4 points or points that span no volume (coplanar, collinear).
+    """
+    if backend not in BACKENDS:
+        raise GofError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if workers is not None and workers < 1 or chunks is not None and chunks < 1:
+        raise GofError(f"workers and chunks must be >= 1, got {workers} and {chunks}")
+    if not 0.0 < halo_fraction:
+        raise GofError(f"halo_fraction must be > 0, got {halo_fraction}")
+    p = check_points(points)
+    if backend == "auto":
+        try:
+            import CGAL.CGAL_Triangulation_3  # noqa: F401
+
+            backend = "cgal"
+        except ImportError:
+            backend = "scipy"
+    workers = default_workers() if workers is None else workers
+    if chunks is None:  # one call unless there are threads to share the work and enough points to split
+        parallel = workers > 1 and p.shape[0] >= PARALLEL_MIN_POINTS
+        chunks = max(2 * workers, round(p.shape[0] / CHUNK_POINTS)) if parallel else 1
+    if backend == "cgal":
+        tets = orient_and_drop_degenerate(_delaunay_cgal(p), p)
+    elif chunks > 1:
+        tets = delaunay_chunked(p, chunks, workers, halo_fraction, stats)
+    else:
+        tri = _qhull(p)
+        tets = orient_and_drop_degenerate(_canonical_vertices(tri, p, np.arange(p.shape[0]))[tri.simplices], p)
+    if tets.shape[0] == 0:
+        raise GofError(f"Delaunay of {p.shape[0]} points gave no tetrahedron with volume (degenerate points)")
+    log.info("delaunay (%s, %d chunk(s)): %d points → %d tetrahedra", backend, chunks, p.shape[0], tets.shape[0])
+    return tets
