@@ -1,34 +1,41 @@
-"""``python -m gof_warp.bench [--suite tiny|quick|full|stability] --out DIR [--list] [--device D]``
+"""``python -m gof_warp.bench [--suite tiny|quick|full|stability] [--out DIR] [--list] [--only PATTERN ...]
+[--time-limit SECONDS] [--runs-dir DIR] [--data DIR] [--device D]``
 
 Accuracy against cost, across extraction methods, training lengths, Gaussian budgets and the
-regularisers: scenes × training configurations × extraction methods. Each (scene, training config) is
-trained once; every method is extracted from that model, timed, and scored against the scene's exact
-``gt_mesh.ply``. Writes ``DIR/results.json`` and ``DIR/results.csv`` (one row per (run, method), with every
-time, memory, size and accuracy figure and the machine) and charts (``chamfer_vs_time.png``,
-``fscore_vs_time.png``, ``chamfer_vs_gaussians.png``, ``chamfer_vs_faces.png``; needs matplotlib, the
-``plots`` extra). Memory is the peak host RSS (Linux VmHWM, reset before each training and extraction) and
-torch's peak CUDA allocation. An extraction refused with a clear error (e.g. an empty model) is a row with
-``error`` set and no scores; anything else that fails stops the suite. Rows already in
-``DIR/results.json`` are skipped, so an interrupted suite continues (a run whose model is already trained
-in ``DIR/runs/<run>`` is not trained again).
+regularisers: scenes × training configurations × extraction methods. Each run (scene, training config) is
+trained once; its model, and the snapshots it saved on the way (``Run.snapshots``: the 3DGS way of
+reporting 3k/7k/… numbers from one run), are extracted with every method of the run, timed, and scored
+against the scene's exact ``gt_mesh.ply``. Writes ``DIR/results.json`` and ``DIR/results.csv``: one row per
+(run, iteration, method), with ``iteration`` the model's (a snapshot's or the last), the training time
+and Gaussian count up to it, test PSNR/SSIM, every extraction time, memory, size and accuracy figure, and
+the machine; and the charts of :mod:`gof_warp.bench_report`. Memory is the peak host RSS (Linux VmHWM, reset
+before each training and extraction) and torch's peak CUDA allocation. An extraction refused with a clear
+error (e.g. an empty model) is a row with ``error`` set and no scores; anything else that fails stops the
+suite. Real scenes (no GT mesh) get rows with empty accuracy columns; the method ``render_only`` is a
+row with no mesh at all (rendering quality, time and size of the model only).
 
-A suite is plain data (:func:`suite`): ``tiny`` (the test's), ``quick`` (a CPU in minutes), ``full`` (the
-GPU run: every preset at 800×800, 3k–30k iterations, budgets, the regulariser ablation, every method).
-``stability`` runs :mod:`gof_warp.stability` (where each method breaks; ``--fast``: only the hand-made
-cases) and writes ``stability.json``; its exit code is 1 when any (case, method) crashed.
+Continuing and splitting: rows already in ``DIR/results.json`` are skipped (key: run, iteration, method),
+so an interrupted suite continues where it stopped, losing at most the run in progress (a run whose model
+is still in ``DIR/runs/<run>``, or ``--runs-dir``, is not trained again). ``--only`` keeps the runs whose names match a
+shell pattern. ``--time-limit S`` starts no run whose planned cost (``Run.budget_s``) would end more than
+``S`` seconds after the command started (it skips to later runs that still fit); when runs are left it
+exits with code 3 and says how many: run the same command again (e.g. in the next device call).
+``--time-limit 0`` runs nothing: it redraws the charts of the table so far and lists what is left.
+
+A suite is plain data (:func:`suite`; ``--list`` prints it with each run's budget and the total): ``tiny``
+(the test's), ``quick`` (a CPU in minutes), ``full`` (the GPU run, sized by :class:`Sizing` for one H100
+lent in 10-minute calls: no run over 8 minutes with its extractions, about 48 minutes in all; see
+:func:`full_suite`). ``stability`` runs :mod:`gof_warp.stability` (where each method breaks; ``--fast``: only
+the hand-made cases) and writes ``stability.json``; its exit code is 1 when any (case, method) crashed.
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
 import dataclasses
-import io
+import fnmatch
 import logging
-import math
 import os
-import platform
-import resource
 import sys
 import time
 from dataclasses import dataclass, field
@@ -36,23 +43,32 @@ from pathlib import Path
 
 import numpy as np
 
+from .bench_report import (
+    load_rows,
+    machine_info,
+    peak_memory,
+    reset_peak_memory,
+    row_key,
+    scores,
+    write_charts,
+    write_table,
+)
 from .cli import configure_output, run_command
 from .errors import GofError
 
 log = logging.getLogger("gof_warp.bench")
 
 SUITES = ("tiny", "quick", "full", "stability")
-CHARTS = (("total_time_s", "chamfer", "chamfer_vs_time.png"), ("total_time_s", "fscore", "fscore_vs_time.png"),
-          ("num_gaussians", "chamfer", "chamfer_vs_gaussians.png"), ("faces", "chamfer", "chamfer_vs_faces.png"))
+EXIT_RUNS_LEFT = 3  # --time-limit reached with runs left: run the same command again
 
 
 # ----------------------------------------------------------------------------------------- the suites
 @dataclass(frozen=True)
 class Method:
-    """One extraction configuration; ``name`` is its key in the results table."""
+    """One extraction configuration; ``name`` is its key in the results table (method ``none``: no mesh)."""
 
     name: str
-    method: str  # tetra | cubes | tsdf
+    method: str  # tetra | cubes | tsdf | none
     binary_steps: int = 0
     resolution: int | None = None  # grid resolution (cubes, tsdf)
 
@@ -68,7 +84,9 @@ class Method:
 
 @dataclass(frozen=True)
 class Run:
-    """One trained model: a synthetic preset at a resolution/view count, a training config, its methods."""
+    """One trained model: a synthetic preset at a resolution/view count (or ``real:NAME``), a training config,
+    the methods extracted from its last model and, at each of ``snapshots``, from that snapshot;
+    ``budget_s`` is the planned cost (training + every extraction and scoring) on the suite's machine."""
 
     name: str
     preset: str
@@ -78,6 +96,9 @@ class Run:
     overrides: dict = field(default_factory=dict, hash=False)  # merged into the preset (nested sections)
     methods: tuple[Method, ...] = ()
     eval_samples: int | None = None  # GT surface samples for scoring (None: geometry_metrics' default)
+    snapshots: tuple[int, ...] = ()  # TrainConfig.snapshot_iterations
+    snapshot_methods: tuple[Method, ...] = ()  # extracted at every snapshot
+    budget_s: float = 0.0
 
 
 def tetra(steps):
@@ -90,6 +111,9 @@ def cubes(res, steps):
 
 def tsdf(res):
     return Method(f"tsdf{res}", "tsdf", 0, res)
+
+
+RENDER_ONLY = Method("render_only", "none")  # a row for the model itself: no extraction
 
 
 def scaled_schedule(iterations: int, max_gaussians: int, init_points: int) -> dict:
@@ -105,6 +129,32 @@ def scaled_schedule(iterations: int, max_gaussians: int, init_points: int) -> di
                         "opacity_reset_interval": 10 * iterations, "sh_degree_interval": at(400),
                         "filter_3d_until_iter": at(1100), "max_gaussians": max_gaussians},
             "loss": {"regularization_from_iter": at(600)}}
+
+
+GOF_SCHEDULE = {"densify": ("start_iter", "stop_iter", "opacity_reset_interval", "prune_big_after",
+                            "sh_degree_interval", "filter_3d_until_iter"),
+                "loss": ("regularization_from_iter",), "optim": ("means_lr_max_steps",)}
+
+
+def gof_schedule(iterations: int) -> dict:
+    """GOF's 30k-iteration schedule (the stage configs' defaults: densify 500–15k, opacity reset every 3k,
+    regularisers from 15k, …) compressed to ``iterations`` (meant for ≥ 3k): the fields of :data:`GOF_SCHEDULE`
+    × iterations/30k, the identity at 30k. So a shorter run is a complete training, regularisers included (cut
+    at 15k, GOF's own schedule would never switch them on). The densification and 3D-filter intervals stay
+    GOF's 100 iterations and ``start_iter`` is rounded to a multiple of it: an opacity reset (to 0.01) must be
+    followed by ~100 iterations of recovery before the next prune (opacity < 0.05), or every reset Gaussian
+    is pruned. No checkpoints (a bench run is retrained, not resumed)."""
+    from .densify import DensifyConfig
+    from .losses import LossConfig
+    from .optim import OptimConfig
+    from .trainer import TrainConfig
+
+    defaults = {"densify": DensifyConfig(), "loss": LossConfig(), "optim": OptimConfig()}
+    s = iterations / TrainConfig().iterations
+    out = {sec: {k: max(1, round(getattr(defaults[sec], k) * s)) for k in keys} for sec, keys in GOF_SCHEDULE.items()}
+    step = defaults["densify"].interval  # the reset at start_iter (blender) is then a full interval before a prune
+    out["densify"]["start_iter"] = max(step, step * round(out["densify"]["start_iter"] / step))
+    return {"iterations": iterations, "checkpoint_every": 0, "log_every": 100, **out}
 
 
 NO_REGULARISERS = {"loss": {"lambda_distortion": 0.0, "lambda_normal": 0.0}}
@@ -123,132 +173,193 @@ def preset_overrides(preset: str) -> dict:
     return {"model": {"init_box": [-6.0, -6.0, -6.0, 6.0, 6.0, 6.0]}} if preset == "background" else {}
 
 
+@dataclass(frozen=True)
+class Sizing:
+    """The ``full`` suite's sizes and cost model, in seconds on one H100: the one place to rescale.
+
+    Training, measured on an H200 with our trainer (per-iteration overhead dominates, so resolution matters
+    little; an H100 is assumed equal): nerf_mic 400×400 30k iterations 491 s (168k Gaussians), DTU 800×600
+    30k 554 s (520k Gaussians). Extraction and scoring are estimates, to be replaced by the first call's
+    measured ``extract_time_s`` / ``eval_time_s``. Not in any budget: a call's start-up (setup script,
+    imports, Warp's kernel compilation on a fresh machine) — leave it as margin in ``--time-limit``.
+    """
+
+    resolution: tuple[int, int] = (400, 400)  # synthetic presets (nerf_mic is 400×400, DTU 800×600)
+    long_iterations: int = 15_000  # the training-length run; 30k (~500 s of training alone) fits no call
+    iterations: int = 7_000  # every other run
+    snapshots: tuple[int, ...] = (3_000, 7_000)  # of the long run: with it, training lengths 3k/7k/15k
+    max_run_s: float = 480.0  # one run with its extractions, inside a 600-s call with start-up
+    s_per_iteration: float = 0.0165  # 400×400 (nerf_mic: 491 s / 30k)
+    s_per_iteration_dtu: float = 0.0185  # 800×600 with the appearance model (554 s / 30k)
+    setup_s: float = 15.0  # scene generation/loading, initialisation, final PLY + test evaluation
+    snapshot_s: float = 4.0  # snapshot PLY + its test evaluation + reloading it
+    tetra_s: float = 25.0  # tetra points, Delaunay (host), field, marching; 100–200k Gaussians
+    tetra_step_s: float = 1.0  # per binary-search step
+    cubes256_s: float = 4.0  # field on a 256³ grid + marching cubes; × (res/256)² at other resolutions
+    cubes256_step_s: float = 0.5
+    tsdf512_s: float = 40.0  # fusion over the train views + marching cubes; × (res/512)³
+    score_s: float = 5.0  # per mesh: sampling, Chamfer/F-score, connected components
+    dtu_extract_factor: float = 2.0  # DTU models are ~3× larger (520k Gaussians), 49 views at 800×600
+
+    def method_s(self, m: Method) -> float:
+        if m.method == "none":
+            return 0.0
+        if m.method == "tetra":
+            t = self.tetra_s + m.binary_steps * self.tetra_step_s
+        elif m.method == "cubes":
+            t = (m.resolution / 256) ** 2 * (self.cubes256_s + m.binary_steps * self.cubes256_step_s)
+        else:
+            t = self.tsdf512_s * (m.resolution / 512) ** 3
+        return t + self.score_s
+
+    def budget_s(self, run: Run) -> float:
+        """Planned seconds of ``run``: set-up, training, snapshots and every extraction with its scoring."""
+        dtu = run.config == "dtu"
+        train = run.overrides["iterations"] * (self.s_per_iteration_dtu if dtu else self.s_per_iteration)
+        extract = sum(map(self.method_s, run.methods)) + len(run.snapshots) * (
+            self.snapshot_s + sum(map(self.method_s, run.snapshot_methods)))
+        return round(self.setup_s + train + (self.dtu_extract_factor if dtu else 1.0) * extract)
+
+
+def full_suite(z: Sizing = Sizing()) -> list[Run]:
+    """The GPU suite. Every run uses GOF's schedule compressed to its length (:func:`gof_schedule`); images
+    ``z.resolution``, the presets' 40 train / 8 test views, the ``blender`` preset (``dtu`` for DTU).
+
+    * ``default_15k``: the training lengths — snapshots at 3k and 7k (before the regularisers, which start at
+      half the schedule, as 3DGS's 7k of 30k) and the end, each with tetra(8) and cubes 256 (8 steps), TSDF at 15k.
+    * ``default_7k``: every method (tetra 0/1/3/8 steps, cubes 256/512 with 0 and 8 steps, TSDF 512).
+    * ``thin_7k``: the methods that differ on thin structures (tetra 0/3/8, cubes 256/512 with 8, TSDF).
+    * ``background``, ``textureless``, ``sparse``, ``spot`` 7k: GOF tetra(8) against TSDF.
+    * ``default_7k_budget50k`` (tetra 8) and ``default_7k_noreg`` (tetra 8, TSDF): against ``default_7k``
+      (at 7k, not 15k, to fit: the compressed schedule switches the regularisers on at 3.5k).
+    * real scenes (no GT mesh): ``nerf_mic`` 7k, rendering quality at 3k and 7k; ``dtu_scan24`` 7k, time and
+      size of tetra(8) and TSDF.
+    """
+    every = (tetra(0), tetra(1), tetra(3), tetra(8), cubes(256, 0), cubes(256, 8), cubes(512, 0), cubes(512, 8),
+             tsdf(512))
+    pair = (tetra(8), tsdf(512))
+    long, short = z.long_iterations, z.iterations
+
+    def run(name, preset, iterations, methods, extra=None, *, suffix="", config="blender", resolution=z.resolution,
+            **kw):
+        over = _merge(_merge(gof_schedule(iterations), preset_overrides(preset)), extra or {})
+        r = Run(f"{name}_{iterations // 1000}k{suffix}", preset, resolution, None, config, over, methods, **kw)
+        return dataclasses.replace(r, budget_s=z.budget_s(r))
+
+    runs = [
+        run("default", "default", long, (tetra(8), cubes(256, 8), tsdf(512)), snapshots=z.snapshots,
+            snapshot_methods=(tetra(8), cubes(256, 8))),
+        run("default", "default", short, every),
+        run("thin", "thin", short, (tetra(0), tetra(3), tetra(8), cubes(256, 8), cubes(512, 8), tsdf(512))),
+        *(run(p, p, short, pair) for p in ("background", "textureless", "sparse", "spot")),
+        run("default", "default", short, (tetra(8),), {"densify": {"max_gaussians": 50_000}}, suffix="_budget50k"),
+        run("default", "default", short, pair, NO_REGULARISERS, suffix="_noreg"),
+        run("real_nerf_mic", "real:nerf_mic", short, (RENDER_ONLY,), resolution=(400, 400),
+            snapshots=(z.snapshots[0],), snapshot_methods=(RENDER_ONLY,)),
+        run("real_dtu_scan24", "real:dtu_scan24", short, pair, config="dtu", resolution=(800, 600)),
+    ]
+    for r in runs:
+        if r.budget_s > z.max_run_s:
+            log.warning("run %s: budget %.0f s is over Sizing.max_run_s (%.0f s): it will not fit one call", r.name,
+                        r.budget_s, z.max_run_s)
+    return runs
+
+
 def suite(name: str) -> list[Run]:
-    """The runs of a suite (plain data; ``--list`` prints them)."""
-    if name == "tiny":  # the test: one scene, one model, every method kind; ~1 minute on 2 CPU cores
+    """The runs of a suite (plain data; ``--list`` prints them). ``budget_s`` of tiny/quick: 2-core CPU."""
+    if name == "tiny":  # the test: one scene, one model + one snapshot, every method kind; ~30 s on 2 CPU cores
         sched = scaled_schedule(200, 2000, 1000)
         return [Run("default_tiny", "default", (40, 40), 12, overrides=sched, eval_samples=20_000,
-                    methods=(tetra(0), tetra(2), cubes(24, 0), cubes(24, 4), tsdf(32)))]
+                    methods=(tetra(0), tetra(2), cubes(24, 0), cubes(24, 4), tsdf(32)), snapshots=(100,),
+                    snapshot_methods=(tetra(2), RENDER_ONLY), budget_s=40)]
     if name == "quick":  # CPU, a few minutes: two scenes, a budget, the regulariser ablation
         sched = scaled_schedule(300, 3000, 1500)
         methods = (tetra(0), tetra(3), tetra(8), cubes(40, 0), cubes(40, 4), tsdf(64))
-        base = {"resolution": (48, 48), "views": 12, "methods": methods, "eval_samples": 50_000}
+        base = {"resolution": (48, 48), "views": 12, "methods": methods, "eval_samples": 50_000, "budget_s": 150}
         return [Run("default_300", "default", overrides=sched, **base),
                 Run("thin_300", "thin", overrides=sched, **base),
                 Run("default_300_budget1k", "default", overrides=_merge(sched, {"densify": {"max_gaussians": 1000}}),
                     **base),
                 Run("default_300_noreg", "default", overrides=_merge(sched, NO_REGULARISERS), **base)]
-    if name == "full":  # the GPU run (not run on CPU)
-        from .synthetic import GPU_RESOLUTION
-
-        methods = (tetra(0), tetra(1), tetra(3), tetra(8), cubes(256, 0), cubes(256, 8), cubes(512, 0),
-                   cubes(512, 8), tsdf(512))
-        runs = []
-        for preset in ("default", "thin", "background", "textureless", "sparse"):
-            for it in (3000, 7000, 15000, 30000):
-                over = {"iterations": it, "densify": {"max_gaussians": 1_000_000}}
-                runs.append(Run(f"{preset}_{it}", preset, GPU_RESOLUTION, None, "blender", over, methods))
-            if preset not in ("default", "thin"):
-                continue
-            for budget in (50_000, 200_000):  # budgets and the ablation on the two geometry-critical scenes
-                runs.append(Run(f"{preset}_30000_budget{budget // 1000}k", preset, GPU_RESOLUTION, None, "blender",
-                                {"iterations": 30000, "densify": {"max_gaussians": budget}}, methods))
-            runs.append(Run(f"{preset}_30000_noreg", preset, GPU_RESOLUTION, None, "blender",
-                            _merge({"iterations": 30000}, NO_REGULARISERS), methods))
-        runs = [dataclasses.replace(r, overrides=_merge(r.overrides, preset_overrides(r.preset))) for r in runs]
-        # spot (a textured mesh from ../shared/data, with GT) and real scenes (no GT mesh: rendering quality, size
-        # and time only; their rows leave the accuracy columns empty)
-        runs += [Run("spot_30000", "spot", GPU_RESOLUTION, None, "blender", {"iterations": 30000}, methods),
-                 Run("real_nerf_mic_30000", "real:nerf_mic", (400, 400), None, "blender", {"iterations": 30000},
-                     methods),
-                 Run("real_dtu_scan24_30000", "real:dtu_scan24", (800, 600), None, "dtu", {"iterations": 30000},
-                     (tetra(8), tsdf(512)))]
-        return runs
+    if name == "full":
+        return full_suite()
     raise GofError(f"unknown suite {name!r}; suites: {', '.join(SUITES)}")
 
 
+def select_runs(runs: list[Run], patterns: list[str] | None) -> list[Run]:
+    """The runs whose names match one of the shell patterns (all when ``patterns`` is None); a pattern that
+    matches no run is an error (a typo would otherwise run nothing)."""
+    if not patterns:
+        return runs
+    unmatched = [p for p in patterns if not any(fnmatch.fnmatchcase(r.name, p) for r in runs)]
+    if unmatched:
+        raise GofError(f"--only {' '.join(unmatched)}: no run matches; runs: {', '.join(r.name for r in runs)}")
+    return [r for r in runs if any(fnmatch.fnmatchcase(r.name, p) for p in patterns)]
+
+
 # ----------------------------------------------------------------------------------------- one run
-def machine_info() -> dict:
-    """The machine a row was measured on."""
-    import torch
-    import warp as wp
-
-    cpu = platform.processor()
-    try:
-        cpu = next(line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
-                   if line.startswith("model name")) or cpu
-    except (OSError, StopIteration):
-        pass
-    gpu = torch.cuda.get_device_name(0) if torch.cuda.is_available() else None
-    return {"platform": platform.platform(), "cpu": cpu, "cpu_count": os.cpu_count(), "gpu": gpu,
-            "python": platform.python_version(), "torch": torch.__version__, "warp": wp.config.version}
-
-
-def reset_peak_memory() -> None:
-    """Start a new peak for :func:`peak_memory` (Linux: ``/proc/self/clear_refs``; CUDA: torch's counters)."""
-    import torch
-
-    try:
-        Path("/proc/self/clear_refs").write_text("5")  # resets VmHWM, the process's resident-set high-water mark
-    except OSError:
-        pass
-    if torch.cuda.is_available():
-        torch.cuda.reset_peak_memory_stats()
-
-
-def peak_memory() -> dict:
-    """Peak host RSS since :func:`reset_peak_memory` (VmHWM; where unavailable, the process's lifetime peak)
-    and torch's peak CUDA allocation, in MB."""
-    import torch
-
-    host = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    try:
-        line = next(x for x in Path("/proc/self/status").read_text().splitlines() if x.startswith("VmHWM:"))
-        host = int(line.split()[1]) / 1024.0
-    except (OSError, StopIteration, ValueError):
-        pass
-    gpu = torch.cuda.max_memory_allocated() / 2**20 if torch.cuda.is_available() else None
-    return {"host_peak_rss_mb": round(host, 1), "gpu_peak_allocated_mb": None if gpu is None else round(gpu, 1)}
-
-
 DATA_ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data"  # real scenes (../shared/data)
 
 
-def scene_folder(run: Run, run_dir: Path) -> Path:
-    """The run's scene: a real scene under ``DATA_ROOT`` (``real:NAME``), else the synthetic preset rendered into
-    ``run_dir/scene`` (once)."""
+def data_root(path=None) -> Path:
+    """The folder of the real scenes and spot's mesh: ``path``, else ``$GOF_WARP_DATA``, else ``../shared/data``."""
+    return Path(path or os.environ.get("GOF_WARP_DATA") or DATA_ROOT)
+
+
+def scene_folder(run: Run, run_dir: Path, data=None) -> Path:
+    """The run's scene: a real scene ``data_root(data)/NAME`` (``real:NAME``), else the synthetic preset rendered
+    into ``run_dir/scene`` (once; ``spot`` reads its mesh from ``data_root(data)/spot``)."""
+    root = data_root(data)
     if run.preset.startswith("real:"):
-        path = DATA_ROOT / run.preset[5:]
+        path = root / run.preset[5:]
         if not path.is_dir():
-            raise GofError(f"run {run.name}: real scene {path} is absent (the full suite reads ../shared/data)")
+            raise GofError(f"run {run.name}: real scene {path} is absent (pass --data DIR, the folder holding it)")
         return path
     from .synthetic import make_scene
 
     scene_dir = run_dir / "scene"
     if not (scene_dir / "gt_mesh.ply").is_file():
-        make_scene(run.preset, scene_dir, views=run.views, resolution=run.resolution, force=True)
+        mesh = {"mesh_path": root / "spot"} if run.preset == "spot" else {}
+        make_scene(run.preset, scene_dir, views=run.views, resolution=run.resolution, force=True, **mesh)
     return scene_dir
 
 
-def _train_or_load(run: Run, run_dir: Path, device: str):
-    """``(gaussians, scene, render_config, metrics, scene_dir)``; a model already trained in ``run_dir`` is reused."""
+def run_config(run: Run):
+    """The run's resolved :class:`~gof_warp.trainer.TrainConfig` (preset + overrides + snapshots)."""
+    from .config import merge
+    from .train import resolve_config
+
+    over = _merge(run.overrides, {"snapshot_iterations": list(run.snapshots)}) if run.snapshots else run.overrides
+    return merge(resolve_config(run.config, [], None), over, f"run {run.name}")
+
+
+def _trained(run_dir: Path, snapshots) -> dict | None:
+    """The metrics of a model already trained in ``run_dir`` with every snapshot asked for, else None."""
     import json
 
-    from .config import merge
+    if not ((run_dir / "metrics.json").is_file() and (run_dir / "point_cloud.ply").is_file()):
+        return None
+    metrics = json.loads((run_dir / "metrics.json").read_text())
+    have = {s["iteration"] for s in metrics.get("snapshots", []) if (run_dir / s["path"]).is_file()}
+    return metrics if set(snapshots) <= have else None
+
+
+def _train_or_load(run: Run, run_dir: Path, device: str, data=None):
+    """``(gaussians, scene, render_config, metrics, scene_dir)`` of the run's last model; a model already
+    trained in ``run_dir`` (with its snapshots) is reused."""
     from .data import load_scene
     from .model import Gaussians
-    from .train import resolve_config
     from .trainer import Trainer
 
-    scene_dir = scene_folder(run, run_dir)
-    cfg = merge(resolve_config(run.config, [], None), run.overrides, f"run {run.name}")
+    scene_dir = scene_folder(run, run_dir, data)
+    cfg = run_config(run)
     scene = load_scene(scene_dir, cfg.data)
-    metrics_file = run_dir / "metrics.json"
-    if metrics_file.is_file() and (run_dir / "point_cloud.ply").is_file():
+    metrics = _trained(run_dir, run.snapshots)
+    if metrics is not None:
         log.info("run %s: reusing the trained model in %s", run.name, run_dir)
         render_config = dataclasses.replace(cfg.render, background=tuple(float(c) for c in scene.background))
-        return (Gaussians.load_ply(run_dir / "point_cloud.ply", device=device), scene, render_config,
-                json.loads(metrics_file.read_text()), scene_dir)
+        return (Gaussians.load_ply(run_dir / "point_cloud.ply", device=device), scene, render_config, metrics,
+                scene_dir)
     log.info("run %s: training %d iterations on %s (%d views)", run.name, cfg.iterations, run.preset, len(scene.train))
     reset_peak_memory()
     trainer = Trainer(scene, cfg, run_dir, device)
@@ -257,198 +368,179 @@ def _train_or_load(run: Run, run_dir: Path, device: str):
     return trainer.gaussians, scene, trainer.render_config, metrics, scene_dir
 
 
-def _scores(verts, faces, gt_path: Path, eval_samples: int | None) -> tuple[dict, dict]:
-    """``(metrics, mesh_stats)`` of :func:`evaluate_mesh` (default τ); metrics are ``{}`` without a GT mesh."""
-    from .geometry_metrics import (
-        default_eval_params,
-        evaluate_mesh,
-        load_geometry,
-        mesh_statistics,
-    )
+@dataclass
+class Model:
+    """What a row is extracted from: the run's last model or one of its snapshots."""
 
-    if not gt_path.is_file():
-        return {}, mesh_statistics((verts, faces))
-    gt = load_geometry(gt_path)
-    kw = {}
-    if eval_samples and float(gt.area) > 0:  # coarser sampling than the default, same τ and truncation
-        params = default_eval_params(gt)
-        kw = {"density": math.sqrt(float(gt.area) / eval_samples), "tau": params["tau"], "max_dist": params["max_dist"]}
-    ev = evaluate_mesh((verts, faces), gt, **kw)
-    return ev["metrics"], ev["mesh_stats"]
+    gaussians: object
+    iteration: int
+    snapshot: bool
+    train_time_s: float | None  # training time up to this model
+    test: dict  # the trainer's evaluate() of this model
 
 
-def _finite(x):
-    return x if isinstance(x, (int, float)) and math.isfinite(x) else None
+def _model_at(iteration: int, last, metrics: dict, run_dir: Path, device: str) -> Model:
+    from .model import Gaussians
+
+    if iteration == metrics.get("iterations"):
+        return Model(last, iteration, False, metrics.get("train_time_s"), metrics.get("test", {}))
+    rec = next(s for s in metrics["snapshots"] if s["iteration"] == iteration)
+    return Model(Gaussians.load_ply(run_dir / rec["path"], device=device), iteration, True, rec["train_time_s"],
+                 rec.get("test", {}))
 
 
-def _extract_row(run: Run, method: Method, gaussians, scene, render_config, metrics, scene_dir: Path,
-                 machine: dict) -> dict:
-    """Extract one mesh, score it, and return its results row (with the machine it ran on)."""
+def _variant(run: Run) -> dict:
+    """The training variant's columns: Gaussian budget and regularisers on/off."""
+    loss = run.overrides.get("loss", {})
+    return {"max_gaussians": run.overrides.get("densify", {}).get("max_gaussians"),
+            "regularisers": not (loss.get("lambda_distortion") == 0.0 and loss.get("lambda_normal") == 0.0)}
+
+
+def _extract(method: Method, model: Model, scene, render_config):
+    """``(verts, faces, error)``: the mesh (None for ``render_only``), or empty with the refusal's message."""
     from .extract import StageTimer, extract_mesh
 
+    if method.method == "none":
+        return None, None, None
+    try:
+        (verts, faces), = extract_mesh(model.gaussians, scene.train_cameras, method.mesh_config(),
+                                       render_config=render_config, views=scene.train, timer=StageTimer())
+        return verts, faces, None
+    except GofError as e:  # a clear refusal is a result of the configuration (recorded), not a bench failure
+        return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32), str(e)
+
+
+def _extract_row(run: Run, method: Method, model: Model, scene, render_config, metrics, scene_dir: Path,
+                 machine: dict) -> dict:
+    """Extract one mesh from ``model``, score it, and return its results row (with the machine it ran on)."""
     reset_peak_memory()
     t0 = time.perf_counter()
-    try:
-        (verts, faces), = extract_mesh(gaussians, scene.train_cameras, method.mesh_config(),
-                                       render_config=render_config, views=scene.train, timer=StageTimer())
-        error = None
-    except GofError as e:  # a clear refusal is a result of the configuration (recorded), not a bench failure
-        log.warning("run %s, %s: %s", run.name, method.name, e)
-        verts, faces, error = np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32), str(e)
-    extract_time = time.perf_counter() - t0
+    verts, faces, error = _extract(method, model, scene, render_config)
+    if error:
+        log.warning("run %s @%d, %s: %s", run.name, model.iteration, method.name, error)
+    extract_time = time.perf_counter() - t0 if verts is not None else None
     extract_mem = peak_memory()
     t1 = time.perf_counter()
-    m, st = _scores(verts, faces, scene_dir / "gt_mesh.ply", run.eval_samples)
+    m, st = scores(verts, faces, scene_dir / "gt_mesh.ply", run.eval_samples) if verts is not None else ({}, {})
 
     def first(key):  # the score at the first τ (0.5 % of the GT diagonal)
         return m[key][0] if m else None
 
-    test = metrics.get("test", {})
     train_mem = metrics.get("bench_peak_memory", {})
-    row = {
+    return {
         "run": run.name, "scene": run.preset, "resolution": f"{run.resolution[0]}x{run.resolution[1]}",
-        "train_views": len(scene.train), "test_views": test.get("views"), "iterations": metrics.get("iterations"),
-        "max_gaussians": run.overrides.get("densify", {}).get("max_gaussians"),
-        "regularisers": not (run.overrides.get("loss", {}).get("lambda_distortion") == 0.0
-                             and run.overrides.get("loss", {}).get("lambda_normal") == 0.0),
+        "train_views": len(scene.train), "test_views": model.test.get("views"), "iterations": metrics.get("iterations"),
+        "iteration": model.iteration, "snapshot": model.snapshot, **_variant(run),
         "method": method.name, "method_kind": method.method, "binary_steps": method.binary_steps,
         "grid_resolution": method.resolution,
-        "chamfer": _finite(m.get("chamfer")), "accuracy": _finite(m.get("accuracy")),
-        "completeness": _finite(m.get("completeness")), "fscore": first("fscore"), "precision": first("precision"),
+        "chamfer": m.get("chamfer"), "accuracy": m.get("accuracy"), "completeness": m.get("completeness"), "fscore": first("fscore"), "precision": first("precision"),
         "recall": first("recall"), "tau": first("tau"), "fscore_2tau": m["fscore"][-1] if m else None,
         "tau_2": m["tau"][-1] if m else None,
-        "components": st["connected_components"], "watertight": st["watertight"],
-        "faces": st["faces"], "vertices": st["vertices"],
-        "test_psnr": test.get("psnr"), "test_ssim": test.get("ssim"), "num_gaussians": len(gaussians),
-        "train_time_s": metrics.get("train_time_s"), "extract_time_s": round(extract_time, 3),
-        "total_time_s": round(float(metrics.get("train_time_s") or 0.0) + extract_time, 3),
-        "eval_time_s": round(time.perf_counter() - t1, 3),
+        "components": st.get("connected_components"), "watertight": st.get("watertight"),
+        "faces": st.get("faces"), "vertices": st.get("vertices"),
+        "test_psnr": model.test.get("psnr"), "test_ssim": model.test.get("ssim"), "num_gaussians": len(model.gaussians),
+        "train_time_s": model.train_time_s,
+        "extract_time_s": None if extract_time is None else round(extract_time, 3),
+        "total_time_s": round(float(model.train_time_s or 0.0) + (extract_time or 0.0), 3),
+        "eval_time_s": round(time.perf_counter() - t1, 3) if verts is not None else None,
         "train_host_peak_rss_mb": train_mem.get("host_peak_rss_mb", metrics.get("host_peak_rss_mb")),
         "train_gpu_peak_allocated_mb": train_mem.get("gpu_peak_allocated_mb", metrics.get("gpu_peak_allocated_mb")),
         "extract_host_peak_rss_mb": extract_mem["host_peak_rss_mb"],
         "extract_gpu_peak_allocated_mb": extract_mem["gpu_peak_allocated_mb"],
-        "device": str(gaussians.device), "error": error,
+        "device": str(model.gaussians.device), "error": error,
         **{f"machine_{k}": v for k, v in machine.items()},
     }
-    return row
 
 
-# ----------------------------------------------------------------------------------------- table + charts
-def load_rows(out: Path) -> list[dict]:
-    import json
-
-    path = out / "results.json"
-    if not path.is_file():
-        return []
-    try:
-        return list(json.loads(path.read_text())["rows"])
-    except (ValueError, KeyError, TypeError) as e:
-        raise GofError(f"{path} is not a results table ({e}); move it away or choose another --out") from None
+# ----------------------------------------------------------------------------------------- the suite
+def pending(run: Run, done: set) -> list[tuple[int, tuple[Method, ...]]]:
+    """``[(iteration, methods), …]`` of the run still missing from the table (keys in ``done``), snapshots first."""
+    plan = [(k, run.snapshot_methods) for k in run.snapshots] + [(run_config(run).iterations, run.methods)]
+    left = [(k, tuple(m for m in methods if (run.name, k, m.name) not in done)) for k, methods in plan]
+    return [(k, methods) for k, methods in left if methods]
 
 
-def write_table(out: Path, suite_name: str, rows: list[dict], machine: dict) -> None:
-    """``results.json`` (rows + the current machine) and ``results.csv`` (the rows; each names its machine in
-    its ``machine_*`` columns, so a table continued elsewhere stays honest), atomically."""
-    from .io_utils import write_json_atomic, write_text_atomic
+def run_suite(name: str, out, device: str = "cpu", runs: list[Run] | None = None, *,
+              time_limit: float | None = None, started: float | None = None, data=None, runs_dir=None) -> list[dict]:
+    """Run (or continue) a suite into ``out``; returns every row of the table.
 
-    write_json_atomic(out / "results.json", {"suite": suite_name, "machine": machine, "rows": rows})
-    columns = list(dict.fromkeys(k for r in rows for k in r))
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=columns, lineterminator="\n")
-    w.writeheader()
-    w.writerows(rows)
-    write_text_atomic(out / "results.csv", buf.getvalue())
-
-
-def write_charts(out: Path, rows: list[dict]) -> list[Path]:
-    """The four accuracy-vs-cost scatter charts (colour = method, marker = scene); [] without matplotlib."""
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
-        log.warning("matplotlib is not installed (pip install 'gof_warp[plots]'): charts skipped, results written")
-        return []
-    from .io_utils import atomic_path
-
-    methods = sorted({r["method"] for r in rows})
-    scenes = sorted({r["scene"] for r in rows})
-    colours = plt.get_cmap("tab10" if len(methods) <= 10 else "tab20")
-    markers = "osD^vP*Xh<>"
-    written = []
-    for xkey, ykey, name in CHARTS:
-        fig, ax = plt.subplots(figsize=(7, 5))
-        for i, meth in enumerate(methods):
-            for j, sc in enumerate(scenes):
-                pts = [(r[xkey], r[ykey], r["run"]) for r in rows if r["method"] == meth and r["scene"] == sc
-                       and r.get(xkey) is not None and r.get(ykey) is not None]
-                if pts:
-                    x, y, names = zip(*pts)
-                    ax.scatter(x, y, color=colours(i % colours.N), marker=markers[j % len(markers)],
-                               label=f"{meth} / {sc}", s=36, alpha=0.85)
-                    for xi, yi, run_name in zip(x, y, names):  # the training variant, e.g. "300_noreg"
-                        ax.annotate(run_name.removeprefix(f"{sc}_"), (xi, yi), fontsize=5, alpha=0.6,
-                                    xytext=(3, 3), textcoords="offset points")
-        ax.set_xlabel(xkey.replace("_", " "))
-        ax.set_ylabel(ykey + (" (lower is better)" if ykey == "chamfer" else " at τ (higher is better)"))
-        if all((r.get(xkey) or 0) > 0 for r in rows):
-            ax.set_xscale("log")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=6, ncol=2, loc="best")
-        ax.set_title(f"{ykey} vs {xkey.replace('_', ' ')}: one point per (run, method)")
-        fig.tight_layout()
-        with atomic_path(out / name) as tmp:
-            fig.savefig(tmp, dpi=110, format="png")
-        plt.close(fig)
-        written.append(out / name)
-    return written
-
-
-def run_suite(name: str, out, device: str = "cpu", runs: list[Run] | None = None) -> list[dict]:
-    """Run (or continue) a suite into ``out``; returns every row of the table."""
+    Args:
+        runs_dir: where each run's scene, model and snapshots go (``runs_dir/<run>``; default ``out/runs``), so
+            that ``out`` can hold only the table and charts (what a device call brings back).
+        time_limit: seconds after ``started`` (a ``time.perf_counter()``; default: now) past which no run may be
+            planned to end (``Run.budget_s``): such runs are skipped (see :func:`pending` for what is left).
+        data: the folder of the real scenes (:func:`data_root`).
+    """
     from .io_utils import ensure_writable_dir
 
+    started = time.perf_counter() if started is None else started
     out = ensure_writable_dir(out)
     runs = suite(name) if runs is None else runs
     rows = load_rows(out)
     machine = machine_info()
-    done = {(r["run"], r["method"]) for r in rows}
+    done = {row_key(r) for r in rows}
     for run in runs:
-        todo = [m for m in run.methods if (run.name, m.name) not in done]
+        todo = pending(run, done)
         if not todo:
-            log.info("run %s: all %d methods already in the table, skipped", run.name, len(run.methods))
+            log.info("run %s: every row already in the table, skipped", run.name)
             continue
-        run_dir = ensure_writable_dir(out / "runs" / run.name)
-        gaussians, scene, render_config, metrics, scene_dir = _train_or_load(run, run_dir, device)
-        for method in todo:
-            log.info("run %s: extracting %s", run.name, method.name)
-            row = _extract_row(run, method, gaussians, scene, render_config, metrics, scene_dir, machine)
-            rows.append(row)
-            write_table(out, name, rows, machine)  # after every row: an interruption loses one extraction at most
-            log.info("  %s: chamfer %s, F %s, %d faces, %.1f s", method.name, row["chamfer"], row["fscore"],
-                     row["faces"], row["extract_time_s"])
-    write_table(out, name, rows, machine)
-    charts = write_charts(out, rows)
+        elapsed = time.perf_counter() - started
+        if time_limit is not None and elapsed + run.budget_s > time_limit:
+            log.warning("run %s not started: %.0f s elapsed + its budget %.0f s > --time-limit %.0f s", run.name,
+                        elapsed, run.budget_s, time_limit)
+            continue
+        run_dir = ensure_writable_dir(Path(runs_dir or out / "runs") / run.name)
+        gaussians, scene, render_config, metrics, scene_dir = _train_or_load(run, run_dir, device, data)
+        for iteration, methods in todo:
+            model = _model_at(iteration, gaussians, metrics, run_dir, device)
+            for method in methods:
+                log.info("run %s @%d: %s", run.name, iteration, method.name)
+                row = _extract_row(run, method, model, scene, render_config, metrics, scene_dir, machine)
+                rows.append(row)
+                write_table(out, name, rows, machine)  # after every row: an interruption loses one extraction at most
+                log.info("  %s: chamfer %s, F %s, %s faces, %s s", method.name, row.get("chamfer"), row.get("fscore"),
+                         row.get("faces"), row.get("extract_time_s"))
+    charts = write_charts(out, rows) if rows else []  # the table is as the last row left it (or untouched)
     if charts:
         log.info("charts: %s", ", ".join(str(c) for c in charts))
     return rows
 
 
 def describe(runs: list[Run]) -> str:
+    """The plan: each run with its budget, training, methods; then the total."""
     lines = []
     for r in runs:
-        over = {k: v for k, v in r.overrides.items() if k in ("iterations", "densify", "loss")}
-        lines.append(f"{r.name}: preset {r.preset} {r.resolution[0]}x{r.resolution[1]} views {r.views or 'preset'}, "
-                     f"config {r.config} {over}\n    methods: {', '.join(m.name for m in r.methods)}")
+        v = _variant(r)
+        extra = "".join([f", budget {v['max_gaussians']:,} Gaussians" if v["max_gaussians"] else "",
+                         "" if v["regularisers"] else ", regularisers off",
+                         f", snapshots at {', '.join(map(str, r.snapshots))}" if r.snapshots else ""])
+        views = r.views or ("all" if r.preset.startswith("real:") else "preset")
+        lines.append(f"{r.name}  [{r.budget_s:.0f} s]  {r.preset} {r.resolution[0]}x{r.resolution[1]}, views {views}, "
+                     f"config {r.config}, {run_config(r).iterations} iterations{extra}")
+        lines.append(f"    methods: {', '.join(m.name for m in r.methods)}")
+        if r.snapshots:
+            lines.append(f"    at each snapshot: {', '.join(m.name for m in r.snapshot_methods) or '-'}")
+    total = sum(r.budget_s for r in runs)
+    longest = max(runs, key=lambda r: r.budget_s)
+    lines.append(f"total budget: {total:.0f} s = {total / 60:.1f} min for {len(runs)} runs "
+                 f"(longest: {longest.name}, {longest.budget_s:.0f} s)")
     return "\n".join(lines)
 
 
 def main(argv=None) -> int:
+    started = time.perf_counter()
     ap = argparse.ArgumentParser(prog="python -m gof_warp.bench", description=__doc__.split("\n\n")[1])
     ap.add_argument("--suite", default="quick", choices=SUITES)
     ap.add_argument("--out", default=None, help="results folder (default benchmarks/results/<suite>)")
-    ap.add_argument("--list", action="store_true", help="print the runs of the suite and exit")
+    ap.add_argument("--list", action="store_true", help="print the runs of the suite (budgets, total) and exit")
+    ap.add_argument("--only", nargs="+", metavar="PATTERN", help="only the runs whose names match one of these "
+                                                                  "shell patterns, e.g. 'default_*' thin_7k")
+    ap.add_argument("--time-limit", type=float, metavar="SECONDS", help="start no run whose budget would end later "
+                    "than this after the command started; exit code 3 when runs are left")
+    ap.add_argument("--runs-dir", default=None, help="folder for the trained models and generated scenes "
+                                                     "(default OUT/runs)")
+    ap.add_argument("--data", default=None, help="folder of the real scenes and spot's mesh "
+                                                 "(default: $GOF_WARP_DATA, else ../shared/data)")
     ap.add_argument("--device", default="auto", help="cpu, cuda or auto")
     ap.add_argument("--fast", action="store_true", help="stability: only the hand-made cases (no training)")
     ap.add_argument("--quiet", action="store_true")
@@ -471,12 +563,22 @@ def main(argv=None) -> int:
             crashed = [f"{r['case']}/{r['method']}" for r in report if r["outcome"] == "crash"]
             print(f"{len(report)} (case, method) reports; crashes: {', '.join(crashed) or 'none'}")
             return 1 if crashed else 0
-        runs = suite(a.suite)
+        runs = select_runs(suite(a.suite), a.only)
         if a.list:
             print(describe(runs))
             return 0
-        rows = run_suite(a.suite, Path(a.out or f"benchmarks/results/{a.suite}"), pick_device(a.device), runs)
-        print(f"{len(rows)} rows in {a.out or f'benchmarks/results/{a.suite}'}/results.json")
+        out = Path(a.out or f"benchmarks/results/{a.suite}")
+        rows = run_suite(a.suite, out, pick_device(a.device), runs, time_limit=a.time_limit, started=started,
+                         data=a.data, runs_dir=a.runs_dir)
+        print(f"{len(rows)} rows in {out}/results.json")
+        done = {row_key(r) for r in rows}
+        left = [r for r in runs if pending(r, done)]
+        if left:
+            never = [r.name for r in left if a.time_limit is not None and r.budget_s > a.time_limit]
+            print(f"{len(left)} runs left ({', '.join(r.name for r in left)}); run the same command again"
+                  + (f". Over --time-limit on their own: {', '.join(never)} (raise it, or run them alone)"
+                     if never else ""), file=sys.stderr)
+            return EXIT_RUNS_LEFT
         return 0
 
     return run_command(body, "rows written so far are kept; run the same command again to continue")

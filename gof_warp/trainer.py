@@ -10,7 +10,13 @@ Run folder layout::
     RUN/cameras.json         train/test cameras (world-to-camera, intrinsics)
     RUN/checkpoints/         ckpt_<it>.pt, written atomically, resumable bit-for-bit on CPU
     RUN/point_cloud.ply      final Gaussians (3DGS layout, with GOF's filter_3D column)
-    RUN/metrics.json         time, speed, memory, Gaussian count over training, test PSNR/SSIM
+    RUN/metrics.json         time, speed, memory, Gaussian count over training, test PSNR/SSIM, snapshots
+    RUN/snapshots/iter_<k>/  point_cloud.ply + snapshot.json at each of ``snapshot_iterations``
+
+Snapshots are how 3DGS and GOF report shorter training lengths (e.g. "7k" and "30k"): the model of one
+long run saved at iteration ``k``, with the training time up to ``k``, its Gaussian count and its test
+PSNR/SSIM. Writing a snapshot (and evaluating it) is not counted as training time and does not change the
+run: the parameters at the end are the same bit for bit on CPU.
 """
 
 from __future__ import annotations
@@ -29,7 +35,7 @@ import torch
 
 from .appearance import AppearanceModel
 from .checkpoint import list_checkpoints, load_checkpoint, save_checkpoint
-from .config import dump_yaml, from_dict, to_dict
+from .config import ConfigError, dump_yaml, from_dict, to_dict
 from .data import DataConfig
 from .densify import DensifyConfig, Densifier
 from .errors import GofError
@@ -70,12 +76,20 @@ class TrainConfig:
     checkpoint_every: int = 5000
     checkpoint_keep: int = 2
     log_every: int = 100
+    snapshot_iterations: list[int] = field(default_factory=list)  # save the model at these iterations (module doc)
     data: DataConfig = field(default_factory=DataConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
     render: RenderConfig = field(default_factory=RenderConfig)
     loss: LossConfig = field(default_factory=LossConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)
     densify: DensifyConfig = field(default_factory=DensifyConfig)
+
+    def __post_init__(self):
+        snaps = list(self.snapshot_iterations)
+        valid = all(isinstance(k, int) and not isinstance(k, bool) and 0 < k < self.iterations for k in snaps)
+        if not valid or snaps != sorted(set(snaps)):
+            raise ConfigError(f"snapshot_iterations must be increasing, unique iterations in [1, iterations - 1] "
+                              f"(iterations = {self.iterations}), got {snaps}")
 
 
 def default_init_box(scene: Scene) -> np.ndarray:
@@ -143,6 +157,7 @@ class Trainer:
         self.iteration = 0
         self.elapsed = 0.0
         self.history: list[dict] = []
+        self.snapshots: list[dict] = []  # one record per snapshot written (see write_snapshot)
         self._rng = np.random.default_rng(config.seed)
         self._stack: list[int] = []
         torch.manual_seed(config.seed)
@@ -219,6 +234,7 @@ class Trainer:
         self._write_static_files()
         t0 = time.perf_counter() - self.elapsed
         last = {}
+        snapshot_at = set(cfg.snapshot_iterations)
         while self.iteration < cfg.iterations:
             last = self.step()
             it = self.iteration
@@ -228,6 +244,10 @@ class Trainer:
                 self.history.append(entry)
             if progress is not None:
                 progress(it, {**last, "its_per_s": it / self.elapsed if self.elapsed > 0 else math.nan})
+            if it in snapshot_at:  # before the checkpoint of the same iteration, which then records it
+                t_snap = time.perf_counter()
+                self.write_snapshot()
+                t0 += time.perf_counter() - t_snap  # not training time
             if cfg.checkpoint_every > 0 and it % cfg.checkpoint_every == 0 and it < cfg.iterations:
                 self.save_checkpoint()
         train_time = self.elapsed
@@ -242,6 +262,7 @@ class Trainer:
             **{k: round(v, 1) for k, v in _peak_memory().items()},
             "final_train_psnr": round(last.get("psnr", float("nan")), 3) if last else None,
             "test": self.evaluate(),
+            "snapshots": self.snapshots,
             "history": self.history,
         }
         write_json_atomic(self.out_dir / "metrics.json", metrics)
@@ -261,6 +282,23 @@ class Trainer:
             gts.append(_image_tensor(v.image, self.device).permute(2, 0, 1))
         result = image_metrics(preds, gts, masks)
         return {"split": split, "views": len(views), **result}
+
+    def write_snapshot(self) -> dict:
+        """Save the model as it is now into ``RUN/snapshots/iter_<k>/`` (``point_cloud.ply``, the final PLY's
+        writer, and ``snapshot.json``: ``iteration``, ``train_time_s`` up to now, ``num_gaussians``, ``test``
+        PSNR/SSIM, ``path`` of the PLY relative to the run folder), atomically; returns that record, which
+        is also kept in :attr:`snapshots` (a snapshot of the same iteration, from a resumed run, is replaced)."""
+        folder = Path("snapshots") / f"iter_{self.iteration}"
+        self.gaussians.save_ply(self.out_dir / folder / "point_cloud.ply")
+        record = {"iteration": self.iteration, "train_time_s": round(self.elapsed, 3),
+                  "num_gaussians": len(self.gaussians), "test": self.evaluate(),
+                  "path": (folder / "point_cloud.ply").as_posix()}
+        write_json_atomic(self.out_dir / folder / "snapshot.json", record)
+        self.snapshots = sorted([s for s in self.snapshots if s["iteration"] != self.iteration] + [record],
+                                key=lambda s: s["iteration"])
+        log.info("snapshot at iteration %d: %d Gaussians, %.1f s of training", self.iteration, len(self.gaussians),
+                 self.elapsed)
+        return record
 
     # ------------------------------------------------------------------ files and checkpoints
     def _write_static_files(self):
@@ -289,6 +327,7 @@ class Trainer:
             "torch_rng": torch.get_rng_state(),
             "cuda_rng": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None,
             "history": list(self.history),
+            "snapshots": list(self.snapshots),
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -308,6 +347,7 @@ class Trainer:
         if state["cuda_rng"] is not None and torch.cuda.is_available():
             torch.cuda.set_rng_state_all([s.cpu() for s in state["cuda_rng"]])
         self.history = list(state["history"])
+        self.snapshots = list(state.get("snapshots", []))  # checkpoints written before snapshots existed have none
         self.iteration = int(state["iteration"])
         self.elapsed = float(state["elapsed"])
 
@@ -323,7 +363,9 @@ class Trainer:
         state = load_checkpoint(self.out_dir, map_location=self.device)
         saved = to_dict(from_dict(TrainConfig, state["config"], "checkpoint config"))
         now = to_dict(self.config)
-        saved.pop("iterations"), now.pop("iterations")  # training may be extended on resume
+        for key in ("iterations", "snapshot_iterations"):  # training may be extended on resume, and snapshots
+            saved.pop(key, None)  # do not change the training
+            now.pop(key)
         if saved != now:
             diff = sorted(k for k in now if now[k] != saved.get(k))
             raise GofError(f"the checkpoint in {self.out_dir} was written with a different config (sections {diff}); "

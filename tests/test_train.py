@@ -135,3 +135,51 @@ def test_decoupled_appearance_trains_and_stays_out_of_the_render(tiny_scene, tmp
     assert gain.shape == (3, 64, 32) and bool(((gain > 0) & (gain < 1)).all())
     assert AppearanceModel.crop(render).shape == (3, 64, 32)
     assert trainer.appearance.gain(torch.rand(3, 20, 20), 0).numel() == 0  # below 32 px: no crop, no gain
+
+
+def test_snapshots_are_written_and_do_not_change_the_run(tiny_scene, tmp_path):
+    from gof_warp.model import Gaussians
+
+    plain = Trainer(tiny_scene, _config(), tmp_path / "plain", "cpu")
+    plain.run()
+    short = Trainer(tiny_scene, _config(iterations=8, checkpoint_every=0), tmp_path / "short", "cpu")
+    short.run()  # the first 8 iterations of the same schedule (TINY's schedule does not depend on iterations)
+    snap = Trainer(tiny_scene, _config(snapshot_iterations=[8, 16]), tmp_path / "snap", "cpu")
+    metrics = snap.run()
+    for name, value in plain.gaussians.params.items():
+        assert torch.equal(value, snap.gaussians.params[name]), f"{name}: writing snapshots changed the run"
+    assert [s["iteration"] for s in metrics["snapshots"]] == [8, 16]
+    assert json.loads((tmp_path / "snap" / "metrics.json").read_text())["snapshots"] == metrics["snapshots"]
+    history = {h["iteration"]: h for h in metrics["history"]}
+    for rec in metrics["snapshots"]:
+        folder = tmp_path / "snap" / "snapshots" / f"iter_{rec['iteration']}"
+        assert json.loads((folder / "snapshot.json").read_text()) == rec
+        assert (tmp_path / "snap" / rec["path"]) == folder / "point_cloud.ply"
+        assert rec["num_gaussians"] == history[rec["iteration"]]["num_gaussians"]
+        assert 0 < rec["train_time_s"] < metrics["train_time_s"]
+        assert rec["test"]["views"] == len(tiny_scene.test) and rec["test"]["psnr"] > 5
+    at8 = Gaussians.load_ply(tmp_path / "snap" / metrics["snapshots"][0]["path"], device="cpu")
+    for name in ("means", "opacity_logits", "log_scales"):  # the model as it was at iteration 8
+        assert torch.equal(at8.params[name], short.gaussians.params[name]), name
+    assert metrics["snapshots"][0]["test"]["psnr"] == short.evaluate()["psnr"]
+
+
+@pytest.mark.parametrize("bad", [[0], [24], [30], [16, 8], [8, 8], [2.5]])
+def test_snapshot_iterations_are_validated(bad):
+    from gof_warp.config import ConfigError
+
+    with pytest.raises(ConfigError, match="snapshot_iterations"):
+        _config(snapshot_iterations=bad)
+    assert _config(snapshot_iterations=[1, 23]).snapshot_iterations == [1, 23]
+
+
+def test_resume_keeps_snapshots(tiny_scene, tmp_path):
+    first = Trainer(tiny_scene, _config(iterations=12, snapshot_iterations=[4]), tmp_path / "r", "cpu")
+    before = first.run()["snapshots"]
+    ply = tmp_path / "r" / before[0]["path"]
+    written = ply.read_bytes()
+    second = Trainer(tiny_scene, _config(snapshot_iterations=[4, 16]), tmp_path / "r", "cpu")
+    assert second.resume() == 12
+    after = second.run()["snapshots"]
+    assert after[0] == before[0] and [s["iteration"] for s in after] == [4, 16]
+    assert ply.read_bytes() == written and (tmp_path / "r" / after[1]["path"]).is_file()
