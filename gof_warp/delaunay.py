@@ -228,12 +228,12 @@ class _Piece:
     faces: np.ndarray  # [F, 3] sorted global ids
     on_hull: np.ndarray  # [F] bool: the face has no local neighbour (it lies on the piece's hull)
     apex: np.ndarray  # [F] global id of the kept tetrahedron's vertex opposite the face
-    unsafe: int  # kept-by-ownership tetrahedra whose sphere left the halo (checked with the KD-tree)
+    checked: int  # kept-by-ownership tetrahedra whose sphere left the halo (checked with the KD-tree)
     rejected: int  # of those, found not Delaunay
 
 
-def _triangulate_piece(p: np.ndarray, ids: np.ndarray, owns, halo_lo, halo_hi, tree, rho: float) -> _Piece:
-    """Qhull on ``p[ids]``; keep the tetrahedra whose owner point ``owns`` (the circumcentre when the
+def _triangulate_piece(p: np.ndarray, ids: np.ndarray, core_lo, core_hi, halo_lo, halo_hi, tree, rho: float) -> _Piece:
+    """Qhull on ``p[ids]``; keep the tetrahedra whose owner point lies in the core box (the circumcentre when the
     circumradius is <= ``rho``, else the centroid) and that are global Delaunay tetrahedra (circumsphere in
     the halo box, else checked with the KD-tree)."""
     tri = _qhull(p[ids])
@@ -241,7 +241,7 @@ def _triangulate_piece(p: np.ndarray, ids: np.ndarray, owns, halo_lo, halo_hi, t
     t = glob[tri.simplices]
     vol6, flat, centre, radius = tet_geometry(t, p)
     small = radius <= rho
-    keep = owns(np.where(small[:, None], centre, p[t].mean(axis=1)))
+    keep = _in_box(np.where(small[:, None], centre, p[t].mean(axis=1)), core_lo, core_hi, closed=False)
     inside = np.all((centre - radius[:, None] >= halo_lo) & (centre + radius[:, None] <= halo_hi), axis=1)
     check = np.flatnonzero(keep & ~flat & ~inside)
     rejected = 0
@@ -306,8 +306,7 @@ def delaunay_chunked(p: np.ndarray, chunks: int, workers: int, halo_fraction: fl
 
         def run_chunk(c):
             ids = np.flatnonzero(_in_box(p, halo_lo[c], halo_hi[c], closed=True))
-            return _triangulate_piece(p, ids, lambda x: _in_box(x, lo[c], hi[c], closed=False),
-                                      halo_lo[c], halo_hi[c], tree, rho)
+            return _triangulate_piece(p, ids, lo[c], hi[c], halo_lo[c], halo_hi[c], tree, rho)
 
         pieces = list(pool.map(run_chunk, range(lo.shape[0])))
     t1 = time.perf_counter()
@@ -315,7 +314,8 @@ def delaunay_chunked(p: np.ndarray, chunks: int, workers: int, halo_fraction: fl
     unmatched = _unmatched_faces(pieces, p, hull.vertices)
     tets = np.concatenate([pc.tets for pc in pieces])
     coverage = sum(pc.volume6 for pc in pieces) / 6.0 / hull.volume if hull.volume > 0 else 1.0
-    stats.update(delaunay_chunks=int(lo.shape[0]), delaunay_workers=int(workers), delaunay_rho=rho, delaunay_checked=sum(pc.unsafe for pc in pieces),
+    stats.update(delaunay_chunks=int(lo.shape[0]), delaunay_workers=int(workers), delaunay_rho=rho,
+                 delaunay_checked=sum(pc.checked for pc in pieces),
                  delaunay_rejected=sum(pc.rejected for pc in pieces), delaunay_unmatched_faces=int(unmatched.shape[0]),
                  delaunay_volume_coverage=float(coverage), delaunay_chunks_s=round(t1 - t0, 3),
                  delaunay_stitch_s=round(time.perf_counter() - t1, 3))

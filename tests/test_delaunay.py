@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 import pytest
 import torch
-from scipy.spatial import ConvexHull, cKDTree
+from scipy.spatial import cKDTree
 
 from gof_warp.delaunay import delaunay, kd_boxes, tet_geometry
 from gof_warp.errors import GofError
@@ -106,8 +106,6 @@ def test_kd_boxes_partition_the_points():
     inside = np.all((p[:, None] >= lo) & (p[:, None] < hi), axis=2)  # [P, K]
     np.testing.assert_array_equal(inside.sum(axis=1), 1)
     assert inside.sum(axis=0).min() >= 1000 // 16  # median cuts: balanced within 2x
-    hull = ConvexHull(p)
-    assert hull.volume > 0
 
 
 def test_bad_arguments():
