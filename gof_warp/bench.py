@@ -169,8 +169,9 @@ def _merge(a: dict, b: dict) -> dict:
 
 def preset_overrides(preset: str) -> dict:
     """Training overrides a synthetic preset needs: the ``background`` preset's ground plane and shell reach
-    radius 6, so its random initialisation must too (the presets' init boxes are ±1 or ±1.3)."""
-    return {"model": {"init_box": [-6.0, -6.0, -6.0, 6.0, 6.0, 6.0]}} if preset == "background" else {}
+    radius 6 (``garden``'s 8), so its random initialisation must too (the presets' init boxes are ±1 or ±1.3)."""
+    reach = {"background": 6.0, "garden": 8.0}.get(preset)
+    return {"model": {"init_box": [-reach] * 3 + [reach] * 3}} if reach else {}
 
 
 @dataclass(frozen=True)
@@ -229,7 +230,9 @@ def full_suite(z: Sizing = Sizing()) -> list[Run]:
       half the schedule, as 3DGS's 7k of 30k) and the end, each with tetra(8) and cubes 256 (8 steps), TSDF at 15k.
     * ``default_7k``: every method (tetra 0/1/3/8 steps, cubes 256/512 with 0 and 8 steps, TSDF 512).
     * ``thin_7k``: the methods that differ on thin structures (tetra 0/3/8, cubes 256/512 with 8, TSDF).
-    * ``background``, ``textureless``, ``sparse``, ``spot`` 7k: GOF tetra(8) against TSDF.
+    * ``garden``, ``textureless``, ``sparse``, ``spot`` 7k: GOF tetra(8) against TSDF. ``garden`` (ground,
+      objects, thin parts and far background in metres) took the place of ``background`` (its subset): both
+      do not fit the total device time (``background`` stays a preset and a stability case).
     * ``default_7k_budget50k`` (tetra 8) and ``default_7k_noreg`` (tetra 8, TSDF): against ``default_7k``
       (at 7k, not 15k, to fit: the compressed schedule switches the regularisers on at 3.5k).
     * real scenes (no GT mesh): ``nerf_mic`` 7k, rendering quality at 3k and 7k; ``dtu_scan24`` 7k, time and
@@ -251,7 +254,7 @@ def full_suite(z: Sizing = Sizing()) -> list[Run]:
             snapshot_methods=(tetra(8), cubes(256, 8))),
         run("default", "default", short, every),
         run("thin", "thin", short, (tetra(0), tetra(3), tetra(8), cubes(256, 8), cubes(512, 8), tsdf(512))),
-        *(run(p, p, short, pair) for p in ("background", "textureless", "sparse", "spot")),
+        *(run(p, p, short, pair) for p in ("garden", "textureless", "sparse", "spot")),
         run("default", "default", short, (tetra(8),), {"densify": {"max_gaussians": 50_000}}, suffix="_budget50k"),
         run("default", "default", short, pair, NO_REGULARISERS, suffix="_noreg"),
         run("real_nerf_mic", "real:nerf_mic", short, (RENDER_ONLY,), resolution=(400, 400),

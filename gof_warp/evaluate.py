@@ -2,10 +2,15 @@
 
     python -m gof_warp.evaluate --mesh MESH.ply --gt GT.ply [--tau T ...] [--density D] [--max-dist M]
         [--crop xmin ymin zmin xmax ymax zmax] [--method points|triangles] [--truncate exclude|clamp]
-        [--json OUT.json]
+        [--scene SCENE_DIR [--patch P] [--supersample S]] [--json OUT.json]
 
 Prints accuracy, completeness, Chamfer, precision/recall/F-score at each tau and both meshes'
-statistics; ``--json`` writes the same (atomically). Defaults relative to the GT's bounding-box
+statistics; ``--json`` writes the same (atomically). With ``--scene`` (a folder with
+``transforms_train.json``, and for synthetic scenes ``scene.json``) the scores are taken on the region the
+training cameras observe, sampled inside it, with the exact-vs-exact floor beside them and, when
+``scene.json`` records a ground plane, the ground patch completeness and flatness
+(:mod:`gof_warp.region_metrics`; JSON keys ``region``, ``floor``, ``ground`` beside ``metrics``; ``--crop``
+then sets the box of interest). Defaults relative to the GT's bounding-box
 diagonal: tau = 0.5% and 1%, max-dist = 5%, density (sample spacing) for ~300k GT samples. The
 definitions are in :mod:`gof_warp.geometry_metrics`. Rendering metrics of a trained run:
 :func:`image_metrics` (from :mod:`gof_warp.metrics`). Bad input: ``error: ...`` on stderr, exit code 2.
@@ -19,6 +24,7 @@ import sys
 
 from .cli import run_command
 from .geometry_metrics import evaluate_mesh
+from .region_metrics import PATCH_SIZE, evaluate_region
 from .io_utils import write_json_atomic
 
 __all__ = ["format_report", "image_metrics", "main"]
@@ -47,6 +53,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--truncate", choices=("exclude", "clamp"), default="exclude",
                    help="drop distances >= max-dist from the means (DTU, default) or clamp them")
     p.add_argument("--seed", type=int, default=0, help="sampling seed")
+    p.add_argument("--scene", help="scene folder (transforms_train.json [+ scene.json]): score the observed region")
+    p.add_argument("--patch", type=float, default=PATCH_SIZE, help="ground patch side (with --scene; default 0.1)")
+    p.add_argument("--supersample", type=int, default=3, help="rays per pixel axis for the seen test (--scene)")
     p.add_argument("--json", help="write the results to this JSON file")
     return p
 
@@ -67,6 +76,23 @@ def format_report(report: dict) -> str:
              f"{'chamfer':14s}{_num(m['chamfer']):>12s}", "",
              f"{'tau':>12s}{'precision':>11s}{'recall':>9s}{'F-score':>9s}"]
     lines += [f"{_num(t):>12s}{p:>11.4f}{r:>9.4f}{f:>9.4f}" for t, p, r, f in zip(m["tau"], m["precision"], m["recall"], m["fscore"])]
+    if report.get("floor"):
+        fl, rg = report["floor"]["metrics"], report["region"]
+        lines += ["", f"region: seen GT area {rg['gt_seen_area']:.4g} of {rg['gt_area']:.4g}, scored GT {rg['gt_scored_area']:.4g}, "
+                  f"mesh {rg['pred_scored_area']:.4g} of {rg['pred_area']:.4g}; diagonal {rg['diagonal']:.4g} ({rg['diagonal_of']})",
+                  f"{'':14s}{'score':>12s}{'floor':>12s}"]
+        lines += [f"{k:14s}{_num(m[k]):>12s}{_num(fl[k]):>12s}" for k in ("accuracy", "completeness", "chamfer")]
+        lines += [f"{'F@' + _num(t):14s}{f:>12.4f}{g:>12.4f}" for t, f, g in zip(m["tau"], m["fscore"], fl["fscore"])]
+    g = report.get("ground")
+    if g:
+        gf = report["floor"]["ground"]
+        lines += ["", f"ground (z = {g['height']:.4g}, {g['patches']} patches of {g['patch']:.3g}, tolerance {_num(g['tau'])}):"
+                  f"{'':2s}score / floor"]
+        for k in ("worst_patch_completeness", "patches_over_limit", "ground_completeness", "flat_fraction",
+                  "height_error_p95"):
+            lines.append(f"  {k:26s}{_num(g[k]) if g[k] is not None else '-':>12s}{_num(gf[k]) if gf[k] is not None else '-':>12s}")
+        lines.append(f"  targets: no patch > {g['missing_limit']:.0%} missing: {g['patch_target_met']}; "
+                     f"{g['flat_target']:.0%} within {_num(g['flat_tolerance'])}: {g['flat_target_met']}")
     keys = ("vertices", "faces", "connected_components", "watertight", "boundary_edges", "non_manifold_edges",
             "degenerate_faces", "area")
     lines += ["", f"{'':22s}{'mesh':>14s}{'gt':>14s}"]
@@ -80,8 +106,13 @@ def main(argv=None) -> int:
 
     def body():
         crop = None if args.crop is None else (args.crop[:3], args.crop[3:])
-        report = evaluate_mesh(args.mesh, args.gt, tau=args.tau, density=args.density, max_dist=args.max_dist,
-                               crop=crop, truncate=args.truncate, method=args.method, seed=args.seed)
+        if args.scene:
+            report = evaluate_region(args.mesh, args.gt, args.scene, tau=args.tau, density=args.density,
+                                     max_dist=args.max_dist, bbox=crop, truncate=args.truncate, seed=args.seed,
+                                     patch=args.patch, supersample=args.supersample)
+        else:
+            report = evaluate_mesh(args.mesh, args.gt, tau=args.tau, density=args.density, max_dist=args.max_dist,
+                                   crop=crop, truncate=args.truncate, method=args.method, seed=args.seed)
         print(format_report(report))
         if args.json:
             write_json_atomic(args.json, report)

@@ -14,7 +14,7 @@ Hand-made cases (no training, seconds; run in CI): a good blob of Gaussians on a
 with degenerate Gaussians mixed in (scales 1e-8, 1e3, flat 1e-7), all opacities 0 or 1, Gaussians far
 outside every camera's frustum, Gaussians far away but in view (occluded by the blob from the other side),
 and an empty half-space the cameras look at. Trained cases (minutes on a CPU):
-the ``thin``, ``background``, ``sparse`` and ``textureless`` presets, trained briefly.
+the ``thin``, ``background``, ``garden``, ``sparse`` and ``textureless`` presets, trained briefly.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ BLOB_RADIUS = 0.5  # the good model: Gaussians on a sphere of this radius …
 FAR_RADIUS = 2.0  # … so no mesh face should lie beyond this (cameras sit at 2.5)
 CAMERA_DISTANCE = 2.5
 STABILITY_METHODS = ("tetra", "cubes", "tsdf")
-TRAINED_PRESETS = ("thin", "background", "sparse", "textureless")
+TRAINED_PRESETS = ("thin", "background", "garden", "sparse", "textureless")
 
 
 # ----------------------------------------------------------------------------------------- hand-made cases

@@ -138,7 +138,7 @@ def test_time_limit_starts_only_runs_that_fit(tmp_path, monkeypatch, capsys):
 def test_full_suite_fits_the_gpu_calls():
     full = suite("full")
     z = Sizing()
-    assert {r.preset for r in full} >= {"default", "thin", "background", "textureless", "sparse", "spot",
+    assert {r.preset for r in full} >= {"default", "thin", "garden", "textureless", "sparse", "spot",
                                         "real:nerf_mic", "real:dtu_scan24"}
     assert len({r.name for r in full}) == len(full)
     for r in full:
@@ -148,6 +148,8 @@ def test_full_suite_fits_the_gpu_calls():
     lengths = {k for r in full if r.preset == "default" for k in (*r.snapshots, r.overrides["iterations"])}
     assert lengths >= {3000, 7000, 15000}
     assert sum(r.budget_s for r in full) <= FULL_MAX_TOTAL_MIN * 60
+    garden = next(r for r in full if r.preset == "garden")  # its far background must be inside the initialisation
+    assert tuple(bench.run_config(garden).model.init_box) == (-8.0, -8.0, -8.0, 8.0, 8.0, 8.0)
     noreg = next(r for r in full if r.name.endswith("_noreg"))
     assert bench.run_config(noreg).loss.lambda_normal == 0.0
     assert bench.run_config(noreg).loss.regularization_from_iter < noreg.overrides["iterations"]

@@ -282,14 +282,15 @@ def test_blender_round_trip_off_centre(tmp_path):
     np.testing.assert_allclose(scene["object_bbox"], [[-1] * 3, [1] * 3], atol=1e-6)
 
 
-@pytest.mark.parametrize("name", ["default", "background", "sparse"])
+@pytest.mark.parametrize("name", ["default", "background", "garden", "sparse"])
 def test_rig_views_distinct_and_inside_band(name):
     rig = get_preset(name).rig
     train, test = rig.cameras(64, 48, seed=3)
     assert (len(train), len(test)) == (rig.n_train, rig.n_test)
     c_train, c_test = (np.stack([c.center for c in cams]) - rig.target for cams in (train, test))
     gap = np.linalg.norm(c_test[:, None] - c_train[None], axis=2).min()
-    assert gap > 0.05 * rig.radius  # no test view repeats a train view
+    # no test view repeats a train view (spiral spacing shrinks as 1/sqrt(n): garden has 100 train views)
+    assert gap > 0.05 * rig.radius * min(1.0, np.sqrt(40 / rig.n_train))
     for c in np.concatenate([c_train, c_test]):
         assert np.linalg.norm(c) == pytest.approx(rig.radius)
         assert rig.elevation_deg[0] <= np.degrees(np.arcsin(c[2] / rig.radius)) <= rig.elevation_deg[1]
@@ -413,3 +414,40 @@ def test_cli(tmp_path, capsys):
     assert cli_main(["--preset", "sphere", "--out", str(tmp_path / "y"), "--views", "2", "--resolution", "12", "10",
                      "--device", "cpu", "-q"]) == 0
     assert len(_read(tmp_path / "y")["frames"]) == 2 and not (tmp_path / "x").exists()
+
+
+def test_garden_ground_objects_background_and_exact_depth(tmp_path):
+    """The whole-scene preset at a tiny size: scene.json records the ground and the parts, every camera is above
+    the ground, the depth maps are the GT mesh's ray cast, and the ground and the far background are both seen."""
+    out = make_scene("garden", tmp_path / "g", views=6, resolution=(32, 24), device="cpu")
+    scene = json.loads((out / "scene.json").read_text())
+    g = scene["ground"]
+    assert scene["units"] == "m" and g["height"] == 0.0 and g["extent"] == [[-5.0, -5.0], [5.0, 5.0]]
+    roles = {p["name"]: p["role"] for p in scene["parts"]}
+    assert roles["ground"] == roles["shell"] == "background"
+    assert {"box", "sphere", "torus", "ring", "stand_post", "post0"} <= {n for n, r in roles.items() if r == "object"}
+    lift = min(p["bbox"][0][2] for p in scene["parts"] if p["role"] == "object")
+    assert lift == pytest.approx(0.005, abs=1e-6)  # objects rest 5 mm above the ground
+    thin = [p for p in scene["parts"] if p["name"].startswith("post")]
+    assert all(0.019 <= p["bbox"][1][0] - p["bbox"][0][0] <= 0.041 for p in thin)  # 1-2 cm radius
+    mesh = trimesh.load(out / "gt_mesh.ply", process=False)
+    gt = wp.Mesh(points=wp.array(np.asarray(mesh.vertices, np.float32), dtype=wp.vec3, device="cpu"),
+                 indices=wp.array(np.asarray(mesh.faces, np.int32).ravel(), dtype=wp.int32, device="cpu"))
+    meta = _read(out)
+    parts = get_preset("garden").build(None)
+    caster = RayCaster(parts, device="cpu")
+    shell = [k for k, p in enumerate(parts) if p.name == "shell"][0]
+    ground = [k for k, p in enumerate(parts) if p.name == "ground"][0]
+    seen_shell = 0
+    for f in meta["frames"]:
+        cam = Camera.from_c2w(np.array(f["transform_matrix"]), meta["fl_x"], meta["fl_y"], meta["cx"], meta["cy"],
+                              meta["w"], meta["h"], opengl=True)
+        assert cam.center[2] > g["height"] + 0.5  # above the ground
+        depth = np.load(out / f["depth_path"])
+        cast = raycast.cast_pinhole_rays(gt, cam.R, cam.t, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height)
+        np.testing.assert_allclose(depth, cast["depth"].numpy(), atol=1e-4)
+        assert (depth > 0).all()  # closed scene: every ray hits something
+        hit = caster.face_part[caster.render(cam, 1).face]
+        assert (hit == ground).mean() > 0.2
+        seen_shell += int((hit == shell).any())
+    assert seen_shell >= 1

@@ -28,7 +28,7 @@ from .meshes import Material, SyntheticMesh
 from .presets import DEFAULT_RESOLUTION, GPU_RESOLUTION, CameraRig, Preset, get_preset, list_presets, with_rig
 from .render import Lighting, RayCaster, RenderedView, default_device
 
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2  # 2: scene.json has units, ground, per-part bbox
 log = logging.getLogger(__name__)
 
 
@@ -65,6 +65,18 @@ def _publish(tmp: Path, out: Path) -> None:
 def _bbox(parts: list[SyntheticMesh]) -> list[list[float]]:
     v = np.concatenate([p.vertices.astype(np.float32) for p in parts])
     return [[float(x) for x in v.min(0)], [float(x) for x in v.max(0)]]
+
+
+def _ground(parts: list[SyntheticMesh]) -> dict | None:
+    """The ground plane for scoring: the part named ``ground`` when it is flat and horizontal (z up)."""
+    g = next((q for q in parts if q.name == "ground"), None)
+    if g is None:
+        return None
+    v = g.vertices.astype(np.float32)
+    if np.ptp(v[:, 2]) > 1e-6 * max(1.0, float(np.ptp(v[:, :2]))):
+        return None
+    return {"part": g.name, "height": float(v[0, 2]), "normal": [0.0, 0.0, 1.0],
+            "extent": [[float(v[:, 0].min()), float(v[:, 1].min())], [float(v[:, 0].max()), float(v[:, 1].max())]]}
 
 
 def _write_split(folder: Path, split: str, cameras, caster: RayCaster, supersample: int, depth_range: list):
@@ -133,8 +145,10 @@ def make_scene(preset: str | Preset, out, views: int | None = None,
             "gt_mesh": "gt_mesh.ply",
             "gt_object": "gt_object.ply" if len(objects) < len(parts) else "gt_mesh.ply",
             "background": "geometry" if len(objects) < len(parts) else "transparent",
-            "parts": [{"name": q.name, "role": q.role, "material": q.material.kind, "faces": int(len(q.faces))}
-                      for q in parts],
+            "units": p.units,
+            "ground": _ground(parts),
+            "parts": [{"name": q.name, "role": q.role, "material": q.material.kind, "faces": int(len(q.faces)),
+                       "bbox": _bbox([q])} for q in parts],
         })
         _publish(tmp, out)
     except BaseException:

@@ -6,7 +6,9 @@ procedural noise fields. Defaults are small enough for CPU tests (``DEFAULT_RESO
 presets render for GPU benchmarks with ``--resolution 800 800`` (``GPU_RESOLUTION``): intrinsics follow
 the field of view, so the geometry seen is the same at every resolution.
 
-World space is z up; objects sit inside a ball of radius ~1.3 around the origin.
+World space is z up; objects sit inside a ball of radius ~1.3 around the origin. Units are arbitrary
+except in ``garden``, whose scene is built in metres (1 unit = 1 m: a 10 m x 10 m lawn, objects of
+10-50 cm, rods of 1-2 cm radius) so that absolute tolerances (10 cm ground patches) mean what they say.
 """
 
 from __future__ import annotations
@@ -91,6 +93,7 @@ class Preset:
         resolution: default (CPU-sized) ``(width, height)``.
         supersample: samples per pixel axis for colour/alpha (plus the centre ray).
         lighting: the view-independent :class:`~gof_warp.synthetic.render.Lighting`.
+        units: what one scene unit is (``"m"``), or None when the scene has no physical scale.
     """
 
     name: str
@@ -100,6 +103,7 @@ class Preset:
     resolution: tuple[int, int] = DEFAULT_RESOLUTION
     supersample: int = 2
     lighting: Lighting = field(default_factory=Lighting)
+    units: str | None = None
 
 
 # ----------------------------------------------------------------------------------------- geometry
@@ -158,8 +162,43 @@ def _background(_path):
     ground_z = -0.9
     parts = _composition(z0=0.005)  # 5 mm above the ground: touching parts would hide surfaces
     return parts + [
-        M.plane(center=(0, 0, ground_z), half_size=4.2, material=_GROUND),
+        M.grid_plane(center=(0, 0, ground_z), half_size=4.2, cell=0.1, material=_GROUND),  # 84 x 84 cells
         M.sphere(radius=6.0, subdivisions=3, material=_SHELL, name="shell", inward=True, role="background"),
+    ]
+
+
+_LAWN = M.Material(color_a=(0.12, 0.22, 0.06), color_b=(0.8, 0.75, 0.45), noise_scale=3.0, checker_scale=2.0,
+                   checker_strength=0.3)  # fBm features of ~33, 17 and 8 cm under 50 cm checker squares
+_WIRE = M.Material(color_a=(0.1, 0.1, 0.1), color_b=(0.95, 0.85, 0.4), noise_scale=30.0, checker_scale=20.0,
+                   checker_strength=0.4)
+GARDEN_GROUND_Z = 0.0
+GARDEN_LIFT = 0.005  # objects float 5 mm above the ground: touching parts would hide surfaces
+
+
+def _garden(_path):
+    """In metres. A 10 m x 10 m textured lawn (10 cm cells, so per-face visibility resolves what is seen) at
+    ``z = 0``; 5 mm above it a rotated 40 cm box, a 25 cm sphere, a flat torus, a ring (1.2 cm wire) on a
+    stand (1.5 cm post on a base disc) and three posts of radius 1, 1.5 and 2 cm; all inside a textured
+    background sphere of radius 8 m (only its upper half is ever seen)."""
+    z = GARDEN_GROUND_Z + GARDEN_LIFT
+    rz = M.rotation_about((0, 0, 1), np.deg2rad(30.0))
+    ring_rot = M.rotation_about((1, 0, 0), np.pi / 2) @ M.rotation_about((0, 0, 1), np.deg2rad(20.0))
+    parts = [
+        M.box(center=(-0.7, -0.5, z + 0.2), size=(0.4, 0.4, 0.4), rotation=rz, material=_BOX),
+        M.sphere(center=(0.7, -0.6, z + 0.25), radius=0.25, subdivisions=4, material=_SPHERE),
+        M.torus(center=(0.0, 0.85, z + 0.08), major=0.25, minor=0.08, material=_TORUS),
+        M.cylinder((0.65, 0.55, z), (0.65, 0.55, z + 0.02), 0.12, sides=32, material=_WIRE, name="stand_base"),
+        M.cylinder((0.65, 0.55, z + 0.025), (0.65, 0.55, z + 0.45), 0.015, sides=12, material=_WIRE,
+                   name="stand_post"),
+        M.torus(center=(0.65, 0.55, z + 0.45 + 0.005 + 0.18 + 0.012), major=0.18, minor=0.012, sections=(96, 8),
+                rotation=ring_rot, material=_WIRE, name="ring"),
+    ]
+    for k, (r, h) in enumerate(((0.01, 0.6), (0.015, 0.5), (0.02, 0.4))):
+        base = (-0.75 + 0.18 * k, 0.45 - 0.1 * k)
+        parts.append(M.cylinder((*base, z), (*base, z + h), r, sides=12, material=_WIRE, name=f"post{k}"))
+    return parts + [
+        M.grid_plane(center=(0, 0, GARDEN_GROUND_Z), half_size=5.0, cell=0.1, material=_LAWN),
+        M.sphere(radius=8.0, subdivisions=4, material=_SHELL, name="shell", inward=True, role="background"),
     ]
 
 
@@ -211,6 +250,11 @@ _PRESETS = {
         Preset("background", "Objects on a textured ground plane inside a textured background shell: the "
                "background is part of the reconstruction (GOF's claim over 2DGS/TSDF).", _background,
                rig=CameraRig(radius=4.0, elevation_deg=(8.0, 55.0), target=(0.0, 0.0, -0.35))),
+        Preset("garden", "A whole outdoor scene in metres, as GOF meshes it: a textured lawn (10 m), objects of "
+               "different kinds on it (box, sphere, torus, a ring on a stand, posts of 1-2 cm radius) and a far "
+               "textured background 8 m away, seen by 100 cameras 10-50 degrees above the ground.", _garden,
+               rig=CameraRig(n_train=100, n_test=10, radius=3.5, fov_x_deg=50.0, elevation_deg=(10.0, 50.0),
+                             target=(0.0, 0.0, 0.25)), resolution=(128, 96), units="m"),
         Preset("textureless", "The default geometry with one uniform albedo: only shading constrains depth, "
                "photometric matching is ill-posed.", _textureless, rig=CameraRig(target=(0.0, 0.0, -0.15))),
         Preset("sparse", "The default scene seen from only 8 training views: overfitting and floaters.",
