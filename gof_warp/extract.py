@@ -242,6 +242,8 @@ def main(argv=None) -> int:
                     help="tetra: only the centre point for Gaussians whose 3-sigma extent is below this (world units)")
     ap.add_argument("--min-component-faces", type=int, default=0)
     ap.add_argument("--device", default="auto")
+    ap.add_argument("--no-pictures", action="store_true",
+                    help="do not write RUN/pictures/mesh_<stem>.png (views of the model and the shaded mesh)")
     ap.add_argument("--quiet", action="store_true")
     a = ap.parse_args(argv)
     configure_output(a.quiet)
@@ -276,6 +278,12 @@ def main(argv=None) -> int:
             "method": a.method, "binary_steps": a.binary_steps, "num_gaussians": len(gaussians),
             "num_views": len(cameras), "device": device, "total_time_s": round(total, 3),
             "stages": timer.stages, "meshes": outputs})
+        if not a.no_pictures:  # a picture per mesh; a failure only warns: the mesh is already written
+            from .pictures import pictures_or_warning
+
+            for o in outputs:
+                for p in pictures_or_warning(run, mesh_path=o["path"], device=device, scene=a.scene):
+                    print(f"wrote {p}")
 
     return run_command(body)
 
