@@ -1,7 +1,8 @@
 """``python -m gof_warp.inspect SCENE``: what gof_warp makes of a scene folder.
 
 Prints the detected format, camera model(s) (and whether they were undistorted), view counts,
-resolution(s), focal lengths, extent, masks, initial points, image memory and the readers' warnings.
+resolution(s), focal lengths, extent, masks, initial points, image memory, the training preset that
+``train --config auto`` picks with its reason (:mod:`gof_warp.preset_choice`) and the readers' warnings.
 Loads (decodes) every image, so it also proves that the scene is readable. Exit status 0 on success,
 2 with ``error: <message>`` on stderr (no traceback) when the scene cannot be read.
 """
@@ -51,6 +52,7 @@ def format_text(info: dict) -> str:
         f"initial points: {info['initial_points']}",
         f"background:     {tuple(info['background'])}",
         f"image memory:   {info['image_memory_mb']} MB",
+        f"train preset:   {info['preset']} ({info['preset_reason']})",
     ]
     warnings = info["warnings"]
     lines.append(f"warnings:       {len(warnings)}")
@@ -78,7 +80,11 @@ def main(argv=None) -> int:
             image_memory_budget_gb=args.memory_budget,
             undistort=args.undistort,
         )
+        from .preset_choice import choose_preset
+
         info = describe(load_scene(args.scene, config, device=args.device))
+        choice = choose_preset(args.scene)
+        info["preset"], info["preset_reason"] = choice.preset, choice.reason
         print(json.dumps(info, indent=2) if args.json else format_text(info))
 
     return run_command(body)

@@ -23,7 +23,7 @@ from .errors import GofError
 
 log = logging.getLogger("gof_warp.train")
 
-PRESETS = ("quick", "blender", "dtu", "tnt", "mipnerf360")
+PRESETS = ("auto", "quick", "blender", "unbounded", "dtu", "tnt", "mipnerf360")
 
 
 def preset_path(name_or_path: str) -> Path:
@@ -85,10 +85,13 @@ def main(argv=None) -> int:
     ap.add_argument("args", nargs="*", metavar="SCENE | key=value", help="scene folder, then config overrides")
     ap.add_argument("--out", default=None, help="run folder (default runs/<scene name>)")
     ap.add_argument("--config", default=None, help=f"preset ({', '.join(PRESETS)}) or YAML path (default: quick "
-                                                   "for the built-in scene, else blender)")
+                                                   "for the built-in scene, else auto: chosen from the scene "
+                                                   "folder, printed with its reason)")
     ap.add_argument("--iterations", type=int, default=None)
     ap.add_argument("--device", default="auto", help="cpu, cuda or auto")
     ap.add_argument("--resume", action="store_true", help="continue from the newest checkpoint in --out")
+    ap.add_argument("--no-pictures", action="store_true", help="do not write RUN/pictures/views.png (photo | render "
+                                                               "| depth | normal of a few views) at the end")
     ap.add_argument("--quiet", action="store_true")
     a = ap.parse_intermixed_args(argv)
     configure_output(a.quiet)
@@ -109,7 +112,15 @@ def _run(a) -> int:
     ensure_writable_dir(out)
     if has_checkpoints(out) and not a.resume:
         raise GofError(f"{out} already holds checkpoints of a run: pass --resume to continue it, or choose another --out")
-    cfg = resolve_config(a.config or ("quick" if builtin else "blender"), overrides, a.iterations)
+    preset = a.config or ("quick" if builtin else "auto")
+    if preset == "auto":
+        from .preset_choice import choose_preset
+
+        resolve_config("unbounded", overrides, a.iterations)  # a bad override is named before the scene is read
+        choice = choose_preset(scenes[0])
+        log.info("%s", choice.describe())
+        preset = choice.preset
+    cfg = resolve_config(preset, overrides, a.iterations)
     device = pick_device(a.device)
     if builtin:
         from .synthetic import make_scene
@@ -123,10 +134,15 @@ def _run(a) -> int:
     scene = load_scene(scene_dir, cfg.data)
     log.info("scene %s: %d train / %d test views, extent %.3f; device %s", scene_dir, len(scene.train), len(scene.test),
              scene.extent, device)
-    trainer = Trainer(scene, cfg, out, device)
+    trainer = Trainer(scene, cfg, out, device, scene_path=scene_dir)
     if a.resume and has_checkpoints(out):
         log.info("resuming from iteration %d", trainer.resume())
     metrics = trainer.run(progress=None if a.quiet else _Progress(cfg.iterations))
+    if not a.no_pictures:
+        from .pictures import pictures_or_warning
+
+        for p in pictures_or_warning(out, device=device):
+            log.info("wrote %s", p)
     t = metrics["test"]
     print(f"done: {metrics['iterations']} iterations in {metrics['train_time_s']:.1f} s, {metrics['num_gaussians']} Gaussians, "
           f"{t['split']} PSNR {t.get('psnr', float('nan')):.2f} dB SSIM {t.get('ssim', float('nan')):.4f}; outputs in {out}")

@@ -40,7 +40,9 @@ from .data import DataConfig
 from .densify import DensifyConfig, Densifier
 from .errors import GofError
 from .filter3d import update_filter_3d
+from .init_points import initial_point_cloud
 from .io_utils import ensure_writable_dir, write_json_atomic, write_text_atomic
+from .loss_monitor import LossSpikeMonitor
 from .losses import LossConfig, total_loss
 from .metrics import image_metrics, psnr
 from .model import Gaussians
@@ -55,15 +57,34 @@ class TrainingError(GofError):
     """Training cannot go on (e.g. the loss became NaN); the last good checkpoint is kept."""
 
 
+INIT_MODES = ("auto", "sfm", "random")
+
+
 @dataclass
 class ModelConfig:
-    """Initialisation of the Gaussians (3DGS/GOF: SfM points, else random points in a box)."""
+    """Initialisation of the Gaussians (3DGS/GOF: SfM points, else random points in a box).
+
+    ``init``: ``"sfm"`` — the scene's own sparse points (COLMAP ``points3D``, a ``points3d.ply``) or, when it
+    has none, points triangulated from the known poses (:mod:`gof_warp.data.sfm`, cached beside the scene);
+    ``"random"`` — ``random_init_points`` uniform in ``init_box`` (3DGS's Blender init); ``"auto"`` — as
+    ``"sfm"``, but falls back to random (with a warning) when triangulation finds too few points.
+    ``background_points``: extra points on a sphere around the scene (:func:`background_points`), where the
+    cameras look past every initial point — the far background SfM rarely reaches; 0 = none.
+    """
 
     sh_degree: int = 3
+    init: str = "auto"
     init_opacity: float = 0.1
     random_init_points: int = 100_000  # used when the scene has no initial points (3DGS Blender: 100k)
     init_box: tuple[float, ...] | None = None  # (xmin, ymin, zmin, xmax, ymax, zmax); None = from cameras
+    background_points: int = 0
     use_filter_3d: bool = True  # Mip-Splatting 3D smoothing filter, as GOF
+
+    def __post_init__(self):
+        if self.init not in INIT_MODES:
+            raise ConfigError(f"model.init must be one of {INIT_MODES}, got {self.init!r}")
+        if self.background_points < 0 or self.random_init_points < 1:
+            raise ConfigError("model.background_points must be >= 0 and model.random_init_points >= 1")
 
 
 @dataclass
@@ -92,33 +113,14 @@ class TrainConfig:
                               f"(iterations = {self.iterations}), got {snaps}")
 
 
-def default_init_box(scene: Scene) -> np.ndarray:
-    """A box around what the cameras look at: the least-squares closest point to all principal axes,
-    with half-size 0.5 × the mean camera distance to it (object-centric captures)."""
-    cams = scene.train_cameras
-    centres = np.stack([c.center for c in cams])
-    axes = np.stack([c.R[2] for c in cams])  # viewing directions in world space
-    A = np.zeros((3, 3))
-    b = np.zeros(3)
-    for c, d in zip(centres, axes):
-        P = np.eye(3) - np.outer(d, d)
-        A += P
-        b += P @ c
-    focus = np.linalg.lstsq(A, b, rcond=None)[0] if len(cams) > 1 else centres[0] + axes[0]
-    half = 0.5 * float(np.mean(np.linalg.norm(centres - focus, axis=1)))
-    return np.concatenate([focus - half, focus + half])
-
-
-def initial_gaussians(scene: Scene, cfg: ModelConfig, seed: int, device) -> Gaussians:
-    """SfM points when the scene has them, else ``random_init_points`` uniform in the init box."""
-    if scene.points is not None and len(scene.points) > 0:
-        return Gaussians.from_points(scene.points, scene.point_colors, sh_degree=cfg.sh_degree,
-                                     init_opacity=cfg.init_opacity, device=device)
-    box = np.asarray(cfg.init_box, float) if cfg.init_box is not None else default_init_box(scene)
-    if box.shape != (6,) or np.any(box[3:] <= box[:3]):
-        raise GofError(f"model.init_box must be (xmin, ymin, zmin, xmax, ymax, zmax) with max > min, got {box.tolist()}")
-    return Gaussians.random_in_box(cfg.random_init_points, box[:3], box[3:], seed=seed, sh_degree=cfg.sh_degree,
-                                   init_opacity=cfg.init_opacity, device=device)
+def initial_gaussians(scene: Scene, cfg: ModelConfig, seed: int, device) -> tuple[Gaussians, dict]:
+    """The first Gaussians (:func:`gof_warp.init_points.initial_point_cloud` decides where) and what was used."""
+    points, colours, info = initial_point_cloud(scene, cfg.init, random_points=cfg.random_init_points,
+                                                init_box=cfg.init_box, background=cfg.background_points, seed=seed)
+    log.info("initial points: %d from %s%s", info["points"], info["source"],
+             f" + {info['background_points']} background" if info.get("background_points") else "")
+    return Gaussians.from_points(points, colours, sh_degree=cfg.sh_degree, init_opacity=cfg.init_opacity,
+                                 device=device), info
 
 
 def _image_tensor(image: np.ndarray, device) -> torch.Tensor:
@@ -147,8 +149,9 @@ class Trainer:
         device: torch device string.
     """
 
-    def __init__(self, scene: Scene, config: TrainConfig, out_dir, device: str):
+    def __init__(self, scene: Scene, config: TrainConfig, out_dir, device: str, scene_path=None):
         self.scene, self.config, self.device = scene, config, torch.device(device)
+        self.scene_path = None if scene_path is None else str(Path(scene_path).resolve())
         self.out_dir = ensure_writable_dir(out_dir)
         self.render_config = dataclasses.replace(config.render, background=tuple(float(c) for c in scene.background))
         self.render_config.validate()
@@ -158,10 +161,11 @@ class Trainer:
         self.elapsed = 0.0
         self.history: list[dict] = []
         self.snapshots: list[dict] = []  # one record per snapshot written (see write_snapshot)
+        self.spikes = LossSpikeMonitor()
         self._rng = np.random.default_rng(config.seed)
         self._stack: list[int] = []
         torch.manual_seed(config.seed)
-        self.gaussians = initial_gaussians(scene, config.model, config.seed, self.device)
+        self.gaussians, self.init_info = initial_gaussians(scene, config.model, config.seed, self.device)
         if config.model.use_filter_3d:
             update_filter_3d(self.gaussians, self.cameras, near=self.render_config.near)
         self.optimizer = make_optimizer(self.gaussians, config.optim, scene.extent)
@@ -211,6 +215,8 @@ class Trainer:
             if stats is not None:
                 self.densifier.after_backward(stats, it)
             report = self.densifier.step(it, g, self.optimizer, self.scene.extent)
+            if report.opacity_reset:
+                self.spikes.restart()  # the reset makes every Gaussian transparent: a new baseline, not a spike
             if len(g) == 0:
                 raise TrainingError(f"every Gaussian was pruned at iteration {it}: check the scene's near plane "
                                     "(render.near), background colour and densify.min_opacity")
@@ -223,6 +229,9 @@ class Trainer:
             self.appearance_optimizer.zero_grad(set_to_none=True)
         self.iteration = it
         result = {k: float(v) for k, v in terms.items()}
+        if it == cfg.loss.regularization_from_iter:
+            self.spikes.restart()  # the loss gains the regularisers here: compare like with like
+        self.spikes.update(it, result["total"], cam.name, result)
         result["psnr"] = float(psnr(out["rgb"].detach(), gt))
         result["num_gaussians"] = len(g)
         return result
@@ -262,6 +271,8 @@ class Trainer:
             **{k: round(v, 1) for k, v in _peak_memory().items()},
             "final_train_psnr": round(last.get("psnr", float("nan")), 3) if last else None,
             "test": self.evaluate(),
+            "loss_spikes": self.spikes.report(),
+            "init": self.init_info,
             "snapshots": self.snapshots,
             "history": self.history,
         }
@@ -306,7 +317,7 @@ class Trainer:
         cams = {split: [v.camera.to_dict() for v in views]
                 for split, views in (("train", self.scene.train), ("test", self.scene.test))}
         write_json_atomic(self.out_dir / "cameras.json", {"convention": "world-to-camera, OpenCV axes", **cams,
-                                                          "extent": self.scene.extent})
+                                                          "extent": self.scene.extent, "scene": self.scene_path})
 
     def state_dict(self) -> dict:
         g = self.gaussians
@@ -328,6 +339,7 @@ class Trainer:
             "cuda_rng": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None,
             "history": list(self.history),
             "snapshots": list(self.snapshots),
+            "loss_spikes": self.spikes.state_dict(),
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -348,6 +360,8 @@ class Trainer:
             torch.cuda.set_rng_state_all([s.cpu() for s in state["cuda_rng"]])
         self.history = list(state["history"])
         self.snapshots = list(state.get("snapshots", []))  # checkpoints written before snapshots existed have none
+        if state.get("loss_spikes") is not None:
+            self.spikes.load_state_dict(state["loss_spikes"])
         self.iteration = int(state["iteration"])
         self.elapsed = float(state["elapsed"])
 

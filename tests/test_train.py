@@ -20,7 +20,7 @@ TINY = {
     "iterations": 24,
     "checkpoint_every": 12,
     "log_every": 4,
-    "model": {"sh_degree": 1, "random_init_points": 300},
+    "model": {"sh_degree": 1, "init": "random", "random_init_points": 300},
     "optim": {"means_lr_max_steps": 24},
     "densify": {"start_iter": 3, "stop_iter": 20, "interval": 4, "opacity_reset_interval": 16,
                 "sh_degree_interval": 8, "filter_3d_interval": 4, "filter_3d_until_iter": 22,
@@ -56,6 +56,9 @@ def test_training_runs_and_writes_outputs(tiny_scene, tmp_path):
     assert trainer.gaussians.filter_3d is not None and torch.isfinite(trainer.gaussians.filter_3d).all()
     assert "distortion" in trainer.history[-1] and "normal" in trainer.history[-1]
     assert metrics["test"]["psnr"] == saved["test"]["psnr"]
+    assert saved["init"] == {"init": "random", "source": "random", "points": 300}
+    spikes = saved["loss_spikes"]  # 24 iterations: all inside the 1,000-iteration warm-up, nothing checked
+    assert spikes["after_iteration"] == 1000 and spikes["iterations_checked"] == 0 and spikes["max_ratio"] is None
 
 
 def test_resume_reproduces_the_uninterrupted_run(tiny_scene, tmp_path):

@@ -1,0 +1,91 @@
+"""Loss-spike monitor: how far a training loss jumps above its own recent typical value.
+
+A *spike* is an iteration whose total loss is many times the running median of the losses just before
+it. The median (not the mean) is the reference so that one spike does not hide the next; the window
+holds the last ``window`` iterations. Because the regularisers switch on at one iteration (GOF: 15 000)
+and change what the loss measures, the caller :meth:`LossSpikeMonitor.restart`s the window there: a
+spike compares like with like.
+
+``metrics.json`` reports :meth:`LossSpikeMonitor.report` as ``loss_spikes``: the largest ratio after
+``warmup`` iterations, where and in which view it happened with the loss terms at that iteration, and
+how many iterations exceeded ``threshold`` × their running median.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class SpikeRecord:
+    ratio: float
+    iteration: int
+    view: str
+    loss: float
+    median: float
+    terms: dict
+
+
+class LossSpikeMonitor:
+    """Running-median spike detector (plain-data state for checkpoints).
+
+    Args:
+        window: iterations in the running median (≥ 10).
+        warmup: iterations before which nothing is recorded (the issue's "after iteration 1,000").
+        threshold: a ratio above this counts as a spike.
+        min_history: ratios are recorded only once the window holds this many losses.
+    """
+
+    def __init__(self, window: int = 200, warmup: int = 1000, threshold: float = 10.0, min_history: int = 50):
+        if window < 10 or min_history < 1 or min_history > window or threshold <= 1:
+            raise ValueError(f"LossSpikeMonitor: need window >= 10, 1 <= min_history <= window, threshold > 1; got "
+                             f"window={window}, min_history={min_history}, threshold={threshold}")
+        self.window, self.warmup, self.threshold, self.min_history = window, warmup, threshold, min_history
+        self.recent: deque[float] = deque(maxlen=window)
+        self.worst: SpikeRecord | None = None
+        self.count_over = 0
+        self.checked = 0
+
+    def restart(self) -> None:
+        """Forget the window (the loss's definition changed, e.g. the regularisers switched on)."""
+        self.recent.clear()
+
+    def update(self, iteration: int, loss: float, view: str = "", terms: dict | None = None) -> float | None:
+        """Record one iteration's total loss; returns its ratio to the running median (None before
+        there is enough history or during warm-up). Non-finite losses are the trainer's to stop on."""
+        ratio = None
+        if iteration > self.warmup and len(self.recent) >= self.min_history:
+            median = float(np.median(np.fromiter(self.recent, dtype=np.float64)))
+            if median > 0:
+                ratio = loss / median
+                self.checked += 1
+                if ratio > self.threshold:
+                    self.count_over += 1
+                if self.worst is None or ratio > self.worst.ratio:
+                    self.worst = SpikeRecord(ratio, iteration, view, loss, median, dict(terms or {}))
+        self.recent.append(float(loss))
+        return ratio
+
+    def report(self) -> dict:
+        w = self.worst
+        return {"window": self.window, "after_iteration": self.warmup, "threshold": self.threshold,
+                "iterations_checked": self.checked, "count_over_threshold": self.count_over,
+                "max_ratio": None if w is None else round(w.ratio, 3),
+                "at_iteration": None if w is None else w.iteration, "view": None if w is None else w.view,
+                "loss": None if w is None else round(w.loss, 6), "running_median": None if w is None else round(w.median, 6),
+                "terms": {} if w is None else {k: round(v, 6) for k, v in w.terms.items()}}
+
+    def state_dict(self) -> dict:
+        w = self.worst
+        return {"recent": list(self.recent), "count_over": self.count_over, "checked": self.checked,
+                "worst": None if w is None else [w.ratio, w.iteration, w.view, w.loss, w.median, dict(w.terms)]}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.recent = deque((float(x) for x in state["recent"]), maxlen=self.window)
+        self.count_over, self.checked = int(state["count_over"]), int(state["checked"])
+        w = state["worst"]
+        self.worst = None if w is None else SpikeRecord(float(w[0]), int(w[1]), str(w[2]), float(w[3]), float(w[4]),
+                                                        dict(w[5]))
