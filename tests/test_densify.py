@@ -262,13 +262,14 @@ def test_quantile_matches_torch():
 
 # ----------------------------------------------------------------------------- prune, reset, schedules
 def test_prune_thresholds():
-    cfg = DensifyConfig()
+    cfg = DensifyConfig(prune_screen_size=True)  # the papers' screen-size test
     opac = torch.tensor([0.049, 0.051, 0.5, 0.5, 0.5])
     scales = torch.tensor([[0.01] * 3, [0.01] * 3, [0.21, 0.01, 0.01], [0.01] * 3, [0.01] * 3])
     radii = torch.tensor([0, 0, 0, 21, 20])
     assert prune_mask(opac, scales, radii, EXTENT, 3000, cfg).tolist() == [True, False, False, False, False]
     assert prune_mask(opac, scales, radii, EXTENT, 3100, cfg).tolist() == [True, False, True, True, False]
-    code = DensifyConfig(prune_screen_size=False)  # GOF's code: the screen test is dead
+    code = DensifyConfig()  # the default is GOF's code: the screen test is dead
+    assert not code.prune_screen_size
     assert prune_mask(opac, scales, radii, EXTENT, 3100, code).tolist() == [True, False, True, False, False]
 
 
