@@ -1,0 +1,130 @@
+"""Resumable job queue for the real-captures GPU runs, cut to fit 10-minute device calls.
+
+Each call runs ``python3 benchmarks/real_captures/gpu_queue.py --budget 540`` on the (warm) GPU machine: steps
+already done (a marker in ``--state``) are skipped, training resumes from its newest checkpoint, a step
+that would start with too little time left waits for the next call, and a training step still running
+at the budget is stopped (its checkpoints stay). Results land in ``--state/results`` and are packed into
+``$OUT/results.tar.gz`` at the end of every call.
+
+Scenes: ``garden`` and ``background`` (synthetic, exact GT: train with the preset ``train`` picks, extract,
+score the seen region and a ground-and-objects crop, probe the ground of the field) and ``dtu`` (carried in
+``.data/dtu_scan24``: train with the picked preset, extract, pictures).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tarfile
+import time
+from pathlib import Path
+
+PY = sys.executable
+HERE = Path(__file__).resolve().parent
+
+
+REAL = {"dtu": "dtu_scan24", "can": "colmap_can", "fox": "fox"}
+
+
+def steps(state: Path, scenes: list[str], resolution: tuple[int, int], iterations: int):
+    """``[(name, command, min_seconds_left, is_training)]`` in order; a scene ``NAME:N`` trains N iterations."""
+    out = []
+    iters = {s.split(":")[0]: int(s.split(":")[1]) for s in scenes if ":" in s}
+    scenes = [s.split(":")[0] for s in scenes]
+    for s in scenes:
+        run = state / f"run_{s}"
+        res = state / "results" / s
+        if s in ("garden", "background"):
+            scene = state / s
+            out.append((f"{s}:generate", [PY, "-m", "gof_warp.synthetic", "--preset", s, "--out", str(scene),
+                                          "--resolution", str(resolution[0]), str(resolution[1]), "--force"], 60, False))
+        else:  # a real scene carried in .data/ or .data2/ (the device call's 64 MiB limit splits them)
+            scene = state / s
+            src = REAL[s]
+            out.append((f"{s}:copy", ["sh", "-c", f"cp -r $(ls -d .data/{src} .data2/{src} | head -1) {scene}"], 10,
+                        False))
+        out.append((f"{s}:train", [PY, "-m", "gof_warp.train", str(scene), "--out", str(run), "--iterations",
+                                   str(iters.get(s, iterations)), "checkpoint_every=2000", "--resume"], 120, True))
+        out.append((f"{s}:extract", [PY, "-m", "gof_warp.extract", str(run), "--delaunay-workers", "0"], 240, False))
+        if s in ("garden", "background"):
+            out.append((f"{s}:evaluate", [PY, "-m", "gof_warp.evaluate", "--mesh", str(run / "mesh_tetra.ply"), "--gt",
+                                          str(scene / "gt_mesh.ply"), "--scene", str(scene), "--json",
+                                          str(res / "evaluate_seen.json")], 120, False))
+            out.append((f"{s}:evaluate_crop", [PY, "-m", "gof_warp.evaluate", "--mesh", str(run / "mesh_tetra.ply"),
+                                               "--gt", str(scene / "gt_mesh.ply"), "--scene", str(scene), "--crop",
+                                               "-2.5", "-2.5", "-0.5", "2.5", "2.5", "1.5", "--json",
+                                               str(res / "evaluate_crop.json")], 120, False))
+            out.append((f"{s}:gt_pictures", [PY, "-m", "gof_warp.pictures", str(run), "--mesh",
+                                             str(scene / "gt_mesh.ply")], 60, False))
+            out.append((f"{s}:probe", [PY, str(HERE / "probe_run.py"), str(scene), str(run),
+                                       str(res / "ground_probe.json")], 60, False))
+    return out
+
+
+def collect(state: Path, scenes: list[str]) -> None:
+    for s in scenes:
+        run, res = state / f"run_{s}", state / "results" / s
+        res.mkdir(parents=True, exist_ok=True)
+        for name in ("metrics.json", "config.yaml", "mesh_tetra.json", "train.log", "extract.log"):
+            if (run / name).is_file():
+                shutil.copy(run / name, res / name)
+        if (run / "pictures").is_dir():
+            for p in (run / "pictures").glob("*.png"):
+                shutil.copy(p, res / p.name)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--state", default="/tmp/rc")
+    ap.add_argument("--budget", type=float, default=540.0)
+    ap.add_argument("--scenes", default="garden,dtu,background")
+    ap.add_argument("--resolution", type=int, nargs=2, default=[256, 192])
+    ap.add_argument("--iterations", type=int, default=30000)
+    a = ap.parse_args()
+    t_end = time.time() + a.budget
+    state = Path(a.state)
+    scenes = a.scenes.split(",")
+    (state / "done").mkdir(parents=True, exist_ok=True)
+    names = [s.split(":")[0] for s in scenes]
+    for s in names:
+        (state / "results" / s).mkdir(parents=True, exist_ok=True)
+    for name, cmd, need, training in steps(state, scenes, tuple(a.resolution), a.iterations):
+        marker = state / "done" / name.replace(":", "_")
+        if marker.exists():
+            continue
+        left = t_end - time.time()
+        if left < need:
+            print(f"[queue] {name}: {left:.0f} s left < {need} s: next call", flush=True)
+            break
+        scene = name.split(":")[0]
+        log = state / f"run_{scene}" / f"{name.split(':')[1]}.log"
+        log.parent.mkdir(parents=True, exist_ok=True)
+        t0 = time.time()
+        with open(log, "a") as f:
+            p = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+            try:
+                rc = p.wait(timeout=max(1.0, t_end - time.time()))
+            except subprocess.TimeoutExpired:
+                p.terminate()
+                p.wait()
+                print(f"[queue] {name}: stopped at the budget after {time.time() - t0:.0f} s (resumes next call)",
+                      flush=True)
+                break
+        print(f"[queue] {name}: rc {rc} in {time.time() - t0:.0f} s", flush=True)
+        if rc != 0:  # no marker: the next call tries again
+            print(open(log).read()[-3000:], flush=True)
+            continue
+        marker.write_text("ok\n")
+    collect(state, names)
+    out = os.environ.get("OUT")
+    if out:
+        with tarfile.open(Path(out) / "results.tar.gz", "w:gz") as tar:
+            tar.add(state / "results", arcname="results")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
