@@ -72,7 +72,7 @@ log = logging.getLogger(__name__)
 
 DEFAULT_SUPERSAMPLE = 3  # sub-rays per pixel axis for seen_faces: faces down to ~1/3 pixel are found
 DEFAULT_GT_MAX_EDGE_FRACTION = 0.01  # GT split to edges <= 1 % of the diagonal before the seen test
-FLAT_FRACTION = 0.002  # flatness tolerance: 0.2 % of the diagonal (the CEO's target: 95 % of points within it)
+FLAT_FRACTION = 0.002  # flatness tolerance: 0.2 % of the diagonal (the real-captures target: 95 % of points within it)
 FLAT_TARGET = 0.95
 PATCH_SIZE = 0.1  # ground patches of 10 x 10 cm in metric scenes (1 unit = 1 m)
 PATCH_MISSING_LIMIT = 0.1  # a patch "fails" with more than 10 % of its GT ground samples missing
