@@ -1,23 +1,46 @@
-"""Training checkpoints: written atomically, found and loaded with clear errors.
+"""Training checkpoints: plain data only, written atomically, loaded safely, with a fallback on resume.
 
 A checkpoint is one ``torch.save`` file ``ckpt_<iteration>.pt`` in ``RUN/checkpoints/`` holding
 everything needed to continue bit-for-bit: parameters, optimizer moments, densification state, the
-appearance model, every random generator's state and the resolved config. It is written to a temporary
-file and renamed, so a crash while saving leaves the previous checkpoint intact; older checkpoints
-beyond ``keep`` are removed only after the new one is in place.
+appearance model, every random generator's state and the resolved config.
+
+Safe to load. A checkpoint holds only *plain data*: tensors, ``bool``/``int``/``float``/``str``/``None``,
+and lists, tuples and dicts of them (:func:`plain_data` checks this before anything is written and names
+the offending entry). It is read back with ``torch.load(..., weights_only=True)``, which rebuilds only those
+types and refuses any other Python object, so a checkpoint from someone else cannot run code when loaded
+(a pickled object with a malicious ``__reduce__`` is refused with a :class:`CheckpointError`).
+
+Crash-safe. It is written to a temporary file and renamed, so a crash while saving leaves the previous
+checkpoint intact; older checkpoints beyond ``keep`` are removed only after the new one is in place.
+When the newest checkpoint of a run is unreadable anyway (a disk filled up, a file truncated by a copy),
+:func:`load_newest` falls back to the newest one that loads and names every file it skipped.
 """
 
 from __future__ import annotations
 
+import collections
+import logging
+import os
+import pickle
 import re
+import warnings
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from .errors import GofError
 from .io_utils import atomic_path
 
+log = logging.getLogger(__name__)
+
 _NAME = re.compile(r"^ckpt_(\d+)\.pt$")
+CORRUPT_SUFFIX = ".corrupt"
+_SCALARS = (bool, int, float, str, type(None))
+
+
+class CheckpointError(GofError):
+    """One checkpoint file cannot be used: unreadable, corrupt, not a gof_warp checkpoint, or refused as unsafe."""
 
 
 def checkpoint_dir(run_dir) -> Path:
@@ -25,7 +48,7 @@ def checkpoint_dir(run_dir) -> Path:
 
 
 def list_checkpoints(run_dir) -> list[tuple[int, Path]]:
-    """``[(iteration, path), …]`` sorted by iteration."""
+    """``[(iteration, path), …]`` sorted by iteration (files set aside as ``*.corrupt`` are not listed)."""
     d = checkpoint_dir(run_dir)
     if not d.is_dir():
         return []
@@ -37,8 +60,47 @@ def list_checkpoints(run_dir) -> list[tuple[int, Path]]:
     return sorted(found)
 
 
+def plain_data(obj, where: str = "state"):
+    """``obj`` as the plain data a checkpoint may hold (``torch.load(weights_only=True)`` rebuilds exactly these).
+
+    Tensors (``nn.Parameter`` detached to a tensor), ``bool``/``int``/``float``/``str``/``None``, and
+    lists, tuples and dicts (``OrderedDict`` kept, as ``nn.Module.state_dict`` returns) of them pass;
+    NumPy scalars become Python numbers and NumPy arrays become tensors (the owner converts them back
+    on load). Anything else is a programming error: ``TypeError`` naming ``where`` — the entry's path.
+    """
+    if isinstance(obj, torch.Tensor):
+        return obj.detach() if type(obj) is not torch.Tensor else obj
+    if type(obj) in _SCALARS:
+        return obj
+    if isinstance(obj, np.generic):
+        return obj.item()
+    for t in (bool, int, float, str):  # subclasses (IntEnum, ...) would need their class to load: the plain value
+        if isinstance(obj, t):
+            return t(obj)
+    if isinstance(obj, np.ndarray):
+        return torch.from_numpy(np.array(obj, copy=True))
+    if isinstance(obj, dict):
+        out = collections.OrderedDict() if isinstance(obj, collections.OrderedDict) else {}
+        for k, v in obj.items():
+            if not isinstance(k, (*_SCALARS, np.generic)):
+                raise TypeError(f"checkpoint {where}: key {k!r} of type {type(k).__name__} is not plain data")
+            out[plain_data(k, where)] = plain_data(v, f"{where}[{k!r}]")
+        meta = getattr(obj, "_metadata", None)  # nn.Module.state_dict's version record
+        if isinstance(out, collections.OrderedDict) and meta is not None:
+            out._metadata = plain_data(meta, f"{where}._metadata")
+        return out
+    if isinstance(obj, (list, tuple)):
+        items = [plain_data(v, f"{where}[{i}]") for i, v in enumerate(obj)]
+        return items if isinstance(obj, list) else tuple(items)
+    raise TypeError(f"checkpoint {where}: a {type(obj).__module__}.{type(obj).__qualname__} is not plain data "
+                    "(checkpoints hold only tensors, numbers, strings, None, lists, tuples and dicts, so that "
+                    "loading one cannot run code); convert it in the owner's state_dict")
+
+
 def save_checkpoint(run_dir, iteration: int, state: dict, keep: int = 2) -> Path:
-    """Write ``state`` as the checkpoint of ``iteration``; keep the newest ``keep`` checkpoints."""
+    """Write ``state`` (checked by :func:`plain_data` first) as the checkpoint of ``iteration``;
+    keep the newest ``keep`` checkpoints."""
+    state = plain_data(state)
     path = checkpoint_dir(run_dir) / f"ckpt_{iteration:07d}.pt"
     with atomic_path(path) as tmp:
         torch.save(state, tmp)
@@ -47,20 +109,82 @@ def save_checkpoint(run_dir, iteration: int, state: dict, keep: int = 2) -> Path
     return path
 
 
+def _unsafe_reason(message: str) -> str:
+    """The one useful sentence of torch's weights-only refusal (e.g. ``Unsupported global: GLOBAL io.open ...``)."""
+    _, _, rest = message.partition("WeightsUnpickler error:")
+    first = next((line.strip() for line in rest.splitlines() if line.strip()), "")
+    return first.split(". Please use")[0][:200]
+
+
+def read_checkpoint(path, map_location="cpu") -> dict:
+    """Load one checkpoint file with ``weights_only=True``; :class:`CheckpointError` saying why it cannot be used."""
+    p = Path(path)
+    if not p.is_file():
+        raise CheckpointError(f"checkpoint {p} not found")
+    try:
+        with warnings.catch_warnings():  # torch warns about pickle protocols of foreign files; the error says it all
+            warnings.simplefilter("ignore")
+            state = torch.load(p, map_location=map_location, weights_only=True)
+    except pickle.UnpicklingError as e:
+        if "weights only" in str(e).lower() or "weightsunpickler" in str(e).lower():
+            reason = _unsafe_reason(str(e))
+            raise CheckpointError(f"checkpoint {p} was refused: it holds Python objects other than tensors and plain "
+                                  f"data, and loading it could run code ({reason or 'not a weights-only file'}). "
+                                  "gof_warp never writes such files: it was made elsewhere or altered") from None
+        raise CheckpointError(f"checkpoint {p} is unreadable or corrupt: {e}") from None
+    except Exception as e:  # torch raises several types for corrupt files (RuntimeError, EOFError, ...)
+        msg = str(e).split(". ")[0] or type(e).__name__
+        raise CheckpointError(f"checkpoint {p} is unreadable or corrupt ({msg})") from None
+    if not isinstance(state, dict) or "iteration" not in state:
+        raise CheckpointError(f"checkpoint {p} is not a gof_warp checkpoint")
+    return state
+
+
+def _set_aside(path: Path) -> Path | None:
+    """Rename ``path`` to ``<name>.corrupt`` (``.corrupt.1``, … if taken); None if the rename fails."""
+    target = path.with_name(path.name + CORRUPT_SUFFIX)
+    n = 0
+    while target.exists():
+        n += 1
+        target = path.with_name(f"{path.name}{CORRUPT_SUFFIX}.{n}")
+    try:
+        os.rename(path, target)
+    except OSError:
+        return None
+    return target
+
+
+def load_newest(run_dir, map_location="cpu", set_aside: bool = False) -> tuple[dict, Path]:
+    """The newest checkpoint of ``run_dir`` that loads, and its path.
+
+    A newer checkpoint that cannot be used (see :func:`read_checkpoint`) is skipped with a warning naming
+    it, why, and the checkpoint used instead. With ``set_aside`` (what resuming does) each skipped file is
+    renamed to ``<name>.corrupt`` so that it no longer counts as one of the run's checkpoints — it is never
+    deleted. :class:`GofError` when there is no checkpoint or none loads (then nothing is renamed).
+    """
+    found = list_checkpoints(run_dir)
+    if not found:
+        raise GofError(f"no checkpoint found in {checkpoint_dir(run_dir)} (nothing to resume)")
+    skipped: list[tuple[Path, str]] = []
+    for _, path in reversed(found):
+        try:
+            state = read_checkpoint(path, map_location)
+        except CheckpointError as e:
+            skipped.append((path, str(e)))
+            continue
+        for bad, why in skipped:
+            moved = _set_aside(bad) if set_aside else None
+            where = (f"; renamed it to {moved.name}" if moved else
+                     "; left in place" + (" (could not rename it)" if set_aside else ""))
+            log.warning("%s; using the older checkpoint %s instead%s", why, path, where)
+        return state, path
+    reasons = "; ".join(why for _, why in skipped)
+    raise GofError(f"no usable checkpoint in {checkpoint_dir(run_dir)}: {reasons}")
+
+
 def load_checkpoint(path_or_run, map_location="cpu") -> dict:
-    """Load a checkpoint file, or the newest one of a run folder."""
+    """Load a checkpoint file, or the newest usable one of a run folder (:func:`load_newest`, files left in place)."""
     p = Path(path_or_run)
     if p.is_dir():
-        found = list_checkpoints(p)
-        if not found:
-            raise GofError(f"no checkpoint found in {checkpoint_dir(p)} (nothing to resume)")
-        p = found[-1][1]
-    if not p.is_file():
-        raise GofError(f"checkpoint {p} not found")
-    try:
-        state = torch.load(p, map_location=map_location, weights_only=False)
-    except Exception as e:  # torch raises several types for corrupt files
-        raise GofError(f"checkpoint {p} is unreadable or corrupt: {e}") from None
-    if not isinstance(state, dict) or "iteration" not in state:
-        raise GofError(f"checkpoint {p} is not a gof_warp checkpoint")
-    return state
+        return load_newest(p, map_location)[0]
+    return read_checkpoint(p, map_location)

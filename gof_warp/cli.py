@@ -20,8 +20,13 @@ def configure_output(quiet: bool = False) -> None:
     wp.config.log_level = wp.LOG_WARNING
 
 
-def run_command(body: Callable[[], int | None], interrupted_note: str = "") -> int:
-    """Run a command's body and map its failures to exit codes (0 ok, 2 bad input, 130 interrupted)."""
+def run_command(body: Callable[[], int | None],
+                interrupted_note: str | Callable[[KeyboardInterrupt], str] = "") -> int:
+    """Run a command's body and map its failures to exit codes (0 ok, 2 bad input, 130 interrupted).
+
+    On Ctrl-C one line ``interrupted: <note>`` is printed; ``interrupted_note`` is that note, or a function
+    of the ``KeyboardInterrupt`` (which may carry details, e.g. the iteration training reached) returning it.
+    """
     from .errors import GofError
 
     try:
@@ -29,7 +34,9 @@ def run_command(body: Callable[[], int | None], interrupted_note: str = "") -> i
     except GofError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"\ninterrupted{': ' + interrupted_note if interrupted_note else ''}", file=sys.stderr)
+    except KeyboardInterrupt as e:
+        note = interrupted_note(e) if callable(interrupted_note) else interrupted_note
+        end_progress_line = "\n" if sys.stderr.isatty() else ""  # a progress line may be open
+        print(f"{end_progress_line}interrupted{': ' + note if note else ''}", file=sys.stderr)
         return 130
     return 0 if rc is None else int(rc)

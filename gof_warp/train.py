@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import shlex
 import sys
 import time
 from importlib import resources
@@ -95,7 +96,37 @@ def main(argv=None) -> int:
     ap.add_argument("--quiet", action="store_true")
     a = ap.parse_intermixed_args(argv)
     configure_output(a.quiet)
-    return run_command(lambda: _run(a), "the newest checkpoint in the run folder is intact; continue with --resume")
+    return run_command(lambda: _run(a), lambda e: _interrupted_note(a, e))
+
+
+def _out_dir(a) -> Path:
+    scenes = [x for x in a.args if "=" not in x]
+    return Path(a.out) if a.out else Path("runs") / (Path(scenes[0]).resolve().name if scenes else "default")
+
+
+def resume_command(a) -> str:
+    """The command line that continues this run: the same scene, config, overrides and device, plus ``--resume``."""
+    words = ["python", "-m", "gof_warp.train", *a.args, "--out", str(_out_dir(a))]
+    if a.config:
+        words += ["--config", a.config]
+    if a.iterations is not None:
+        words += ["--iterations", str(a.iterations)]
+    if a.device != "auto":
+        words += ["--device", a.device]
+    words += [flag for flag, on in (("--no-pictures", a.no_pictures), ("--quiet", a.quiet)) if on]
+    return shlex.join(words + ["--resume"])
+
+
+def _interrupted_note(a, e: KeyboardInterrupt) -> str:
+    """One line for Ctrl-C: where training stopped and how to go on (see :meth:`Trainer.run`)."""
+    from .trainer import TrainingInterrupted, has_checkpoints
+
+    if isinstance(e, TrainingInterrupted):
+        saved = f", saved in {e.checkpoint}" if e.checkpoint else ""
+        return f"training stopped at iteration {e.iteration} of {e.total}{saved}; continue with: {resume_command(a)}"
+    if has_checkpoints(_out_dir(a)):
+        return f"the newest checkpoint in the run folder is intact; continue with: {resume_command(a)}"
+    return "no checkpoint was written yet; run the command again to start"
 
 
 def _run(a) -> int:
@@ -108,7 +139,7 @@ def _run(a) -> int:
     if len(scenes) > 1:
         raise GofError(f"give one scene folder, got {scenes}")
     builtin = not scenes
-    out = Path(a.out) if a.out else Path("runs") / ("default" if builtin else Path(scenes[0]).resolve().name)
+    out = _out_dir(a)
     ensure_writable_dir(out)
     if has_checkpoints(out) and not a.resume:
         raise GofError(f"{out} already holds checkpoints of a run: pass --resume to continue it, or choose another --out")
@@ -136,7 +167,8 @@ def _run(a) -> int:
              scene.extent, device)
     trainer = Trainer(scene, cfg, out, device, scene_path=scene_dir)
     if a.resume and has_checkpoints(out):
-        log.info("resuming from iteration %d", trainer.resume())
+        it = trainer.resume()
+        log.info("resuming from iteration %d (%s)", it, trainer.resumed_from)
     metrics = trainer.run(progress=None if a.quiet else _Progress(cfg.iterations))
     if not a.no_pictures:
         from .pictures import pictures_or_warning

@@ -21,10 +21,13 @@ run: the parameters at the end are the same bit for bit on CPU.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import math
 import resource
+import signal
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,7 +37,7 @@ import numpy as np
 import torch
 
 from .appearance import AppearanceModel
-from .checkpoint import list_checkpoints, load_checkpoint, save_checkpoint
+from .checkpoint import list_checkpoints, load_newest, save_checkpoint
 from .config import ConfigError, dump_yaml, from_dict, to_dict
 from .data import DataConfig
 from .densify import DensifyConfig, Densifier
@@ -55,6 +58,47 @@ log = logging.getLogger(__name__)
 
 class TrainingError(GofError):
     """Training cannot go on (e.g. the loss became NaN); the last good checkpoint is kept."""
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Ctrl-C stopped :meth:`Trainer.run` at the end of an iteration.
+
+    Attributes:
+        iteration: the last iteration completed.
+        total: the run's ``config.iterations``.
+        checkpoint: the checkpoint holding ``iteration`` (written at the interrupt), or the newest older
+            one when it could not be written; None when the run has none.
+    """
+
+    def __init__(self, iteration: int, total: int, checkpoint: Path | None):
+        super().__init__(f"training interrupted at iteration {iteration} of {total}")
+        self.iteration, self.total, self.checkpoint = iteration, total, checkpoint
+
+
+@contextlib.contextmanager
+def _deferred_interrupt():
+    """Within: the first Ctrl-C (SIGINT) only raises a flag, which the loop checks at the end of each
+    iteration; a second Ctrl-C interrupts at once, as usual. Yields ``pressed() -> bool``.
+
+    Only where Python's own SIGINT handler is installed and in the main thread (signal handlers can be set
+    nowhere else); otherwise Ctrl-C is left alone and ``pressed`` is always False. The previous handler is
+    restored on exit.
+    """
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
+        yield lambda: False
+        return
+    pressed = []
+
+    def on_sigint(signum, frame):
+        pressed.append(signum)
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # the next Ctrl-C raises KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, on_sigint)
+    try:
+        yield lambda: bool(pressed)
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 INIT_MODES = ("auto", "sfm", "random")
@@ -106,6 +150,8 @@ class TrainConfig:
     densify: DensifyConfig = field(default_factory=DensifyConfig)
 
     def __post_init__(self):
+        if isinstance(self.iterations, bool) or not isinstance(self.iterations, int) or self.iterations < 1:
+            raise ConfigError(f"iterations must be an integer >= 1, got {self.iterations!r}")
         snaps = list(self.snapshot_iterations)
         valid = all(isinstance(k, int) and not isinstance(k, bool) and 0 < k < self.iterations for k in snaps)
         if not valid or snaps != sorted(set(snaps)):
@@ -161,6 +207,7 @@ class Trainer:
         self.elapsed = 0.0
         self.history: list[dict] = []
         self.snapshots: list[dict] = []  # one record per snapshot written (see write_snapshot)
+        self.resumed_from: Path | None = None  # the checkpoint resume() loaded
         self.spikes = LossSpikeMonitor()
         self._rng = np.random.default_rng(config.seed)
         self._stack: list[int] = []
@@ -238,27 +285,16 @@ class Trainer:
 
     # ------------------------------------------------------------------ the run
     def run(self, progress: Callable[[int, dict], None] | None = None) -> dict:
-        """Train to ``config.iterations``, checkpointing; then evaluate and write the outputs."""
+        """Train to ``config.iterations``, checkpointing; then evaluate and write the outputs.
+
+        Ctrl-C during training stops at the end of the current iteration: a checkpoint of that iteration is
+        written (atomically, like every checkpoint) and :class:`TrainingInterrupted` is raised; the final
+        outputs (``point_cloud.ply``, ``metrics.json``) are not written. :meth:`resume` continues bit-for-bit.
+        """
         cfg = self.config
         self._write_static_files()
-        t0 = time.perf_counter() - self.elapsed
-        last = {}
-        snapshot_at = set(cfg.snapshot_iterations)
-        while self.iteration < cfg.iterations:
-            last = self.step()
-            it = self.iteration
-            self.elapsed = time.perf_counter() - t0
-            if it % cfg.log_every == 0 or it == cfg.iterations:
-                entry = {"iteration": it, "elapsed_s": round(self.elapsed, 3), **{k: round(v, 6) for k, v in last.items()}}
-                self.history.append(entry)
-            if progress is not None:
-                progress(it, {**last, "its_per_s": it / self.elapsed if self.elapsed > 0 else math.nan})
-            if it in snapshot_at:  # before the checkpoint of the same iteration, which then records it
-                t_snap = time.perf_counter()
-                self.write_snapshot()
-                t0 += time.perf_counter() - t_snap  # not training time
-            if cfg.checkpoint_every > 0 and it % cfg.checkpoint_every == 0 and it < cfg.iterations:
-                self.save_checkpoint()
+        with _deferred_interrupt() as interrupted:
+            last = self._train_loop(progress, interrupted)
         train_time = self.elapsed
         self.save_checkpoint()
         self.gaussians.save_ply(self.out_dir / "point_cloud.ply")
@@ -278,6 +314,42 @@ class Trainer:
         }
         write_json_atomic(self.out_dir / "metrics.json", metrics)
         return metrics
+
+    def _train_loop(self, progress, interrupted: Callable[[], bool]) -> dict:
+        """Iterate to ``config.iterations`` (history, progress, snapshots, checkpoints); the last step's terms."""
+        cfg = self.config
+        t0 = time.perf_counter() - self.elapsed
+        last = {}
+        snapshot_at = set(cfg.snapshot_iterations)
+        while self.iteration < cfg.iterations:
+            last = self.step()
+            it = self.iteration
+            self.elapsed = time.perf_counter() - t0
+            if it % cfg.log_every == 0 or it == cfg.iterations:
+                entry = {"iteration": it, "elapsed_s": round(self.elapsed, 3), **{k: round(v, 6) for k, v in last.items()}}
+                self.history.append(entry)
+            if progress is not None:
+                progress(it, {**last, "its_per_s": it / self.elapsed if self.elapsed > 0 else math.nan})
+            if it in snapshot_at:  # before the checkpoint of the same iteration, which then records it
+                t_snap = time.perf_counter()
+                self.write_snapshot()
+                t0 += time.perf_counter() - t_snap  # not training time
+            if cfg.checkpoint_every > 0 and it % cfg.checkpoint_every == 0 and it < cfg.iterations:
+                self.save_checkpoint()
+            if interrupted():
+                raise self._interrupted()
+        return last
+
+    def _interrupted(self) -> TrainingInterrupted:
+        """Checkpoint the current iteration (unless just done) for an interrupt; the exception to raise."""
+        found = list_checkpoints(self.out_dir)
+        path = found[-1][1] if found else None
+        if not found or found[-1][0] != self.iteration:
+            try:
+                path = self.save_checkpoint()
+            except TrainingError as e:  # NaN parameters: keep the previous checkpoint, say why
+                log.warning("%s", e)
+        return TrainingInterrupted(self.iteration, self.config.iterations, path)
 
     @torch.no_grad()
     def evaluate(self, views=None) -> dict:
@@ -320,6 +392,9 @@ class Trainer:
                                                           "extent": self.scene.extent, "scene": self.scene_path})
 
     def state_dict(self) -> dict:
+        """Everything :meth:`load_state_dict` needs to continue bit-for-bit, as plain data (tensors, numbers,
+        strings, None, lists/tuples/dicts: what ``torch.load(weights_only=True)`` reads back; see
+        :mod:`gof_warp.checkpoint`)."""
         g = self.gaussians
         return {
             "iteration": self.iteration,
@@ -333,7 +408,7 @@ class Trainer:
             "densifier": self.densifier.state_dict(),
             "appearance": None if self.appearance is None else self.appearance.state_dict(),
             "appearance_optimizer": None if self.appearance_optimizer is None else self.appearance_optimizer.state_dict(),
-            "view_rng": self._rng.bit_generator.state,
+            "view_rng": _plain_rng_state(self._rng.bit_generator.state),
             "view_stack": list(self._stack),
             "torch_rng": torch.get_rng_state(),
             "cuda_rng": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None,
@@ -353,7 +428,7 @@ class Trainer:
         if self.appearance is not None and state["appearance"] is not None:
             self.appearance.load_state_dict(state["appearance"])
             self.appearance_optimizer.load_state_dict(state["appearance_optimizer"])
-        self._rng.bit_generator.state = state["view_rng"]
+        self._rng.bit_generator.state = _numpy_rng_state(state["view_rng"])
         self._stack = list(state["view_stack"])
         torch.set_rng_state(state["torch_rng"].cpu())  # RNG states are CPU byte tensors, whatever map_location did
         if state["cuda_rng"] is not None and torch.cuda.is_available():
@@ -373,8 +448,13 @@ class Trainer:
         return save_checkpoint(self.out_dir, self.iteration, self.state_dict(), keep=self.config.checkpoint_keep)
 
     def resume(self) -> int:
-        """Load the newest checkpoint of ``out_dir``; returns its iteration."""
-        state = load_checkpoint(self.out_dir, map_location=self.device)
+        """Load the newest usable checkpoint of ``out_dir``; returns its iteration.
+
+        A newer checkpoint that cannot be read (truncated, corrupt, refused as unsafe) is renamed to
+        ``<name>.corrupt`` and named in a warning with the one used instead
+        (:func:`gof_warp.checkpoint.load_newest`); :attr:`resumed_from` is the file loaded.
+        """
+        state, self.resumed_from = load_newest(self.out_dir, map_location=self.device, set_aside=True)
         saved = to_dict(from_dict(TrainConfig, state["config"], "checkpoint config"))
         now = to_dict(self.config)
         for key in ("iterations", "snapshot_iterations"):  # training may be extended on resume, and snapshots
@@ -386,6 +466,22 @@ class Trainer:
                            "resume with the same config (RUN/config.yaml) or start a new run")
         self.load_state_dict(state)
         return self.iteration
+
+
+def _plain_rng_state(state):
+    """A NumPy bit generator's state as plain data: its arrays (MT19937's key) as tensors, its scalars as ints."""
+    if isinstance(state, dict):
+        return {k: _plain_rng_state(v) for k, v in state.items()}
+    if isinstance(state, np.ndarray):
+        return torch.from_numpy(state.copy())
+    return state.item() if isinstance(state, np.generic) else state
+
+
+def _numpy_rng_state(state):
+    """The inverse of :func:`_plain_rng_state` (PCG64, the default, holds Python ints only)."""
+    if isinstance(state, dict):
+        return {k: _numpy_rng_state(v) for k, v in state.items()}
+    return state.numpy() if isinstance(state, torch.Tensor) else state
 
 
 def has_checkpoints(run_dir) -> bool:
