@@ -24,6 +24,10 @@ import numpy as np
 from .errors import SceneError
 
 
+_MIN_SINGULAR_RATIO = 1e-3  # a stored rotation (possibly rounded or uniformly scaled) has equal singular values;
+# below this ratio of smallest to largest the 3x3 block is not a rotation at all (e.g. all zeros)
+
+
 def _as_matrix(x, shape, name):
     a = np.asarray(x, dtype=np.float64)
     if a.shape != shape:
@@ -87,11 +91,18 @@ class Camera:
         c2w = np.asarray(c2w, dtype=np.float64)
         if c2w.shape not in ((4, 4), (3, 4)):
             raise SceneError(f"camera {name!r}: camera-to-world matrix must be 4x4 or 3x4, got {c2w.shape}")
+        if not np.all(np.isfinite(c2w)):
+            raise SceneError(f"camera {name!r}: camera-to-world matrix has NaN/inf entries")
         Rc2w = c2w[:3, :3].copy()
         if opengl:
             Rc2w[:, 1:3] *= -1.0
-        # Re-orthonormalise (files often store rounded rotations, sometimes with scale).
-        U, _, Vt = np.linalg.svd(Rc2w)
+        # Re-orthonormalise (files often store rounded rotations, sometimes with scale) — but only a matrix
+        # that is one: the SVD would turn an all-zero or rank-deficient block into an arbitrary rotation.
+        U, sv, Vt = np.linalg.svd(Rc2w)
+        if not sv[-1] > _MIN_SINGULAR_RATIO * sv[0]:
+            rank = int(np.sum(sv > _MIN_SINGULAR_RATIO * max(sv[0], 1e-300)))
+            raise SceneError(f"camera {name!r}: the camera-to-world rotation is singular (rank {rank} of 3, "
+                             f"not invertible; e.g. an all-zero matrix): not a camera pose")
         Rc2w = U @ Vt
         if np.linalg.det(Rc2w) < 0:
             raise SceneError(f"camera {name!r}: camera-to-world rotation is a reflection")

@@ -9,7 +9,8 @@ Mesh extraction from trained Gaussians (GOF Sec. 3.4, appendix Algorithms 1–3)
 
 ``RUN`` is a training output folder (``point_cloud.ply`` + ``cameras.json``) or any Gaussian PLY in the
 3DGS layout together with ``--scene`` for the cameras. Writes the mesh (PLY) and ``<mesh>.json`` with
-vertex/face counts and per-stage time and peak memory.
+vertex/face counts and per-stage time and peak memory. An empty mesh is an error (exit 2) and writes nothing;
+Gaussians whose scales overflow (see :func:`meshable`) are left out with a warning.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ import torch
 
 from .camera import Camera
 from .cli import configure_output, run_command
-from .errors import GofError
+from .errors import GofError, ModelError
 from .io_utils import atomic_path, write_json_atomic
 from .marching import compact_mesh
 from .opacity_field import OpacityFieldConfig, opacity_field
@@ -111,6 +112,45 @@ def _postprocess(verts, faces, config: MeshConfig):
     return verts, faces
 
 
+def meshable(gaussians):
+    """The Gaussians that can be bounded and meshed, with a warning naming what was left out.
+
+    A scale whose square overflows float32 (log-scale above ~44, e.g. a diverged model's e^50) turns the
+    covariance, the 3D filter's scale and its opacity compensation into inf/NaN. The renderer already skips
+    such a Gaussian (NaN opacity), but a grid cannot be sized around it nor a 3σ box triangulated, so it is
+    left out here — the mesh is that of the other Gaussians, which is what they render. A model with none
+    left raises :class:`~gof_warp.errors.ModelError`.
+    """
+    with torch.no_grad():
+        s = gaussians.raw_scales
+        ok = (torch.isfinite(s * s).all(dim=1) & torch.isfinite(gaussians.scales).all(dim=1)
+              & torch.isfinite(gaussians.opacities))
+        n_bad = int((~ok).sum())
+        if n_bad == 0:
+            return gaussians
+        top = float(gaussians.log_scales.detach()[~ok].max())
+    why = f"scales too large to represent (log-scale up to {top:.3g}; scale squared overflows float32)"
+    if n_bad == len(gaussians):
+        raise ModelError(f"all {n_bad} Gaussians have {why}: the model is degenerate, nothing to mesh")
+    log.warning("warning: %d of %d Gaussians have %s: left out of the mesh", n_bad, len(gaussians), why)
+    return gaussians.subset(ok)
+
+
+def empty_mesh_message(gaussians, method: str, levels, config: MeshConfig | None = None) -> str:
+    """Why a mesh came out empty, for the one-line error of a CLI that refuses to write it."""
+    with torch.no_grad():
+        s = gaussians.raw_scales.max(dim=1).values
+        o = gaussians.opacities
+        stats = (f"{len(gaussians)} Gaussians, largest scale {float(s.max()):.3g}, median {float(s.median()):.3g}, "
+                 f"opacity up to {float(o.max()):.3g}")
+    lv = ", ".join(f"{x:g}" for x in levels)
+    removed = ""
+    if config is not None and (config.crop is not None or config.min_component_faces > 0):
+        removed = " or the crop/--min-component-faces removed every face"
+    return (f"no surface crosses level {lv} ({method}): the mesh would be empty — the model is empty or degenerate "
+            f"({stats}){removed}; nothing was written")
+
+
 def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = None, *,
                  render_config: RenderConfig | None = None, views=None, timer: StageTimer | None = None):
     """Extract one mesh per level from trained Gaussians.
@@ -131,6 +171,7 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
     timer = timer or StageTimer()
     if len(gaussians) == 0:
         raise GofError("the model has no Gaussians: nothing to extract")
+    gaussians = meshable(gaussians)
 
     def field_fn(points, field_config=config.field):
         return opacity_field(gaussians, cameras, points, config=field_config, render_config=render_config)
@@ -156,6 +197,8 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
         box = np.asarray(config.crop, float) if config.crop is not None else scene_bounds(
             gaussians, cameras, near=render_config.near)
         size = box[3:] - box[:3]
+        if box.shape != (6,) or not np.all(np.isfinite(box)) or not np.all(size > 0):
+            raise GofError(f"marching cubes: the grid box must be 6 finite numbers with max > min, got {box.tolist()}")
         res = tuple(int(max(2, round(config.cubes_resolution * s / size.max()))) for s in size)
         for level in config.levels:
             with timer(f"marching_cubes@{level}"):
@@ -267,9 +310,13 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         meshes = extract_mesh(gaussians, cameras, cfg, render_config=render_config, views=views, timer=timer)
         total = time.perf_counter() - t0
+        levels = cfg.levels if a.method != "tsdf" else (0.0,)
+        empty = [level for level, (_, f) in zip(levels, meshes) if len(f) == 0]
+        if empty:  # before anything is written: an existing mesh of that name stays as it is
+            raise GofError(empty_mesh_message(gaussians, a.method, empty, cfg))
         base = Path(a.out) if a.out else (run if run.is_dir() else run.parent) / f"mesh_{a.method}.ply"
         outputs = []
-        for level, (v, f) in zip(cfg.levels if a.method != "tsdf" else (0.0,), meshes):
+        for level, (v, f) in zip(levels, meshes):
             path = base if len(meshes) == 1 else base.with_name(f"{base.stem}_{level:g}{base.suffix}")
             save_mesh(path, v, f)
             outputs.append({"path": str(path), "level": level, "vertices": int(len(v)), "faces": int(len(f))})

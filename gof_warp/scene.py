@@ -7,12 +7,16 @@ masks are ``uint8`` ``[H, W]`` (255 = object / foreground, 0 = background).
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from .camera import Camera, camera_extent
 from .errors import SceneError
+
+log = logging.getLogger(__name__)
+SAME_POSE_TOL = 1e-6  # centres closer than this × (1 + their distance from the origin) coincide; rotations likewise
 
 
 @dataclass(eq=False)
@@ -45,6 +49,24 @@ class View:
     def image_float(self) -> np.ndarray:
         """``[H, W, 3]`` float32 in ``[0, 1]``."""
         return self.image.astype(np.float32) / 255.0
+
+
+def pose_warnings(cameras: list[Camera]) -> list[str]:
+    """Warnings about training poses that leave the geometry undetermined (training can still run).
+
+    One view: nothing constrains depth. Every centre the same: no parallax — the views differ at most by a
+    rotation about that centre, which no multi-view method can turn into depth.
+    """
+    if len(cameras) == 1:
+        return ["only 1 training view: no parallax: geometry cannot be recovered (training runs, but fits "
+                "a flat, view-dependent model)"]
+    centres = np.stack([c.center for c in cameras])
+    tol = SAME_POSE_TOL * (1.0 + float(np.abs(centres).max()))
+    if np.abs(centres - centres[0]).max() > tol:
+        return []
+    same_r = all(np.abs(c.R - cameras[0].R).max() <= SAME_POSE_TOL for c in cameras)
+    what = "the same centre and orientation (identical cameras)" if same_r else "the same centre (rotation only)"
+    return [f"all {len(cameras)} training cameras have {what}: no parallax: geometry cannot be recovered"]
 
 
 @dataclass(eq=False)
@@ -88,6 +110,10 @@ class Scene:
                 raise SceneError(f"scene {self.source}: point colours do not match the points")
         if not self.extent:
             self.extent = camera_extent([v.camera for v in self.train])
+        for w in pose_warnings(self.train_cameras):
+            if w not in self.warnings:
+                self.warnings.append(w)
+                log.warning("warning: %s: %s", self.source or "scene", w)
 
     @property
     def train_cameras(self) -> list[Camera]:

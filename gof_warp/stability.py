@@ -10,6 +10,10 @@ Gaussian centres and a grid) and each extraction method, and reports per method:
   beyond ``far_radius``, e.g. Gaussians far outside the cameras leaking into the mesh);
 * for trained synthetic presets: completeness, F-score and Chamfer against the exact mesh (holes).
 
+Bad inputs (broken scene folders, Gaussian PLYs, settings) are tried through the commands themselves by
+:mod:`gof_warp.stability_inputs`; ``stability.json``'s ``summary`` counts, per kind tried, the clear errors,
+warnings, crashes and NaN/inf.
+
 Hand-made cases (no training, seconds; run in CI): a good blob of Gaussians on a sphere, and that blob
 with degenerate Gaussians mixed in (scales 1e-8, 1e3, flat 1e-7), all opacities 0 or 1, Gaussians far
 outside every camera's frustum, Gaussians far away but in view (occluded by the blob from the other side),
@@ -229,18 +233,33 @@ def run_trained_case(preset: str, out: Path, device: str = "cpu", methods=STABIL
 
 
 def run_stability(out, device: str = "cpu", trained: bool = True) -> list[dict]:
-    """Every hand-made case (and, when ``trained``, the trained presets); writes ``out/stability.json``."""
+    """Every hand-made case, the bad-input cases (:mod:`gof_warp.stability_inputs`) and, when ``trained``, the
+    trained presets. Writes ``out/stability.json``: ``reports`` (model cases × methods), ``inputs`` and
+    ``summary`` (counts per kind tried: ok, clear errors, warnings, crashes, NaN/inf). Returns the model
+    and input reports together (each has ``case``, ``method``, ``outcome``)."""
     from .io_utils import ensure_writable_dir, write_json_atomic
+    from .stability_inputs import run_input_cases, summarise
 
     out = ensure_writable_dir(out)
     reports = [r for c in CASES for r in run_case(c, device)]
+    inputs = run_input_cases(out)
+
+    def save():
+        write_json_atomic(out / "stability.json", {"summary": summarise(reports, inputs), "reports": reports,
+                                                   "inputs": inputs})
+
     if trained:
         for preset in TRAINED_PRESETS:
             reports += run_trained_case(preset, out, device)
-            write_json_atomic(out / "stability.json", {"reports": reports})
-    write_json_atomic(out / "stability.json", {"reports": reports})
+            save()
+    save()
     for r in reports:
         log.info("%-14s %-6s %-5s faces %6s components %4s far %4s%s", r["case"], r["method"], r["outcome"],
                  r.get("faces"), r.get("components"), r.get("faces_far"),
                  f"  F {r['fscore']:.3f}" if r.get("fscore") is not None else "")
-    return reports
+    for r in inputs:
+        log.info("%-24s %-7s %-7s%s %s", r["case"], r["kind"], r["outcome"],
+                 "" if r["as_expected"] else " (UNEXPECTED)", r["message"])
+    for kind, c in summarise(reports, inputs).items():
+        log.info("%-6s %s", kind, ", ".join(f"{k} {v}" for k, v in c.items()))
+    return reports + inputs

@@ -95,6 +95,10 @@ def scene_bounds(gaussians, cameras, *, percentile: float = 0.5, padding: float 
 
     means = gaussians.means.detach()
     extent = 3.0 * gaussians.scales.detach().max(dim=1).values
+    finite = torch.isfinite(extent)  # an overflowed scale (see extract.meshable) cannot bound anything
+    if not bool(finite.any()):
+        raise GofError(f"cannot bound the grid: all {len(extent)} Gaussians have non-finite scales")
+    means, extent = means[finite], extent[finite]
     if cameras:
         seen = frustum_mask(means.double(), cameras, near, 1e6)
         if bool(seen.any()):
@@ -123,7 +127,7 @@ def fuse_tsdf(gaussians, views, config: TSDFConfig | None = None, render_config:
     box = np.asarray(config.bounds, float) if config.bounds is not None else scene_bounds(
         gaussians, [v.camera for v in views], percentile=config.bounds_percentile, padding=config.bounds_padding,
         near=render_config.near)
-    if box.shape != (6,) or np.any(box[3:] <= box[:3]):
+    if box.shape != (6,) or not np.all(np.isfinite(box)) or np.any(box[3:] <= box[:3]):
         raise GofError(f"TSDF bounds must be (xmin, ymin, zmin, xmax, ymax, zmax) with max > min, got {box.tolist()}")
     size = box[3:] - box[:3]
     voxel = float(config.voxel_size or size.max() / config.resolution)

@@ -12,11 +12,16 @@ SHAPE_TOL = 0.25  # the blob's 0.5 level set lies within ~2σ (σ = 0.08) of its
 EMPTY_SIDE_TOL = 0.15  # half blob: centres at x > 0.05, σ = 0.08, so its level set ends near x = -0.07 (not -0.6)
 
 
+_saved_inputs: dict = {}  # the bad-input part of the same stability.json
+
+
 @pytest.fixture(scope="module")
 def reports(tmp_path_factory):
     out = tmp_path_factory.mktemp("stability")
     assert main(["--suite", "stability", "--fast", "--quiet", "--device", "cpu", "--out", str(out)]) == 0
-    saved = json.loads((out / "stability.json").read_text())["reports"]
+    data = json.loads((out / "stability.json").read_text())
+    saved = data["reports"]
+    _saved_inputs.update(summary=data["summary"], inputs=data["inputs"])
     assert len(saved) == len(CASES) * len(STABILITY_METHODS)
     by_case = {}
     for r in saved:
@@ -88,3 +93,13 @@ def test_dense_grid_bounds_ignore_huge_and_unseen_gaussians(reports):
             r = reports[case][method]
             assert r["outcome"] == "ok" and r["faces"] > 100 and r["faces_far"] == 0, (case, method, r)
             assert np.all(np.abs(r["bbox_min"]) < FAR_RADIUS) and np.all(np.abs(r["bbox_max"]) < FAR_RADIUS), (case, method)
+
+
+def test_bad_inputs_are_counted_per_kind_with_no_crash_or_nan(reports):
+    summary, inputs = _saved_inputs["summary"], _saved_inputs["inputs"]
+    assert set(summary) == {"model", "scene", "ply", "config"}
+    assert summary["model"]["tried"] == len(CASES) * len(STABILITY_METHODS)
+    for kind, c in summary.items():
+        assert c["crash"] == 0 and c["nan_inf"] == 0, (kind, c)
+    assert all(r["as_expected"] for r in inputs), [r for r in inputs if not r["as_expected"]]
+    assert summary["scene"]["warning"] >= 2 and summary["ply"]["error"] >= 6

@@ -63,10 +63,16 @@ def lens_from_colmap(model: str, params, width: int, height: int, where: str) ->
     )
 
 
-def _pose(image) -> tuple[np.ndarray, np.ndarray]:
-    """World-to-camera ``(R, t)`` of a pycolmap image (``cam_from_world`` is a method in pycolmap ≥ 3.12)."""
+def _pose(image, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """World-to-camera ``(R, t)`` of a pycolmap image (``cam_from_world`` is a method in pycolmap ≥ 3.12).
+
+    SceneError for a zero or non-finite quaternion: pycolmap turns a zero quaternion into the identity
+    rotation, which would silently put the camera at the origin looking down +z."""
     cfw = image.cam_from_world
     cfw = cfw() if callable(cfw) else cfw
+    q = np.asarray(cfw.rotation.quat, dtype=np.float64)
+    if not np.all(np.isfinite(q)) or not np.linalg.norm(q) > 1e-8:
+        raise SceneError(f"{where}: the rotation quaternion {q.tolist()} is zero or not finite (no valid pose)")
     m = np.asarray(cfw.matrix(), dtype=np.float64)
     return m[:, :3], m[:, 3]
 
@@ -96,6 +102,7 @@ def read_colmap(root: Path, config) -> ScenePlan:
         raise SceneError(f"{root}: no COLMAP model (cameras.bin/.txt in sparse/0, sparse or the folder)")
     rec = read_reconstruction(model_dir)
     cam_file = next((model_dir / f for f in _MODEL_FILES if (model_dir / f).is_file()), model_dir)
+    pose_file = next((model_dir / f for f in ("images.bin", "images.txt") if (model_dir / f).is_file()), model_dir)
     image_dir = _images_dir(root, model_dir, config.images)
     warnings = []
     registered = [im for im in rec.images.values() if im.has_pose and "sky_mask" not in im.name]
@@ -112,7 +119,7 @@ def read_colmap(root: Path, config) -> ScenePlan:
             lenses[im.camera_id] = lens_from_colmap(cam.model.name, cam.params, cam.width, cam.height, where)
         lens = lenses[im.camera_id]
         K = undistorted_intrinsics(lens, config.undistort) if lens.has_distortion else (lens.fx, lens.fy, lens.cx, lens.cy)
-        R, t = _pose(im)
+        R, t = _pose(im, f"{pose_file} (image {im.name})")
         name = Path(im.name).with_suffix("").as_posix()
         try:
             camera = Camera(R=R, t=t, fx=K[0], fy=K[1], cx=K[2], cy=K[3], width=lens.width, height=lens.height, name=name)

@@ -86,7 +86,8 @@ def read_dtu(root: Path, config) -> ScenePlan:
             raise SceneError(f"{where}: world_mat must be 4x4 or 3x4 and scale_mat 4x4")
         P = world[:3, :4] @ scale
         if not np.all(np.isfinite(P)) or abs(np.linalg.det(P[:, :3])) < 1e-12:
-            raise SceneError(f"{where}: degenerate projection matrix")
+            raise SceneError(f"{where}: degenerate projection matrix: world_mat_{i} @ scale_mat_{i} is singular "
+                             f"or not finite (e.g. an all-zero world_mat)")
         K, R, t = decompose_projection(P)
         header = imio.read_header(image_path)
         max_skew_px = max(max_skew_px, abs(K[0, 1]) * 0.5 * header.height / K[1, 1])
