@@ -407,7 +407,8 @@ def _extract(method: Method, model: Model, scene, render_config):
         return None, None, None
     try:
         (verts, faces), = extract_mesh(model.gaussians, scene.train_cameras, method.mesh_config(),
-                                       render_config=render_config, views=scene.train, timer=StageTimer())
+                                       render_config=render_config, views=scene.train,
+                                       timer=StageTimer(model.gaussians.device))
         return verts, faces, None
     except GofError as e:  # a clear refusal is a result of the configuration (recorded), not a bench failure
         return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32), str(e)
@@ -551,7 +552,7 @@ def main(argv=None) -> int:
     configure_output(a.quiet)
 
     def body():
-        from .train import pick_device
+        from .devices import resolve_device as pick_device
 
         if a.suite == "stability":
             from .stability import run_stability

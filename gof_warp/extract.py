@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import logging
 import resource
 import sys
@@ -36,6 +35,7 @@ from .io_utils import atomic_path, write_json_atomic
 from .marching import compact_mesh
 from .opacity_field import OpacityFieldConfig, opacity_field
 from .render import RenderConfig
+from .run_folder import cameras_from_json, load_run  # noqa: F401 - re-exported: extract.load_run is public
 from .tetra import TetraConfig, tetrahedral_grid
 from .tsdf import TSDFConfig, extract_tsdf_mesh, fuse_tsdf
 
@@ -67,29 +67,31 @@ class MeshConfig:
 
 
 class StageTimer:
-    """Wall time and peak memory (host RSS, CUDA allocations) per named stage."""
+    """Wall time and peak memory (host RSS; on a CUDA ``device`` its torch and Warp-pool peaks) per named stage."""
 
-    def __init__(self):
+    def __init__(self, device="cpu"):
         self.stages: dict[str, dict] = {}
+        self.device = torch.device(str(device))
 
     @contextmanager
     def __call__(self, name: str):
-        cuda = torch.cuda.is_available()
+        cuda = self.device.type == "cuda"
         if cuda:
-            torch.cuda.synchronize()
-            torch.cuda.reset_peak_memory_stats()
+            torch.cuda.synchronize(self.device)
+            torch.cuda.reset_peak_memory_stats(self.device)
         t0 = time.perf_counter()
         log.info("%s ...", name)
         yield
         if cuda:
-            torch.cuda.synchronize()
+            torch.cuda.synchronize(self.device)
         entry = {"time_s": round(time.perf_counter() - t0, 4),
                  "host_peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)}
         if cuda:
             import warp as wp
 
-            entry["gpu_peak_allocated_mb"] = round(torch.cuda.max_memory_allocated() / 2**20, 1)
-            entry["gpu_warp_pool_high_mb"] = round(wp.get_mempool_used_mem_high("cuda:0") / 2**20, 1)  # since start
+            entry["gpu_peak_allocated_mb"] = round(torch.cuda.max_memory_allocated(self.device) / 2**20, 1)
+            entry["gpu_warp_pool_high_mb"] = round(  # since start
+                wp.get_mempool_used_mem_high(f"cuda:{self.device.index or 0}") / 2**20, 1)
         self.stages[name] = entry
         log.info("%s: %.2f s", name, entry["time_s"])
 
@@ -168,7 +170,7 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
     config = config or MeshConfig()
     config.validate()
     render_config = render_config or RenderConfig()
-    timer = timer or StageTimer()
+    timer = timer or StageTimer(gaussians.device)
     if len(gaussians) == 0:
         raise GofError("the model has no Gaussians: nothing to extract")
     gaussians = meshable(gaussians)
@@ -227,47 +229,6 @@ def save_mesh(path, verts: np.ndarray, faces: np.ndarray) -> None:
         mesh.export(tmp, file_type="ply")
 
 
-def load_run(run: Path, scene: str | None, device: str):
-    """``(gaussians, cameras, views, render_config)`` from a run folder or a PLY (+ ``--scene``)."""
-    from .model import Gaussians
-
-    views = None
-    render_config = RenderConfig()
-    if run.is_dir():
-        ply = run / "point_cloud.ply"
-        if not ply.is_file():
-            raise GofError(f"{run} has no point_cloud.ply (is it a training output folder?)")
-        cfg_file = run / "config.yaml"
-        if cfg_file.is_file():
-            from .config import from_dict, load_yaml
-
-            render_config = from_dict(RenderConfig, load_yaml(cfg_file).get("render", {}), f"{cfg_file}: render")
-    elif run.suffix.lower() == ".ply" and run.is_file():
-        ply = run
-    else:
-        raise GofError(f"{run} is neither a run folder nor a .ply file")
-    gaussians = Gaussians.load_ply(ply, device=device)
-    if scene is not None:
-        from .data import load_scene
-
-        s = load_scene(scene)
-        views = s.train
-        cameras = s.train_cameras
-    elif run.is_dir() and (run / "cameras.json").is_file():
-        cameras = cameras_from_json(run / "cameras.json")
-    else:
-        raise GofError(f"no cameras for {run}: pass --scene SCENE (the scene the model was trained on)")
-    return gaussians, cameras, views, render_config
-
-
-def cameras_from_json(path: Path) -> list[Camera]:
-    try:
-        data = json.loads(path.read_text())
-        return [Camera.from_dict(c) for c in data["train"]]
-    except (OSError, ValueError, KeyError, TypeError) as e:
-        raise GofError(f"{path}: cannot read cameras: {e}") from None
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m gof_warp.extract", description=__doc__.split("\n\n")[1])
     ap.add_argument("run", help="training output folder, or a 3DGS-layout Gaussian PLY (with --scene)")
@@ -292,7 +253,7 @@ def main(argv=None) -> int:
     configure_output(a.quiet)
 
     def body():
-        from .train import pick_device
+        from .devices import resolve_device as pick_device
 
         device = pick_device(a.device)
         run = Path(a.run)
@@ -306,7 +267,7 @@ def main(argv=None) -> int:
             cfg.tsdf.resolution = a.resolution
         cfg.validate()
         gaussians, cameras, views, render_config = load_run(run, a.scene, device)
-        timer = StageTimer()
+        timer = StageTimer(device)
         t0 = time.perf_counter()
         meshes = extract_mesh(gaussians, cameras, cfg, render_config=render_config, views=views, timer=timer)
         total = time.perf_counter() - t0

@@ -55,9 +55,10 @@ Field = Callable[[object], object]
 
 
 def _resolve_device(device) -> str:
-    if device is None:
-        return "cuda" if wp.get_cuda_device_count() > 0 else "cpu"
-    return str(device)
+    """Warp's name for ``device`` (None: :mod:`gof_warp.devices`' default)."""
+    from .devices import warp_device
+
+    return warp_device(None if device is None else str(device))
 
 
 def _torch_stream(device: str):

@@ -62,7 +62,9 @@ def quat_to_rotmat(quats: torch.Tensor) -> torch.Tensor:
 
 
 def _default_device():
-    return "cuda" if torch.cuda.is_available() else "cpu"
+    from .devices import resolve_device
+
+    return resolve_device()
 
 
 class Gaussians:

@@ -44,7 +44,9 @@ class OpacityFieldConfig:
 
 
 def _wp_device(t: torch.Tensor) -> str:
-    return "cpu" if t.device.type == "cpu" else f"cuda:{t.device.index or 0}"
+    from .devices import warp_device
+
+    return warp_device(t.device)
 
 
 @torch.no_grad()

@@ -34,8 +34,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from .camera import Camera
+from .devices import resolve_device, warp_device
 from .errors import GofError
 from .kernels import raycast
 
@@ -60,16 +62,16 @@ _DEPTH_ANCHORS = np.array([[0.267, 0.005, 0.329], [0.229, 0.322, 0.546], [0.128,
 
 # ------------------------------------------------------------------------------------------ mesh shading
 def _warp_device(device, *inputs):
-    """The Warp device: ``device`` (a Warp or torch device, or its name) if given, else that of the first
-    torch tensor / ``wp.array`` among ``inputs``, else the CPU."""
+    """The Warp device under :mod:`gof_warp.devices`' rule: ``device`` (a Warp or torch device, or its name) if
+    given, else that of the first torch tensor / ``wp.array`` among ``inputs``, else the default."""
     import warp as wp
 
     wp.init()
-    if device is None:
-        device = next((x.device for x in inputs if hasattr(x, "device") and hasattr(x, "shape")), "cpu")
-    if isinstance(device, wp.Device):
-        return device
-    return wp.get_device(str(device))  # torch's "cpu", "cuda", "cuda:1" are Warp's names too
+    like = next((x for x in inputs if hasattr(x, "device") and hasattr(x, "shape")), None)
+    name = None if device is None else str(device)
+    if like is not None and not torch.is_tensor(like):  # a wp.array: its device's name
+        like = type("_Dev", (), {"device": str(like.device)})()
+    return wp.get_device(warp_device(resolve_device(name, like=like)))
 
 
 def _as_numpy(x, dtype):
@@ -442,11 +444,9 @@ def write_run_pictures(run_dir, *, mesh_path=None, views: int = 3, out_dir=None,
         device: torch device for the Gaussians and the ray casting (default: CUDA if available, else CPU).
         scene: scene folder for cameras and photos (default: what the run names, else ``RUN/scene``).
     """
-    import torch
-
     from .config import from_dict
     from .data import DataConfig
-    from .extract import cameras_from_json
+    from .run_folder import cameras_from_json
     from .model import Gaussians
     from .render import RenderConfig
 
@@ -459,7 +459,7 @@ def write_run_pictures(run_dir, *, mesh_path=None, views: int = 3, out_dir=None,
         base, ply = run.parent, run
     else:
         raise GofError(f"{run} is neither a run folder nor a .ply file")
-    device = device or ("cuda" if torch.cuda.is_available() else "cpu")
+    device = resolve_device(device)
     config = _load_yaml(base / "config.yaml") if run.is_dir() else {}
     render_config = from_dict(RenderConfig, config.get("render", {}) or {}, "config.yaml: render")
     data_config = from_dict(DataConfig, config.get("data", {}) or {}, "config.yaml: data")
@@ -522,7 +522,7 @@ def main(argv=None) -> int:
     configure_output(a.quiet)
 
     def body():
-        from .train import pick_device
+        from .devices import resolve_device as pick_device
 
         for p in write_run_pictures(a.run, mesh_path=a.mesh, views=a.views, out_dir=a.out,
                                     device=pick_device(a.device), scene=a.scene):

@@ -52,15 +52,10 @@ def resolve_config(config: str, overrides: list[str], iterations: int | None):
 
 
 def pick_device(name: str) -> str:
-    import torch
+    """``--device`` (cpu, cuda, cuda:N or auto) under the one rule of :mod:`gof_warp.devices`."""
+    from .devices import resolve_device
 
-    if name == "auto":
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    if name.startswith("cuda") and not torch.cuda.is_available():
-        raise GofError("--device cuda was asked for but torch sees no CUDA device")
-    if name != "cpu" and not name.startswith("cuda"):
-        raise GofError(f"--device must be cpu, cuda or auto, got {name!r}")
-    return name
+    return resolve_device(name)
 
 
 class _Progress:

@@ -41,6 +41,7 @@ from .checkpoint import list_checkpoints, load_newest, save_checkpoint
 from .config import ConfigError, dump_yaml, from_dict, to_dict
 from .data import DataConfig
 from .densify import DensifyConfig, Densifier
+from .devices import warp_device
 from .errors import GofError
 from .filter3d import update_filter_3d
 from .init_points import initial_point_cloud
@@ -173,15 +174,16 @@ def _image_tensor(image: np.ndarray, device) -> torch.Tensor:
     return torch.from_numpy(image).to(device=device, dtype=torch.float32) / 255.0
 
 
-def _peak_memory() -> dict:
+def _peak_memory(device: torch.device) -> dict:
+    """Host peak RSS and, on a CUDA ``device``, its torch and Warp-pool peaks (MB)."""
     out = {"host_peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
-    if torch.cuda.is_available():
+    if device.type == "cuda":
         import warp as wp
 
-        out["gpu_peak_allocated_mb"] = torch.cuda.max_memory_allocated() / 2**20
-        out["gpu_peak_reserved_mb"] = torch.cuda.max_memory_reserved() / 2**20
+        out["gpu_peak_allocated_mb"] = torch.cuda.max_memory_allocated(device) / 2**20
+        out["gpu_peak_reserved_mb"] = torch.cuda.max_memory_reserved(device) / 2**20
         # the renderer's temporaries live in Warp's own memory pool, which torch does not see
-        out["gpu_peak_warp_pool_mb"] = wp.get_mempool_used_mem_high("cuda:0") / 2**20
+        out["gpu_peak_warp_pool_mb"] = wp.get_mempool_used_mem_high(warp_device(device)) / 2**20
     return out
 
 
@@ -304,7 +306,7 @@ class Trainer:
             "its_per_s": round(cfg.iterations / train_time, 3) if train_time > 0 else None,
             "num_gaussians": len(self.gaussians),
             "device": str(self.device),
-            **{k: round(v, 1) for k, v in _peak_memory().items()},
+            **{k: round(v, 1) for k, v in _peak_memory(self.device).items()},
             "final_train_psnr": round(last.get("psnr", float("nan")), 3) if last else None,
             "test": self.evaluate(),
             "loss_spikes": self.spikes.report(),

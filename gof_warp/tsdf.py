@@ -20,6 +20,7 @@ import numpy as np
 import torch
 import warp as wp
 
+from .devices import resolve_device, warp_device
 from .errors import GofError
 from .kernels.render_types import camera_params_from
 from .kernels.tsdf import integrate_tsdf, sample_grid_trilinear
@@ -133,7 +134,7 @@ def fuse_tsdf(gaussians, views, config: TSDFConfig | None = None, render_config:
     voxel = float(config.voxel_size or size.max() / config.resolution)
     res = np.maximum(2, np.ceil(size / voxel).astype(int) + 1)
     wp.init()
-    wdev = str(device or ("cuda:0" if gaussians.device.type == "cuda" else "cpu"))
+    wdev = warp_device(resolve_device(None if device is None else str(device), like=gaussians.means))
     log.info("TSDF grid %s voxels of %.4g (%.1f MB)", res.tolist(), voxel, res.prod() * 20 / 2**20)
     shape = tuple(int(r) for r in res)
     tsdf = wp.ones(shape, dtype=float, device=wdev)
@@ -186,7 +187,7 @@ def extract_tsdf_mesh(volume: TSDFVolume, *, binary_steps: int = 0, device=None)
     observed = volume.weight > 0
     field_grid = np.where(observed, -volume.tsdf, -1.0).astype(np.float32)  # inside = value >= 0
     wp.init()
-    device = str(device or ("cuda" if wp.get_cuda_device_count() > 0 else "cpu"))
+    device = warp_device(None if device is None else str(device))
     field = GridSampler(field_grid, volume.origin, volume.voxel_size, device)
     del field_grid
 

@@ -73,7 +73,7 @@ def study(run: Path, gt: Path, names: list[str], binary_steps: int, device: str)
     for name in names:
         opacity_min, frac = SETTINGS[name]
         tetra = TetraConfig(opacity_min=opacity_min, corner_min_extent=None if frac is None else frac * diag)
-        timer = StageTimer()
+        timer = StageTimer(gaussians.device)
         t0 = time.perf_counter()
         (verts, faces), = extract_mesh(gaussians, cameras, MeshConfig(binary_steps=binary_steps, tetra=tetra),
                                        render_config=render_config, timer=timer)

@@ -40,8 +40,10 @@ _NEWTON_TOL = 1e-12  # normalised units; far below a pixel for any focal length 
 
 
 def default_device() -> str:
-    """``"cuda"`` when Warp sees a GPU, else ``"cpu"``."""
-    return "cuda" if wp.is_cuda_available() else "cpu"
+    """Warp's name of the default device (:func:`gof_warp.devices.resolve_device`'s rule)."""
+    from ..devices import warp_device
+
+    return warp_device(None)
 
 
 @dataclass(frozen=True)

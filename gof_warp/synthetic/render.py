@@ -24,8 +24,10 @@ _KINDS = {"constant": raycast.MAT_CONSTANT, "texture": raycast.MAT_TEXTURE, "pro
 
 
 def default_device() -> str:
-    """``"cuda"`` when Warp sees a GPU, else ``"cpu"``."""
-    return "cuda" if wp.get_cuda_device_count() > 0 else "cpu"
+    """Warp's name of the default device (:func:`gof_warp.devices.resolve_device`'s rule)."""
+    from ..devices import warp_device
+
+    return warp_device(None)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,60 @@
+"""One rule for devices, for torch and Warp alike.
+
+1. A device the caller names wins (``"cpu"``, ``"cuda"``, ``"cuda:1"``; ``"auto"`` means "not named").
+2. Otherwise the device of the inputs: work follows its data (a tensor's device, a model's device).
+3. Otherwise CUDA when **both** torch and Warp see a CUDA device, else CPU — a CPU-only torch next to a
+   CUDA-capable Warp (or the reverse) gets the CPU, so the two never disagree about where data lives.
+
+Torch names (``"cuda:0"``, ``"cpu"``) are the currency; :func:`warp_device` gives Warp's name for the same
+device. Memory figures and synchronisation take the device from here too, never a hard-coded ``"cuda:0"``.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from .errors import GofError
+
+
+def cuda_available() -> bool:
+    """True when torch and Warp both see a CUDA device."""
+    if not torch.cuda.is_available():
+        return False
+    import warp as wp
+
+    wp.init()
+    return wp.get_cuda_device_count() > 0
+
+
+def resolve_device(device=None, like=None) -> str:
+    """The torch device string to work on (rules in the module docstring).
+
+    Args:
+        device: a device the caller names (str or ``torch.device``), ``"auto"`` or None.
+        like: a tensor (or anything with ``.device``) whose device the work follows when ``device`` is not named.
+    Raises:
+        GofError: a CUDA device was named but torch or Warp cannot use it, or the name is not a device.
+    """
+    if device is not None and str(device) != "auto":
+        name = str(device)
+        if name.startswith("cuda"):
+            if not cuda_available():
+                raise GofError(f"device {name!r} was asked for but torch and Warp do not both see a CUDA device")
+            dev = torch.device(name)
+            return f"cuda:{dev.index if dev.index is not None else torch.cuda.current_device()}"
+        if name != "cpu":
+            raise GofError(f"device must be cpu, cuda, cuda:N or auto, got {name!r}")
+        return "cpu"
+    if like is not None and getattr(like, "device", None) is not None:
+        return resolve_device(like.device)
+    return resolve_device("cuda") if cuda_available() else "cpu"
+
+
+def warp_device(device) -> str:
+    """Warp's name for a torch device (``"cuda:0"`` / ``"cpu"``)."""
+    dev = torch.device(resolve_device(device))
+    return "cpu" if dev.type == "cpu" else f"cuda:{dev.index}"
+
+
+def is_cuda(device) -> bool:
+    return torch.device(str(device)).type == "cuda"
