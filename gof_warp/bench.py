@@ -330,7 +330,7 @@ def scene_folder(run: Run, run_dir: Path, data=None) -> Path:
 def run_config(run: Run):
     """The run's resolved :class:`~gof_warp.trainer.TrainConfig` (preset + overrides + snapshots)."""
     from .config import merge
-    from .train import resolve_config
+    from .preset_choice import resolve_config
 
     over = _merge(run.overrides, {"snapshot_iterations": list(run.snapshots)}) if run.snapshots else run.overrides
     return merge(resolve_config(run.config, [], None), over, f"run {run.name}")

@@ -21,9 +21,39 @@ Only the first few images' alpha channels are read (:data:`ALPHA_PROBE_VIEWS`).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
+
+from .config import ConfigError, from_dict, load_yaml, merge, parse_override
+
+PRESETS = ("auto", "quick", "blender", "unbounded", "dtu", "tnt", "mipnerf360")
+
+
+def preset_path(name_or_path: str) -> Path:
+    """A preset name (``configs/NAME.yaml``, installed with the package) or a path to a YAML file."""
+    p = Path(name_or_path)
+    if p.suffix in (".yaml", ".yml") or p.exists():
+        if not p.is_file():
+            raise ConfigError(f"config file {p} not found")
+        return p
+    candidate = Path(str(resources.files("gof_warp.configs") / f"{name_or_path}.yaml"))
+    if not candidate.is_file():
+        raise ConfigError(f"unknown config preset {name_or_path!r}; presets: {', '.join(PRESETS)} (or a YAML path)")
+    return candidate
+
+
+def resolve_config(config: str, overrides: list[str], iterations: int | None):
+    from .trainer import TrainConfig
+
+    cfg = from_dict(TrainConfig, load_yaml(preset_path(config)), f"config {config}")
+    for o in overrides:
+        cfg = merge(cfg, parse_override(o), f"override {o!r}")
+    if iterations is not None:
+        cfg = merge(cfg, {"iterations": iterations})
+    return cfg
+
 
 ALPHA_PROBE_VIEWS = 3
 TRANSPARENT_FRACTION = 0.01  # fraction of pixels with alpha < 255 that marks a cut-out object

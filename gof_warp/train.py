@@ -15,41 +15,13 @@ import logging
 import shlex
 import sys
 import time
-from importlib import resources
 from pathlib import Path
 
-from .config import ConfigError, from_dict, load_yaml, merge, parse_override
 from .cli import configure_output, run_command
 from .errors import GofError
+from .preset_choice import PRESETS, preset_path, resolve_config  # noqa: F401 - public here since session 1
 
 log = logging.getLogger("gof_warp.train")
-
-PRESETS = ("auto", "quick", "blender", "unbounded", "dtu", "tnt", "mipnerf360")
-
-
-def preset_path(name_or_path: str) -> Path:
-    """A preset name (``configs/NAME.yaml``, installed with the package) or a path to a YAML file."""
-    p = Path(name_or_path)
-    if p.suffix in (".yaml", ".yml") or p.exists():
-        if not p.is_file():
-            raise ConfigError(f"config file {p} not found")
-        return p
-    candidate = Path(str(resources.files("gof_warp.configs") / f"{name_or_path}.yaml"))
-    if not candidate.is_file():
-        raise ConfigError(f"unknown config preset {name_or_path!r}; presets: {', '.join(PRESETS)} (or a YAML path)")
-    return candidate
-
-
-def resolve_config(config: str, overrides: list[str], iterations: int | None):
-    from .trainer import TrainConfig
-
-    cfg = from_dict(TrainConfig, load_yaml(preset_path(config)), f"config {config}")
-    for o in overrides:
-        cfg = merge(cfg, parse_override(o), f"override {o!r}")
-    if iterations is not None:
-        cfg = merge(cfg, {"iterations": iterations})
-    return cfg
-
 
 def pick_device(name: str) -> str:
     """``--device`` (cpu, cuda, cuda:N or auto) under the one rule of :mod:`gof_warp.devices`."""
