@@ -35,10 +35,9 @@ import argparse
 import dataclasses
 import fnmatch
 import logging
-import os
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -53,6 +52,26 @@ from .bench_report import (
     write_charts,
     write_table,
 )
+from .bench_runs import (  # noqa: F401 - the run pieces live in the library; re-exported for callers
+    Method,
+    Run,
+    tetra,
+    cubes,
+    tsdf,
+    RENDER_ONLY,
+    scaled_schedule,
+    GOF_SCHEDULE,
+    gof_schedule,
+    NO_REGULARISERS,
+    _merge,
+    preset_overrides,
+    DATA_ROOT,
+    data_root,
+    scene_folder,
+    run_config,
+    _trained,
+    _train_or_load,
+)
 from .cli import configure_output, run_command
 from .errors import GofError
 
@@ -63,117 +82,6 @@ EXIT_RUNS_LEFT = 3  # --time-limit reached with runs left: run the same command 
 
 
 # ----------------------------------------------------------------------------------------- the suites
-@dataclass(frozen=True)
-class Method:
-    """One extraction configuration; ``name`` is its key in the results table (method ``none``: no mesh)."""
-
-    name: str
-    method: str  # tetra | cubes | tsdf | none
-    binary_steps: int = 0
-    resolution: int | None = None  # grid resolution (cubes, tsdf)
-
-    def mesh_config(self):
-        from .extract import MeshConfig
-
-        cfg = MeshConfig(method=self.method, binary_steps=self.binary_steps)
-        if self.resolution:
-            cfg.cubes_resolution = self.resolution
-            cfg.tsdf.resolution = self.resolution
-        return cfg
-
-
-@dataclass(frozen=True)
-class Run:
-    """One trained model: a synthetic preset at a resolution/view count (or ``real:NAME``), a training config,
-    the methods extracted from its last model and, at each of ``snapshots``, from that snapshot;
-    ``budget_s`` is the planned cost (training + every extraction and scoring) on the suite's machine."""
-
-    name: str
-    preset: str
-    resolution: tuple[int, int]
-    views: int | None
-    config: str = "quick"  # training preset (configs/NAME.yaml)
-    overrides: dict = field(default_factory=dict, hash=False)  # merged into the preset (nested sections)
-    methods: tuple[Method, ...] = ()
-    eval_samples: int | None = None  # GT surface samples for scoring (None: geometry_metrics' default)
-    snapshots: tuple[int, ...] = ()  # TrainConfig.snapshot_iterations
-    snapshot_methods: tuple[Method, ...] = ()  # extracted at every snapshot
-    budget_s: float = 0.0
-
-
-def tetra(steps):
-    return Method(f"tetra_bs{steps}", "tetra", steps)
-
-
-def cubes(res, steps):
-    return Method(f"cubes{res}_bs{steps}", "cubes", steps, res)
-
-
-def tsdf(res):
-    return Method(f"tsdf{res}", "tsdf", 0, res)
-
-
-RENDER_ONLY = Method("render_only", "none")  # a row for the model itself: no extraction
-
-
-def scaled_schedule(iterations: int, max_gaussians: int, init_points: int) -> dict:
-    """The ``quick`` preset's schedule (written for 1,200 iterations) stretched to ``iterations``."""
-    s = iterations / 1200.0
-
-    def at(k):
-        return max(1, round(k * s))
-
-    return {"iterations": iterations, "checkpoint_every": 0, "log_every": max(1, iterations // 10),
-            "model": {"random_init_points": init_points}, "optim": {"means_lr_max_steps": iterations},
-            "densify": {"start_iter": at(100), "stop_iter": at(900), "interval": at(100),
-                        "opacity_reset_interval": 10 * iterations, "sh_degree_interval": at(400),
-                        "filter_3d_until_iter": at(1100), "max_gaussians": max_gaussians},
-            "loss": {"regularization_from_iter": at(600)}}
-
-
-GOF_SCHEDULE = {"densify": ("start_iter", "stop_iter", "opacity_reset_interval", "prune_big_after",
-                            "sh_degree_interval", "filter_3d_until_iter"),
-                "loss": ("regularization_from_iter",), "optim": ("means_lr_max_steps",)}
-
-
-def gof_schedule(iterations: int) -> dict:
-    """GOF's 30k-iteration schedule (the stage configs' defaults: densify 500–15k, opacity reset every 3k,
-    regularisers from 15k, …) compressed to ``iterations`` (meant for ≥ 3k): the fields of :data:`GOF_SCHEDULE`
-    × iterations/30k, the identity at 30k. So a shorter run is a complete training, regularisers included (cut
-    at 15k, GOF's own schedule would never switch them on). The densification and 3D-filter intervals stay
-    GOF's 100 iterations and ``start_iter`` is rounded to a multiple of it: an opacity reset (to 0.01) must be
-    followed by ~100 iterations of recovery before the next prune (opacity < 0.05), or every reset Gaussian
-    is pruned. No checkpoints (a bench run is retrained, not resumed)."""
-    from .densify import DensifyConfig
-    from .losses import LossConfig
-    from .optim import OptimConfig
-    from .trainer import TrainConfig
-
-    defaults = {"densify": DensifyConfig(), "loss": LossConfig(), "optim": OptimConfig()}
-    s = iterations / TrainConfig().iterations
-    out = {sec: {k: max(1, round(getattr(defaults[sec], k) * s)) for k in keys} for sec, keys in GOF_SCHEDULE.items()}
-    step = defaults["densify"].interval  # the reset at start_iter (blender) is then a full interval before a prune
-    out["densify"]["start_iter"] = max(step, step * round(out["densify"]["start_iter"] / step))
-    return {"iterations": iterations, "checkpoint_every": 0, "log_every": 100, **out}
-
-
-NO_REGULARISERS = {"loss": {"lambda_distortion": 0.0, "lambda_normal": 0.0}}
-
-
-def _merge(a: dict, b: dict) -> dict:
-    out = dict(a)
-    for k, v in b.items():
-        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
-    return out
-
-
-def preset_overrides(preset: str) -> dict:
-    """Training overrides a synthetic preset needs: the ``background`` preset's ground plane and shell reach
-    radius 6 (``garden``'s 8), so its random initialisation must too (the presets' init boxes are ±1 or ±1.3)."""
-    reach = {"background": 6.0, "garden": 8.0}.get(preset)
-    return {"model": {"init_box": [-reach] * 3 + [reach] * 3}} if reach else {}
-
-
 @dataclass(frozen=True)
 class Sizing:
     """The ``full`` suite's sizes and cost model, in seconds on one H100: the one place to rescale.
@@ -298,77 +206,6 @@ def select_runs(runs: list[Run], patterns: list[str] | None) -> list[Run]:
     if unmatched:
         raise GofError(f"--only {' '.join(unmatched)}: no run matches; runs: {', '.join(r.name for r in runs)}")
     return [r for r in runs if any(fnmatch.fnmatchcase(r.name, p) for p in patterns)]
-
-
-# ----------------------------------------------------------------------------------------- one run
-DATA_ROOT = Path(__file__).resolve().parents[1].parent / "shared" / "data"  # real scenes (../shared/data)
-
-
-def data_root(path=None) -> Path:
-    """The folder of the real scenes and spot's mesh: ``path``, else ``$GOF_WARP_DATA``, else ``../shared/data``."""
-    return Path(path or os.environ.get("GOF_WARP_DATA") or DATA_ROOT)
-
-
-def scene_folder(run: Run, run_dir: Path, data=None) -> Path:
-    """The run's scene: a real scene ``data_root(data)/NAME`` (``real:NAME``), else the synthetic preset rendered
-    into ``run_dir/scene`` (once; ``spot`` reads its mesh from ``data_root(data)/spot``)."""
-    root = data_root(data)
-    if run.preset.startswith("real:"):
-        path = root / run.preset[5:]
-        if not path.is_dir():
-            raise GofError(f"run {run.name}: real scene {path} is absent (pass --data DIR, the folder holding it)")
-        return path
-    from .synthetic import make_scene
-
-    scene_dir = run_dir / "scene"
-    if not (scene_dir / "gt_mesh.ply").is_file():
-        mesh = {"mesh_path": root / "spot"} if run.preset == "spot" else {}
-        make_scene(run.preset, scene_dir, views=run.views, resolution=run.resolution, force=True, **mesh)
-    return scene_dir
-
-
-def run_config(run: Run):
-    """The run's resolved :class:`~gof_warp.trainer.TrainConfig` (preset + overrides + snapshots)."""
-    from .config import merge
-    from .preset_choice import resolve_config
-
-    over = _merge(run.overrides, {"snapshot_iterations": list(run.snapshots)}) if run.snapshots else run.overrides
-    return merge(resolve_config(run.config, [], None), over, f"run {run.name}")
-
-
-def _trained(run_dir: Path, snapshots) -> dict | None:
-    """The metrics of a model already trained in ``run_dir`` with every snapshot asked for, else None."""
-    import json
-
-    if not ((run_dir / "metrics.json").is_file() and (run_dir / "point_cloud.ply").is_file()):
-        return None
-    metrics = json.loads((run_dir / "metrics.json").read_text())
-    have = {s["iteration"] for s in metrics.get("snapshots", []) if (run_dir / s["path"]).is_file()}
-    return metrics if set(snapshots) <= have else None
-
-
-def _train_or_load(run: Run, run_dir: Path, device: str, data=None):
-    """``(gaussians, scene, render_config, metrics, scene_dir)`` of the run's last model; a model already
-    trained in ``run_dir`` (with its snapshots) is reused."""
-    from .data import load_scene
-    from .model import Gaussians
-    from .trainer import Trainer
-
-    scene_dir = scene_folder(run, run_dir, data)
-    cfg = run_config(run)
-    scene = load_scene(scene_dir, cfg.data)
-    metrics = _trained(run_dir, run.snapshots)
-    if metrics is not None:
-        log.info("run %s: reusing the trained model in %s", run.name, run_dir)
-        render_config = dataclasses.replace(cfg.render, background=tuple(float(c) for c in scene.background))
-        return (Gaussians.load_ply(run_dir / "point_cloud.ply", device=device), scene, render_config, metrics,
-                scene_dir)
-    log.info("run %s: training %d iterations on %s (%d views)", run.name, cfg.iterations, run.preset, len(scene.train))
-    reset_peak_memory()
-    trainer = Trainer(scene, cfg, run_dir, device)
-    metrics = trainer.run()
-    metrics["bench_peak_memory"] = peak_memory()  # this run's own peak (the trainer's RSS is the process's)
-    return trainer.gaussians, scene, trainer.render_config, metrics, scene_dir
 
 
 @dataclass

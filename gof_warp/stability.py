@@ -217,7 +217,7 @@ def run_case(name: str, device: str = "cpu", methods=STABILITY_METHODS) -> list[
 
 def run_trained_case(preset: str, out: Path, device: str = "cpu", methods=STABILITY_METHODS) -> list[dict]:
     """A synthetic preset trained briefly (the bench's ``tiny`` schedule), every method scored against its GT."""
-    from .bench import Run, _merge, _train_or_load, preset_overrides, scaled_schedule
+    from .bench_runs import Run, _merge, _train_or_load, preset_overrides, scaled_schedule
     from .geometry_metrics import load_geometry
 
     run = Run(f"stability_{preset}", preset, (40, 40), None,
