@@ -32,39 +32,16 @@ import numpy as np
 import torch
 
 from .errors import GofError
+from .stability_scenes import BLOB_RADIUS, CAMERA_DISTANCE, _blob, ring_cameras  # noqa: F401 - public here too
 
 log = logging.getLogger(__name__)
 
-BLOB_RADIUS = 0.5  # the good model: Gaussians on a sphere of this radius …
-FAR_RADIUS = 2.0  # … so no mesh face should lie beyond this (cameras sit at 2.5)
-CAMERA_DISTANCE = 2.5
+FAR_RADIUS = 2.0  # the blob (stability_scenes.BLOB_RADIUS 0.5) gives no mesh face beyond this (cameras sit at 2.5)
 STABILITY_METHODS = ("tetra", "cubes", "tsdf")
 TRAINED_PRESETS = ("thin", "background", "garden", "sparse", "textureless")
 
 
 # ----------------------------------------------------------------------------------------- hand-made cases
-def ring_cameras(n: int = 8, size: int = 32):
-    """``n`` cameras around the origin at ``CAMERA_DISTANCE``, alternating elevation, looking at it."""
-    from .camera import look_at
-
-    cams = []
-    for k in range(n):
-        a = 2 * np.pi * k / n
-        e = 0.6 * (-1) ** k
-        eye = CAMERA_DISTANCE * np.array([np.cos(a) * np.cos(e), np.sin(a) * np.cos(e), np.sin(e)])
-        cams.append(look_at(eye, [0, 0, 0], fx=0.9 * size, width=size, height=size, name=f"s{k:02d}"))
-    return cams
-
-
-def _blob(n: int = 300, seed: int = 0):
-    """``(means, rotations, scales, opacities)`` of ``n`` Gaussians on a sphere of radius ``BLOB_RADIUS``."""
-    rng = np.random.default_rng(seed)
-    d = rng.normal(size=(n, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    q = rng.normal(size=(n, 4))
-    return BLOB_RADIUS * d, q / np.linalg.norm(q, axis=1, keepdims=True), np.full((n, 3), 0.08), np.full(n, 0.9)
-
-
 def _with_extra(means, scales, opacities=None, n_blob: int = 300):
     """The blob plus extra Gaussians (identity rotation, opacity 0.9 unless given)."""
     bm, bq, bs, bo = _blob(n_blob)

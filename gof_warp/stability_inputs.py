@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .stability import _blob, ring_cameras
+from .stability_scenes import _blob, ring_cameras
 
 SIZE = 32  # pixels: the readers' and the commands' logic is under test, not decoding speed
 HUGE_LOG_SCALE = 50.0  # scale e^50: its square overflows float32 (a diverged model)
