@@ -154,6 +154,13 @@ class Camera:
             v = self.fy * pc[:, 1] / z + self.cy
         return np.stack([u, v], axis=1), z
 
+    def in_image(self, points: np.ndarray, near: float = 0.0):
+        """:meth:`project` plus ``inside [N]`` bool: in front of the camera (``depth > near``) and within the image
+        (``0 <= u < width``, ``0 <= v < height``). Returns ``(uv, depth, inside)``."""
+        uv, z = self.project(points)
+        inside = (z > near) & (uv[:, 0] >= 0) & (uv[:, 0] < self.width) & (uv[:, 1] >= 0) & (uv[:, 1] < self.height)
+        return uv, z, inside
+
     def pixel_rays(self) -> tuple[np.ndarray, np.ndarray]:
         """World-space rays through all pixel centres.
 

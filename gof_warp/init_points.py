@@ -60,8 +60,7 @@ def _sample_colours(points: np.ndarray, scene: Scene) -> tuple[np.ndarray, np.nd
     acc = np.zeros((len(points), 3))
     count = np.zeros(len(points), dtype=np.int64)
     for v in scene.train:
-        uv, z = v.camera.project(points)
-        ok = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] < v.camera.width) & (uv[:, 1] < v.camera.height)
+        uv, _, ok = v.camera.in_image(points)
         ij = np.floor(uv[ok]).astype(np.int64)
         acc[ok] += v.image[ij[:, 1], ij[:, 0]].astype(np.float64)
         count[ok] += 1

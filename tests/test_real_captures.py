@@ -193,3 +193,14 @@ def test_spike_monitor_state_round_trips():
     assert b.report() == a.report()
     with pytest.raises(ValueError):
         LossSpikeMonitor(window=5)
+
+
+def test_camera_in_image_is_front_and_inside():
+    cam = ring_cameras(1, width=W, height=H, fx=20.0, fy=20.0)[0]
+    centre = cam.center + 2.0 * cam.R[2]  # straight ahead: the principal point
+    behind = cam.center - 2.0 * cam.R[2]
+    aside = cam.center + 2.0 * cam.R[2] + 50.0 * cam.R[0]  # far right of the image
+    uv, z, inside = cam.in_image(np.stack([centre, behind, aside]))
+    assert inside.tolist() == [True, False, False]
+    assert z[0] == pytest.approx(2.0) and uv[0] == pytest.approx([cam.cx, cam.cy])
+    assert not cam.in_image(centre[None], near=3.0)[2][0]  # nearer than the near plane

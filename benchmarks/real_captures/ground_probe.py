@@ -20,6 +20,19 @@ from pathlib import Path
 import numpy as np
 
 
+def unoccluded_views(scene_dir: Path, scene, points: np.ndarray):
+    """For each train view of a synthetic scene: ``(view, index [K], pixel [K, 2])`` of the ``points`` it sees
+    unoccluded (in the image and within 1 % of the GT z-depth map at their pixel)."""
+    frames = {f["file_path"].replace("/", "_"): f for f in json.loads((scene_dir / "transforms_train.json").read_text())["frames"]}
+    for v in scene.train:
+        depth = np.load(scene_dir / frames[v.name]["depth_path"])
+        uv, z, ok = v.camera.in_image(points)
+        idx = np.where(ok)[0]
+        ij = np.floor(uv[idx]).astype(int)
+        vis = np.abs(depth[ij[:, 1], ij[:, 0]] - z[idx]) < 0.01 * z[idx]
+        yield v, idx[vis], ij[vis]
+
+
 def seen_ground_columns(scene_dir: Path, ground_z: float, half: float, spacing: float = 0.025):
     """``[C, 2]`` xy of ground columns some train camera sees unoccluded (from the GT z-depth maps)."""
     from gof_warp.data import DataConfig, load_scene
@@ -28,17 +41,9 @@ def seen_ground_columns(scene_dir: Path, ground_z: float, half: float, spacing: 
     xs = np.arange(-half + spacing / 2, half, spacing)
     xy = np.stack(np.meshgrid(xs, xs, indexing="ij"), -1).reshape(-1, 2)
     pts = np.concatenate([xy, np.full((len(xy), 1), ground_z)], 1)
-    frames = {f["file_path"].replace("/", "_"): f for f in json.loads((scene_dir / "transforms_train.json").read_text())["frames"]}
     seen = np.zeros(len(pts), bool)
-    for v in scene.train:
-        depth = np.load(scene_dir / frames[v.name]["depth_path"])
-        uv, z = v.camera.project(pts)
-        ok = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] < v.camera.width) & (uv[:, 1] < v.camera.height)
-        ij = np.floor(uv[ok]).astype(int)
-        d = depth[ij[:, 1], ij[:, 0]]
-        vis = np.zeros(len(pts), bool)
-        vis[ok] = np.abs(d - z[ok]) < 0.01 * z[ok]
-        seen |= vis
+    for _, idx, _ in unoccluded_views(scene_dir, scene, pts):
+        seen[idx] = True
     return xy[seen], scene
 
 

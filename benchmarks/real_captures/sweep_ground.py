@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import subprocess
 import sys
 import time
@@ -51,23 +50,17 @@ def pseudo_sfm(scene_dir: Path, n: int, seed: int = 0) -> None:
     """Write ``points3d.ply``: ``n`` visible GT-surface points with 2 mm noise, coloured from the photos."""
     import trimesh
 
+    from ground_probe import unoccluded_views
+
     from gof_warp.data import DataConfig, load_scene
 
     rng = np.random.default_rng(seed)
     gt = trimesh.load(scene_dir / "gt_mesh.ply", process=False)
     pts, _ = trimesh.sample.sample_surface(gt, 20 * n, seed=seed)
     scene = load_scene(scene_dir, DataConfig())
-    frames = {f["file_path"].replace("/", "_"): f for f in json.loads((scene_dir / "transforms_train.json").read_text())["frames"]}
     seen = np.zeros(len(pts), int)
     colour = np.zeros((len(pts), 3))
-    for v in scene.train:
-        depth = np.load(scene_dir / frames[v.name]["depth_path"])
-        uv, z = v.camera.project(pts)
-        ok = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] < v.camera.width) & (uv[:, 1] < v.camera.height)
-        idx = np.where(ok)[0]
-        ij = np.floor(uv[idx]).astype(int)
-        vis = np.abs(depth[ij[:, 1], ij[:, 0]] - z[idx]) < 0.01 * z[idx]
-        idx, ij = idx[vis], ij[vis]
+    for v, idx, ij in unoccluded_views(scene_dir, scene, pts):
         colour[idx] = v.image[ij[:, 1], ij[:, 0]]
         seen[idx] += 1
     cand = np.where(seen >= 2)[0]

@@ -184,9 +184,7 @@ def unique_names(rel_names: list[str]) -> list[str]:
 def _visibility_warnings(cameras: list[Camera], names: list[str], points: np.ndarray) -> list[str]:
     blind = []
     for cam, name in zip(cameras, names):
-        uv, z = cam.project(points)
-        inside = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
-        if not inside.any():
+        if not cam.in_image(points)[2].any():
             blind.append(name)
     if not blind:
         return []
