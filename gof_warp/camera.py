@@ -37,28 +37,92 @@ def _as_matrix(x, shape, name):
     return a
 
 
-@dataclass(frozen=True, eq=False)
-class Camera:
-    """A pinhole camera with an arbitrary principal point.
+@dataclass(frozen=True, kw_only=True)
+class Intrinsics:
+    """Pinhole intrinsics in pixels of a ``width × height`` image: the one declaration of ``fx fy cx cy width
+    height``, shared by :class:`Camera` (intrinsics + pose) and :class:`~gof_warp.data.undistort.LensCamera`
+    (intrinsics + lens distortion). Keyword-only; compared by value.
 
     Attributes:
-        R: ``[3, 3]`` world-to-camera rotation (orthonormal, det +1).
-        t: ``[3]`` world-to-camera translation.
-        fx, fy: focal lengths in pixels.
-        cx, cy: principal point in pixels (pixel centres at ``i + 0.5``).
-        width, height: image size in pixels.
-        name: image name (file stem), for messages and outputs.
+        fx, fy: focal lengths in pixels (> 0).
+        cx, cy: principal point in pixels (pixel centres at ``i + 0.5``; anywhere, not only the image centre).
+        width, height: image size in pixels (> 0).
     """
 
-    R: np.ndarray
-    t: np.ndarray
     fx: float
     fy: float
     cx: float
     cy: float
     width: int
     height: int
+
+    def _what(self) -> str:
+        """How messages name this object."""
+        return "intrinsics"
+
+    def __post_init__(self):
+        for k in ("fx", "fy", "cx", "cy"):
+            try:
+                v = float(getattr(self, k))
+            except (TypeError, ValueError):
+                raise SceneError(f"{self._what()}: {k} must be a number, got {getattr(self, k)!r}") from None
+            if not np.isfinite(v):
+                raise SceneError(f"{self._what()}: {k} is not finite")
+            object.__setattr__(self, k, v)
+        if self.fx <= 0 or self.fy <= 0:
+            raise SceneError(f"{self._what()}: focal lengths must be positive (fx={self.fx}, fy={self.fy})")
+        w, h = int(self.width), int(self.height)
+        if w <= 0 or h <= 0:
+            raise SceneError(f"{self._what()}: image size must be positive, got {w}x{h}")
+        object.__setattr__(self, "width", w)
+        object.__setattr__(self, "height", h)
+
+    @property
+    def intrinsics(self) -> "Intrinsics":
+        """The plain :class:`Intrinsics` of this object (drops the pose or the distortion)."""
+        return Intrinsics(fx=self.fx, fy=self.fy, cx=self.cx, cy=self.cy, width=self.width, height=self.height)
+
+    @property
+    def K(self) -> np.ndarray:
+        """``[3, 3]`` intrinsic matrix."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    def resized(self, width: int, height: int):
+        """The same object (same type, pose/distortion kept) for the image resized to ``width × height``:
+        focal lengths and principal point scale with the size ratio per axis, so pixel-centre geometry stays
+        exact (distortion coefficients are in normalised units and do not change)."""
+        sx, sy = width / self.width, height / self.height
+        return dataclasses.replace(self, fx=self.fx * sx, fy=self.fy * sy, cx=self.cx * sx, cy=self.cy * sy,
+                                   width=width, height=height)
+
+    def fov(self) -> tuple[float, float]:
+        """Horizontal and vertical field of view in radians (from the focal lengths and image size)."""
+        return 2 * np.arctan(self.width / (2 * self.fx)), 2 * np.arctan(self.height / (2 * self.fy))
+
+
+@dataclass(frozen=True, eq=False)
+class Camera(Intrinsics):
+    """A pinhole camera with an arbitrary principal point: :class:`Intrinsics` plus a world-to-camera pose.
+
+    Attributes:
+        R: ``[3, 3]`` world-to-camera rotation (orthonormal, det +1).
+        t: ``[3]`` world-to-camera translation.
+        fx, fy, cx, cy, width, height: the :class:`Intrinsics` (pixels; pixel centres at ``i + 0.5``).
+        name: image name (file stem), for messages and outputs.
+
+    ``R`` and ``t`` may be given by position; the intrinsics and ``name`` by keyword. Compared and hashed by
+    identity (two views may share intrinsics and pose).
+    """
+
+    R: np.ndarray
+    t: np.ndarray
     name: str = ""
+
+    __eq__ = object.__eq__
+    __hash__ = object.__hash__
+
+    def _what(self) -> str:
+        return f"camera {self.name!r}"
 
     def __post_init__(self):
         R = _as_matrix(self.R, (3, 3), "R")
@@ -67,18 +131,7 @@ class Camera:
             raise SceneError(f"camera {self.name!r}: R is not a rotation (det={np.linalg.det(R):.4f})")
         object.__setattr__(self, "R", R)
         object.__setattr__(self, "t", t)
-        for k in ("fx", "fy", "cx", "cy"):
-            v = float(getattr(self, k))
-            if not np.isfinite(v):
-                raise SceneError(f"camera {self.name!r}: {k} is not finite")
-            object.__setattr__(self, k, v)
-        if self.fx <= 0 or self.fy <= 0:
-            raise SceneError(f"camera {self.name!r}: focal lengths must be positive (fx={self.fx}, fy={self.fy})")
-        w, h = int(self.width), int(self.height)
-        if w <= 0 or h <= 0:
-            raise SceneError(f"camera {self.name!r}: image size must be positive, got {w}x{h}")
-        object.__setattr__(self, "width", w)
-        object.__setattr__(self, "height", h)
+        super().__post_init__()
 
     # ------------------------------------------------------------------ constructors
     @classmethod
@@ -111,11 +164,6 @@ class Camera:
         return cls(R=R, t=t, fx=fx, fy=fy, cx=cx, cy=cy, width=width, height=height, name=name)
 
     # ------------------------------------------------------------------ derived quantities
-    @property
-    def K(self) -> np.ndarray:
-        """``[3, 3]`` intrinsic matrix."""
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
-
     @property
     def center(self) -> np.ndarray:
         """``[3]`` camera centre in world space."""
@@ -179,14 +227,7 @@ class Camera:
         Width/height are rounded; focal lengths and principal point scale with the actual size
         ratio, so pixel-centre geometry stays exact.
         """
-        w = max(1, int(round(self.width * factor)))
-        h = max(1, int(round(self.height * factor)))
-        sx, sy = w / self.width, h / self.height
-        return dataclasses.replace(self, fx=self.fx * sx, fy=self.fy * sy, cx=self.cx * sx, cy=self.cy * sy, width=w, height=h)
-
-    def fov(self) -> tuple[float, float]:
-        """Horizontal and vertical field of view in radians (from the focal lengths and image size)."""
-        return 2 * np.arctan(self.width / (2 * self.fx)), 2 * np.arctan(self.height / (2 * self.fy))
+        return self.resized(max(1, int(round(self.width * factor))), max(1, int(round(self.height * factor))))
 
     def to_dict(self) -> dict:
         """Plain data (JSON-able): name, size, intrinsics, world-to-camera ``R``/``t``."""

@@ -76,3 +76,36 @@ def test_dict_round_trip_and_incomplete_record():
     assert (back.fx, back.fy, back.cx, back.cy, back.width, back.height, back.name) == (321.5, 300.25, 40.3, 30.1, 81, 59, "v7")
     with pytest.raises(SceneError, match="incomplete"):
         Camera.from_dict({"name": "x", "R": np.eye(3).tolist()})
+
+
+def test_intrinsics_are_declared_once_for_pinhole_and_lens_cameras():
+    import dataclasses
+
+    from gof_warp.camera import Intrinsics
+    from gof_warp.data.undistort import LensCamera
+
+    names = ["fx", "fy", "cx", "cy", "width", "height"]
+    assert [f.name for f in dataclasses.fields(Intrinsics)] == names
+    for cls in (Camera, LensCamera):  # the fields come from Intrinsics, not a second declaration
+        assert issubclass(cls, Intrinsics)
+        assert not set(names) & set(cls.__dict__.get("__annotations__", {})), cls
+    cam = look_at([0.0, -3.0, 0.0], [0.0, 0.0, 0.0], fx=300, fy=310, cx=170.2, cy=101.9, width=333, height=211)
+    lens = LensCamera(**dataclasses.asdict(cam.intrinsics), k1=0.1, model="RADIAL")
+    assert lens.intrinsics == cam.intrinsics and lens.intrinsics != lens  # value comparison, distortion dropped
+    np.testing.assert_array_equal(lens.K, cam.K)
+    half, lens_half = cam.scaled(0.5), lens.scaled(166, 106)  # one resizing rule for both
+    assert lens_half.intrinsics == half.intrinsics and lens_half.k1 == 0.1 and lens_half.model == "RADIAL"
+    np.testing.assert_array_equal(half.R, cam.R)
+
+
+def test_lens_cameras_validate_like_cameras_and_cameras_compare_by_identity():
+    from gof_warp.data.undistort import LensCamera
+
+    with pytest.raises(SceneError, match=r"lens camera \(OPENCV\): focal lengths must be positive"):
+        LensCamera(fx=0.0, fy=1.0, cx=0.0, cy=0.0, width=2, height=2)
+    with pytest.raises(SceneError, match="lens camera .*: image size must be positive"):
+        LensCamera(fx=1.0, fy=1.0, cx=0.0, cy=0.0, width=2, height=-1)
+    with pytest.raises(SceneError, match="distortion k2 is not finite"):
+        LensCamera(fx=1.0, fy=1.0, cx=0.0, cy=0.0, width=2, height=2, k2=float("nan"))
+    a, b = look_at([1.0, 0, 0], [0, 0, 0]), look_at([1.0, 0, 0], [0, 0, 0])
+    assert a != b and a == a and len({a, b}) == 2  # views with equal poses stay distinct

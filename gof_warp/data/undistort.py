@@ -22,13 +22,13 @@ forward mapping — no inversion needed). Point coordinates go the other way wit
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
 
+from ..camera import Intrinsics
 from ..errors import SceneError
 
 log = logging.getLogger(__name__)
@@ -47,18 +47,16 @@ def default_device() -> str:
 
 
 @dataclass(frozen=True)
-class LensCamera:
-    """Intrinsics of a distorted camera (OpenCV model), in pixels of a ``width × height`` image.
+class LensCamera(Intrinsics):
+    """A distorted camera (OpenCV model): pinhole :class:`~gof_warp.camera.Intrinsics` (``fx fy cx cy width
+    height``, keyword-only, declared once there) plus the distortion coefficients, in pixels of a
+    ``width × height`` image.
 
-    Pixel coordinates follow :mod:`gof_warp.camera` (pixel centres at ``i + 0.5``).
+    Pixel coordinates follow :mod:`gof_warp.camera` (pixel centres at ``i + 0.5``). ``k1 k2 k3`` (radial) and
+    ``p1 p2`` (tangential) are in normalised camera units; ``model`` is the file's camera model name, for
+    messages. Compared by value.
     """
 
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    width: int
-    height: int
     k1: float = 0.0
     k2: float = 0.0
     p1: float = 0.0
@@ -66,16 +64,28 @@ class LensCamera:
     k3: float = 0.0
     model: str = "OPENCV"
 
+    def _what(self) -> str:
+        return f"lens camera ({self.model})"
+
+    def __post_init__(self):
+        super().__post_init__()
+        for k in ("k1", "k2", "p1", "p2", "k3"):
+            try:
+                v = float(getattr(self, k))
+            except (TypeError, ValueError):
+                raise SceneError(f"{self._what()}: distortion {k} must be a number, got {getattr(self, k)!r}") from None
+            if not np.isfinite(v):
+                raise SceneError(f"{self._what()}: distortion {k} is not finite")
+            object.__setattr__(self, k, v)
+
     @property
     def has_distortion(self) -> bool:
         return any(v != 0.0 for v in (self.k1, self.k2, self.p1, self.p2, self.k3))
 
     def scaled(self, width: int, height: int) -> "LensCamera":
-        """The same lens for the image resized to ``width × height`` (distortion is in normalised units)."""
-        sx, sy = width / self.width, height / self.height
-        return dataclasses.replace(
-            self, fx=self.fx * sx, fy=self.fy * sy, cx=self.cx * sx, cy=self.cy * sy, width=width, height=height
-        )
+        """The same lens for the image resized to ``width × height`` (:meth:`~gof_warp.camera.Intrinsics.resized`;
+        distortion is in normalised units and does not change)."""
+        return self.resized(width, height)
 
 
 def distort_normalized(xy: np.ndarray, lens: LensCamera) -> np.ndarray:
