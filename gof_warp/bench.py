@@ -302,10 +302,13 @@ def pending(run: Run, done: set) -> list[tuple[int, tuple[Method, ...]]]:
 
 
 def run_suite(name: str, out, device: str = "cpu", runs: list[Run] | None = None, *,
-              time_limit: float | None = None, started: float | None = None, data=None, runs_dir=None) -> list[dict]:
+              time_limit: float | None = None, started: float | None = None, data=None, runs_dir=None,
+              stages=None) -> list[dict]:
     """Run (or continue) a suite into ``out``; returns every row of the table.
 
     Args:
+        stages: a :class:`gof_warp.progress.Stages` reporting each run as a stage (its training bar, then a bar
+            over its extractions); None: no progress.
         runs_dir: where each run's scene, model and snapshots go (``runs_dir/<run>``; default ``out/runs``), so
             that ``out`` can hold only the table and charts (what a device call brings back).
         time_limit: seconds after ``started`` (a ``time.perf_counter()``; default: now) past which no run may be
@@ -314,6 +317,9 @@ def run_suite(name: str, out, device: str = "cpu", runs: list[Run] | None = None
     """
     from .io_utils import ensure_writable_dir
 
+    from .progress import as_stages
+
+    reporter = as_stages(stages)
     started = time.perf_counter() if started is None else started
     out = ensure_writable_dir(out)
     runs = suite(name) if runs is None else runs
@@ -331,16 +337,24 @@ def run_suite(name: str, out, device: str = "cpu", runs: list[Run] | None = None
                         elapsed, run.budget_s, time_limit)
             continue
         run_dir = ensure_writable_dir(Path(runs_dir or out / "runs") / run.name)
-        gaussians, scene, render_config, metrics, scene_dir = _train_or_load(run, run_dir, device, data)
-        for iteration, methods in todo:
-            model = _model_at(iteration, gaussians, metrics, run_dir, device)
-            for method in methods:
-                log.info("run %s @%d: %s", run.name, iteration, method.name)
-                row = _extract_row(run, method, model, scene, render_config, metrics, scene_dir, machine)
-                rows.append(row)
-                write_table(out, name, rows, machine)  # after every row: an interruption loses one extraction at most
-                log.info("  %s: chamfer %s, F %s, %s faces, %s s", method.name, row.get("chamfer"), row.get("fscore"),
-                         row.get("faces"), row.get("extract_time_s"))
+        with reporter.stage(f"run {run.name}"):
+            if stages is None:
+                trained = _train_or_load(run, run_dir, device, data)
+            else:
+                with reporter.training(run_config(run).iterations) as progress:
+                    trained = _train_or_load(run, run_dir, device, data, progress=progress)
+            gaussians, scene, render_config, metrics, scene_dir = trained
+            with reporter.bar(sum(len(m) for _, m in todo), "extract", unit="mesh") as bar:
+                for iteration, methods in todo:
+                    model = _model_at(iteration, gaussians, metrics, run_dir, device)
+                    for method in methods:
+                        log.info("run %s @%d: %s", run.name, iteration, method.name)
+                        row = _extract_row(run, method, model, scene, render_config, metrics, scene_dir, machine)
+                        rows.append(row)
+                        write_table(out, name, rows, machine)  # after every row: an interruption loses one at most
+                        log.info("  %s: chamfer %s, F %s, %s faces, %s s", method.name, row.get("chamfer"),
+                                 row.get("fscore"), row.get("faces"), row.get("extract_time_s"))
+                        bar.update(postfix=f"@{iteration} {method.name}")
     charts = write_charts(out, rows) if rows else []  # the table is as the last row left it (or untouched)
     if charts:
         log.info("charts: %s", ", ".join(str(c) for c in charts))
@@ -384,7 +398,7 @@ def main(argv=None) -> int:
                                                  "(default: $GOF_WARP_DATA, else ../shared/data)")
     ap.add_argument("--device", default="auto", help="cpu, cuda or auto")
     ap.add_argument("--fast", action="store_true", help="stability: only the hand-made cases (no training)")
-    ap.add_argument("--quiet", action="store_true")
+    ap.add_argument("--quiet", action="store_true", help="no progress bars or log lines (errors and warnings shown)")
     a = ap.parse_args(argv)
     configure_output(a.quiet)
 
@@ -409,8 +423,10 @@ def main(argv=None) -> int:
             print(describe(runs))
             return 0
         out = Path(a.out or f"benchmarks/results/{a.suite}")
+        from .progress import Stages
+
         rows = run_suite(a.suite, out, pick_device(a.device), runs, time_limit=a.time_limit, started=started,
-                         data=a.data, runs_dir=a.runs_dir)
+                         data=a.data, runs_dir=a.runs_dir, stages=Stages(quiet=a.quiet))
         print(f"{len(rows)} rows in {out}/results.json")
         done = {row_key(r) for r in rows}
         left = [r for r in runs if pending(r, done)]

@@ -41,19 +41,50 @@ class Method:
 class Run:
     """One trained model: a synthetic preset at a resolution/view count (or ``real:NAME``), a training config,
     the methods extracted from its last model and, at each of ``snapshots``, from that snapshot;
-    ``budget_s`` is the planned cost (training + every extraction and scoring) on the suite's machine."""
+    ``budget_s`` is the planned cost (training + every extraction and scoring) on the suite's machine.
+
+    ``overrides`` are nested sections of :class:`~gof_warp.trainer.TrainConfig` (``{"densify": {...}}``), merged
+    into the preset when the run trains; they are checked when the run is defined (:func:`check_overrides`), so
+    a typo'd key or a mistyped value is a :class:`~gof_warp.config.ConfigError` naming it, not a silent no-op."""
 
     name: str
     preset: str
     resolution: tuple[int, int]
     views: int | None
     config: str = "quick"  # training preset (configs/NAME.yaml)
-    overrides: dict = field(default_factory=dict, hash=False)  # merged into the preset (nested sections)
+    overrides: dict = field(default_factory=dict, hash=False)  # TrainConfig sections, checked on definition
     methods: tuple[Method, ...] = ()
     eval_samples: int | None = None  # GT surface samples for scoring (None: geometry_metrics' default)
     snapshots: tuple[int, ...] = ()  # TrainConfig.snapshot_iterations
     snapshot_methods: tuple[Method, ...] = ()  # extracted at every snapshot
     budget_s: float = 0.0
+
+    def __post_init__(self):
+        check_overrides(self.overrides, f"run {self.name}", self.snapshots)
+
+
+def check_overrides(overrides: dict, where: str, snapshots=()):
+    """Check a run's training overrides when the run is defined, not when it trains: every key path must be a
+    field of :class:`~gof_warp.trainer.TrainConfig` and its stage configs (``{"densify": {"max_gaussians": …}}``)
+    with a value of the field's type; with ``snapshots`` (``TrainConfig.snapshot_iterations``) they must fit
+    the run's ``iterations``. Returns the overrides applied to the default ``TrainConfig``.
+
+    Raises:
+        ConfigError: (a :class:`~gof_warp.errors.GofError`) naming ``where`` and the bad key, e.g.
+            ``run default_7k: unknown key 'densify.max_gausians'; valid keys of 'densify': [...]``.
+    """
+    from .config import ConfigError, merge
+    from .trainer import TrainConfig
+
+    if not isinstance(overrides, dict):
+        raise ConfigError(f"{where}: overrides must be a mapping of config sections, got {type(overrides).__name__}")
+    over = _merge(overrides, {"snapshot_iterations": list(snapshots)}) if snapshots else overrides
+    try:
+        return merge(TrainConfig(), over, where)
+    except ConfigError as e:  # TrainConfig's own checks do not know the run
+        if str(e).startswith(where):
+            raise
+        raise ConfigError(f"{where}: {e}") from None
 
 
 def tetra(steps):
@@ -176,9 +207,10 @@ def _trained(run_dir: Path, snapshots) -> dict | None:
     return metrics if set(snapshots) <= have else None
 
 
-def _train_or_load(run: Run, run_dir: Path, device: str, data=None):
+def _train_or_load(run: Run, run_dir: Path, device: str, data=None, progress=None):
     """``(gaussians, scene, render_config, metrics, scene_dir)`` of the run's last model; a model already
-    trained in ``run_dir`` (with its snapshots) is reused."""
+    trained in ``run_dir`` (with its snapshots) is reused. ``progress``: the trainer's ``progress(it, info)``
+    callback (e.g. :class:`gof_warp.progress.TrainingProgress`), called while training."""
     from .data import load_scene
     from .model import Gaussians
     from .trainer import Trainer
@@ -195,6 +227,6 @@ def _train_or_load(run: Run, run_dir: Path, device: str, data=None):
     log.info("run %s: training %d iterations on %s (%d views)", run.name, cfg.iterations, run.preset, len(scene.train))
     reset_peak_memory()
     trainer = Trainer(scene, cfg, run_dir, device)
-    metrics = trainer.run()
+    metrics = trainer.run(progress=progress)
     metrics["bench_peak_memory"] = peak_memory()  # this run's own peak (the trainer's RSS is the process's)
     return trainer.gaussians, scene, trainer.render_config, metrics, scene_dir

@@ -93,19 +93,26 @@ def from_dict(cls, data: dict, where: str = "config"):
 
 
 def merge(cfg, data: dict, where: str = "config"):
-    """Return ``cfg`` with the values in (nested, partial) ``data`` replaced."""
+    """Return ``cfg`` with the values in (nested, partial) ``data`` replaced.
+
+    A key that is not a field raises :class:`ConfigError` naming its dotted path (``densify.max_gausians``)
+    and the valid keys at that level; values are type-checked as :func:`from_dict` does."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"{where}: overrides must be a mapping, got {type(data).__name__}")
     merged = to_dict(cfg)
 
-    def deep(dst, src, path):
+    def deep(dst, src, prefix):
         for k, v in src.items():
+            dotted = f"{prefix}{k}"
             if isinstance(v, dict) and isinstance(dst.get(k), dict):
-                deep(dst[k], v, f"{path}.{k}")
+                deep(dst[k], v, f"{dotted}.")
             else:
                 if k not in dst:
-                    raise ConfigError(f"{path}: unknown key {k!r}; valid keys: {sorted(dst)}")
+                    level = f" of {prefix[:-1]!r}" if prefix else ""
+                    raise ConfigError(f"{where}: unknown key {dotted!r}; valid keys{level}: {sorted(dst)}")
                 dst[k] = v
 
-    deep(merged, data, where)
+    deep(merged, data, "")
     return from_dict(type(cfg), merged, where)
 
 

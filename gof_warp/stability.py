@@ -192,13 +192,21 @@ def run_case(name: str, device: str = "cpu", methods=STABILITY_METHODS) -> list[
     return _method_reports(name, *model, methods)
 
 
+def trained_run(preset: str):
+    """The :class:`~gof_warp.bench_runs.Run` of a trained case: ``preset`` at 40×40, the bench's ``tiny``
+    schedule (200 iterations, at most 2,000 Gaussians) and the preset's own overrides (checked on definition)."""
+    from .bench_runs import Run, _merge, preset_overrides, scaled_schedule
+
+    return Run(f"stability_{preset}", preset, (40, 40), None,
+               overrides=_merge(scaled_schedule(200, 2000, 1000), preset_overrides(preset)))
+
+
 def run_trained_case(preset: str, out: Path, device: str = "cpu", methods=STABILITY_METHODS) -> list[dict]:
-    """A synthetic preset trained briefly (the bench's ``tiny`` schedule), every method scored against its GT."""
-    from .bench_runs import Run, _merge, _train_or_load, preset_overrides, scaled_schedule
+    """A synthetic preset trained briefly (:func:`trained_run`), every method scored against its GT."""
+    from .bench_runs import _train_or_load
     from .geometry_metrics import load_geometry
 
-    run = Run(f"stability_{preset}", preset, (40, 40), None,
-              overrides=_merge(scaled_schedule(200, 2000, 1000), preset_overrides(preset)))
+    run = trained_run(preset)
     trained, outcome, msg = _probe(lambda: _train_or_load(run, out / run.name, device))
     if trained is None:
         return _failed(preset, methods, outcome, f"training: {msg}")

@@ -6,6 +6,12 @@ the ``quick`` preset, which finishes on a 2-core CPU in minutes.
 
 Overrides are ``section.key=value`` pairs applied on top of the preset, e.g.
 ``loss.lambda_normal=0.1 densify.max_gaussians=200000``; values are YAML data (never evaluated).
+
+Progress: a bar with loss, PSNR, Gaussian count and ETA in a terminal, a plain line every few seconds
+otherwise (logs, CI); ``--quiet``: neither. At the end ``RUN/pictures/views.png`` and ``RUN/pictures/curves.png``
+(loss, train PSNR and Gaussian count against the iteration). ``--viewer``: the live web viewer of
+:mod:`gof_warp.viewer` during training (``--viewer-port``, ``--viewer-every N`` iterations), kept up after
+training until Ctrl-C.
 """
 
 from __future__ import annotations
@@ -14,12 +20,12 @@ import argparse
 import logging
 import shlex
 import sys
-import time
 from pathlib import Path
 
 from .cli import configure_output, run_command
 from .errors import GofError
 from .preset_choice import PRESETS, preset_path, resolve_config  # noqa: F401 - public here since session 1
+from .progress import TrainingProgress
 
 log = logging.getLogger("gof_warp.train")
 
@@ -28,23 +34,6 @@ def pick_device(name: str) -> str:
     from .devices import resolve_device
 
     return resolve_device(name)
-
-
-class _Progress:
-    """One status line, refreshed at most every ``period`` seconds (a line per update when not a TTY)."""
-
-    def __init__(self, total: int, period: float = 1.0):
-        self.total, self.period, self.last = total, period, 0.0
-        self.tty = sys.stderr.isatty()
-
-    def __call__(self, it: int, info: dict):
-        now = time.monotonic()
-        if now - self.last < self.period and it != self.total:
-            return
-        self.last = now
-        msg = (f"it {it}/{self.total} loss {info.get('total', float('nan')):.4f} psnr {info.get('psnr', float('nan')):.2f} "
-               f"N {info.get('num_gaussians', 0)} {info.get('its_per_s', float('nan')):.1f} it/s")
-        print(("\r" + msg) if self.tty else msg, end="" if self.tty and it != self.total else "\n", file=sys.stderr, flush=True)
 
 
 def main(argv=None) -> int:
@@ -59,8 +48,14 @@ def main(argv=None) -> int:
     ap.add_argument("--device", default="auto", help="cpu, cuda or auto")
     ap.add_argument("--resume", action="store_true", help="continue from the newest checkpoint in --out")
     ap.add_argument("--no-pictures", action="store_true", help="do not write RUN/pictures/views.png (photo | render "
-                                                               "| depth | normal of a few views) at the end")
-    ap.add_argument("--quiet", action="store_true")
+                                                               "| depth | normal of a few views) and curves.png "
+                                                               "(loss, PSNR, Gaussians) at the end")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar or log lines (errors and warnings still shown)")
+    ap.add_argument("--viewer", action="store_true", help="serve the live web viewer during training (needs "
+                    "pip install 'gof_warp[viewer]'); it stays up after training until Ctrl-C")
+    ap.add_argument("--viewer-port", type=int, default=8080, help="port of the viewer page (default 8080)")
+    ap.add_argument("--viewer-host", default="0.0.0.0", help="interface the viewer listens on (default all)")
+    ap.add_argument("--viewer-every", type=int, default=100, metavar="N", help="show the model every N iterations")
     a = ap.parse_intermixed_args(argv)
     configure_output(a.quiet)
     return run_command(lambda: _run(a), lambda e: _interrupted_note(a, e))
@@ -80,7 +75,10 @@ def resume_command(a) -> str:
         words += ["--iterations", str(a.iterations)]
     if a.device != "auto":
         words += ["--device", a.device]
-    words += [flag for flag, on in (("--no-pictures", a.no_pictures), ("--quiet", a.quiet)) if on]
+    words += [flag for flag, on in (("--no-pictures", a.no_pictures), ("--quiet", a.quiet), ("--viewer", a.viewer)) if on]
+    if a.viewer:
+        words += [f"--viewer-{k}={v}" for k, v, default in (("port", a.viewer_port, 8080), ("host", a.viewer_host, "0.0.0.0"),
+                                                             ("every", a.viewer_every, 100)) if v != default]
     return shlex.join(words + ["--resume"])
 
 
@@ -96,6 +94,38 @@ def _interrupted_note(a, e: KeyboardInterrupt) -> str:
     return "no checkpoint was written yet; run the command again to start"
 
 
+def _start_viewer(a, trainer, out: Path):
+    """The live viewer of ``trainer``'s model (:mod:`gof_warp.viewer`), started, its address printed."""
+    from .viewer import Viewer
+
+    logging.getLogger("websockets").setLevel(logging.WARNING)  # not a line per browser connection
+    viewer = Viewer(trainer.gaussians, trainer.cameras, render_config=trainer.render_config, host=a.viewer_host,
+                    port=a.viewer_port, title=f"gof_warp · training {out.name}").start()
+    print(viewer.how_to_open(), flush=True)
+    return viewer
+
+
+def _on_iteration(progress, viewer, every: int, trainer):
+    """The trainer's per-iteration callback: the progress bar, and the viewer's model every ``every`` iterations."""
+    if viewer is None:
+        return progress
+
+    def callback(it: int, info: dict) -> None:
+        progress(it, info)
+        if it % every == 0:
+            viewer.update(trainer.gaussians, it)
+
+    return callback
+
+
+def _keep_serving(viewer) -> None:
+    """Serve the viewer after training until Ctrl-C (which ends the command normally)."""
+    try:
+        viewer.serve_forever()
+    except KeyboardInterrupt:
+        print("viewer stopped", file=sys.stderr)
+
+
 def _run(a) -> int:
     from .data import load_scene
     from .io_utils import ensure_writable_dir
@@ -106,6 +136,12 @@ def _run(a) -> int:
     if len(scenes) > 1:
         raise GofError(f"give one scene folder, got {scenes}")
     builtin = not scenes
+    if a.viewer:
+        from .viewer import require_viser
+
+        if a.viewer_every < 1:
+            raise GofError(f"--viewer-every must be >= 1, got {a.viewer_every}")
+        require_viser()  # before any work: a missing optional dependency is named at once
     out = _out_dir(a)
     ensure_writable_dir(out)
     if has_checkpoints(out) and not a.resume:
@@ -136,15 +172,27 @@ def _run(a) -> int:
     if a.resume and has_checkpoints(out):
         it = trainer.resume()
         log.info("resuming from iteration %d (%s)", it, trainer.resumed_from)
-    metrics = trainer.run(progress=None if a.quiet else _Progress(cfg.iterations))
-    if not a.no_pictures:
-        from .pictures import pictures_or_warning
+    viewer = _start_viewer(a, trainer, out) if a.viewer else None
+    try:
+        with TrainingProgress(cfg.iterations, start=trainer.iteration, quiet=a.quiet) as progress:
+            metrics = trainer.run(progress=_on_iteration(progress, viewer, a.viewer_every, trainer))
+        if not a.no_pictures:
+            from .curves import curves_or_warning
+            from .pictures import pictures_or_warning
 
-        for p in pictures_or_warning(out, device=device):
-            log.info("wrote %s", p)
-    t = metrics["test"]
-    print(f"done: {metrics['iterations']} iterations in {metrics['train_time_s']:.1f} s, {metrics['num_gaussians']} Gaussians, "
-          f"{t['split']} PSNR {t.get('psnr', float('nan')):.2f} dB SSIM {t.get('ssim', float('nan')):.4f}; outputs in {out}")
+            for p in pictures_or_warning(out, device=device) + curves_or_warning(out):
+                log.info("wrote %s", p)
+        t = metrics["test"]
+        print(f"done: {metrics['iterations']} iterations in {metrics['train_time_s']:.1f} s, {metrics['num_gaussians']} "
+              f"Gaussians, {t['split']} PSNR {t.get('psnr', float('nan')):.2f} dB SSIM {t.get('ssim', float('nan')):.4f}; "
+              f"outputs in {out}")
+        if viewer is not None:
+            viewer.update(trainer.gaussians, trainer.iteration)
+            print(f"training done; the viewer is still at {viewer.url} (Ctrl-C to stop)", flush=True)
+            _keep_serving(viewer)
+    finally:
+        if viewer is not None:
+            viewer.stop()
     return 0
 
 

@@ -184,3 +184,31 @@ def test_list_only_and_bad_input(capsys, tmp_path):
     assert "not a results table" in capsys.readouterr().err
     with pytest.raises(GofError, match="--data"):
         bench.scene_folder(Run("r", "real:nope", (8, 8), None), tmp_path / "r", data=tmp_path)
+
+
+@pytest.mark.parametrize("overrides, message", [
+    ({"densify": {"max_gausians": 1000}}, r"run typo: unknown key 'densify\.max_gausians'; valid keys of 'densify'"),
+    ({"densfy": {"max_gaussians": 1000}}, r"run typo: unknown key 'densfy'"),
+    ({"loss": {"lambda_normal": "off"}}, r"run typo\.loss\.lambda_normal: expected a number"),
+    ({"iterations": 100, "densify": {"max_gaussians": {"n": 1}}}, r"run typo.*max_gaussians"),
+])
+def test_a_typo_in_a_run_definition_is_an_error_naming_the_key(overrides, message):
+    with pytest.raises(GofError, match=message):  # at definition, not minutes later when the run trains
+        Run("typo", "default", (8, 8), 2, overrides=overrides)
+
+
+def test_snapshots_outside_the_run_are_an_error_naming_the_run():
+    with pytest.raises(GofError, match=r"run late: snapshot_iterations"):
+        Run("late", "default", (8, 8), 2, overrides={"iterations": 100}, snapshots=(100,))
+
+
+def test_every_built_in_suite_and_stability_run_is_a_checked_config():
+    from gof_warp.bench_runs import check_overrides
+    from gof_warp.stability import TRAINED_PRESETS, trained_run
+
+    runs = [r for name in ("tiny", "quick", "full") for r in suite(name)] + [trained_run(p) for p in TRAINED_PRESETS]
+    for r in runs:  # Run checks on construction; checked again here so the test fails if that check goes away
+        cfg = check_overrides(r.overrides, r.name, r.snapshots)
+        assert cfg.iterations == r.overrides["iterations"], r.name
+    budget = next(r for r in suite("quick") if r.name.endswith("budget1k"))
+    assert check_overrides(budget.overrides, budget.name).densify.max_gaussians == 1000
