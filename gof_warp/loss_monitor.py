@@ -9,6 +9,12 @@ spike compares like with like.
 ``metrics.json`` reports :meth:`LossSpikeMonitor.report` as ``loss_spikes``: the largest ratio after
 ``warmup`` iterations, where and in which view it happened with the loss terms at that iteration, and
 how many iterations exceeded ``threshold`` × their running median.
+
+The running median mixes views, and with the distortion term some views carry a loss many times the
+others' *at every visit* (a hard view, not an instability). So the monitor also keeps, per view, the
+median of that view's last ``view_window`` losses and reports the largest jump of a view's loss over its
+own median (``max_view_ratio``: a true spike, where training suddenly breaks on a view it fitted) and the
+spread of the per-view medians (``view_median_spread``: hardest view's median / overall median).
 """
 
 from __future__ import annotations
@@ -39,19 +45,27 @@ class LossSpikeMonitor:
         min_history: ratios are recorded only once the window holds this many losses.
     """
 
-    def __init__(self, window: int = 200, warmup: int = 1000, threshold: float = 10.0, min_history: int = 50):
-        if window < 10 or min_history < 1 or min_history > window or threshold <= 1:
+    def __init__(self, window: int = 200, warmup: int = 1000, threshold: float = 10.0, min_history: int = 50,
+                 view_window: int = 8, view_min_history: int = 3):
+        if window < 10 or min_history < 1 or min_history > window or threshold <= 1 or not (
+                1 <= view_min_history <= view_window):
             raise ValueError(f"LossSpikeMonitor: need window >= 10, 1 <= min_history <= window, threshold > 1; got "
-                             f"window={window}, min_history={min_history}, threshold={threshold}")
+                             f"window={window}, min_history={min_history}, threshold={threshold}, view_window={view_window}, "
+                             f"view_min_history={view_min_history}")
         self.window, self.warmup, self.threshold, self.min_history = window, warmup, threshold, min_history
         self.recent: deque[float] = deque(maxlen=window)
         self.worst: SpikeRecord | None = None
         self.count_over = 0
         self.checked = 0
+        self.view_window, self.view_min_history = view_window, view_min_history
+        self.per_view: dict[str, deque[float]] = {}
+        self.worst_view: SpikeRecord | None = None
+        self.view_count_over = 0
 
     def restart(self) -> None:
-        """Forget the window (the loss's definition changed, e.g. the regularisers switched on)."""
+        """Forget the windows (the loss's definition changed, e.g. the regularisers switched on)."""
         self.recent.clear()
+        self.per_view.clear()
 
     def update(self, iteration: int, loss: float, view: str = "", terms: dict | None = None) -> float | None:
         """Record one iteration's total loss; returns its ratio to the running median (None before
@@ -67,25 +81,53 @@ class LossSpikeMonitor:
                 if self.worst is None or ratio > self.worst.ratio:
                     self.worst = SpikeRecord(ratio, iteration, view, loss, median, dict(terms or {}))
         self.recent.append(float(loss))
+        if view:
+            own = self.per_view.setdefault(view, deque(maxlen=self.view_window))
+            if iteration > self.warmup and len(own) >= self.view_min_history:
+                median = float(np.median(np.fromiter(own, dtype=np.float64)))
+                if median > 0:
+                    r = loss / median
+                    self.view_count_over += int(r > self.threshold)
+                    if self.worst_view is None or r > self.worst_view.ratio:
+                        self.worst_view = SpikeRecord(r, iteration, view, loss, median, dict(terms or {}))
+            own.append(float(loss))
         return ratio
 
+    def view_median_spread(self) -> float | None:
+        """The hardest view's median loss over the median of all views' medians (None without views)."""
+        meds = [float(np.median(np.fromiter(d, dtype=np.float64))) for d in self.per_view.values() if d]
+        if not meds or float(np.median(meds)) <= 0:
+            return None
+        return max(meds) / float(np.median(meds))
+
     def report(self) -> dict:
-        w = self.worst
+        w, v, spread = self.worst, self.worst_view, self.view_median_spread()
         return {"window": self.window, "after_iteration": self.warmup, "threshold": self.threshold,
                 "iterations_checked": self.checked, "count_over_threshold": self.count_over,
                 "max_ratio": None if w is None else round(w.ratio, 3),
                 "at_iteration": None if w is None else w.iteration, "view": None if w is None else w.view,
                 "loss": None if w is None else round(w.loss, 6), "running_median": None if w is None else round(w.median, 6),
-                "terms": {} if w is None else {k: round(v, 6) for k, v in w.terms.items()}}
+                "terms": {} if w is None else {k: round(v, 6) for k, v in w.terms.items()},
+                "view_window": self.view_window, "view_count_over_threshold": self.view_count_over,
+                "max_view_ratio": None if v is None else round(v.ratio, 3),
+                "max_view_ratio_at": None if v is None else {"iteration": v.iteration, "view": v.view,
+                                                             "loss": round(v.loss, 6), "view_median": round(v.median, 6),
+                                                             "terms": {k: round(x, 6) for k, x in v.terms.items()}},
+                "view_median_spread": None if spread is None else round(spread, 3)}
 
     def state_dict(self) -> dict:
-        w = self.worst
+        rec = lambda w: None if w is None else [w.ratio, w.iteration, w.view, w.loss, w.median, dict(w.terms)]  # noqa: E731
         return {"recent": list(self.recent), "count_over": self.count_over, "checked": self.checked,
-                "worst": None if w is None else [w.ratio, w.iteration, w.view, w.loss, w.median, dict(w.terms)]}
+                "worst": rec(self.worst), "per_view": {k: list(d) for k, d in self.per_view.items()},
+                "worst_view": rec(self.worst_view), "view_count_over": self.view_count_over}
 
     def load_state_dict(self, state: dict) -> None:
         self.recent = deque((float(x) for x in state["recent"]), maxlen=self.window)
         self.count_over, self.checked = int(state["count_over"]), int(state["checked"])
-        w = state["worst"]
-        self.worst = None if w is None else SpikeRecord(float(w[0]), int(w[1]), str(w[2]), float(w[3]), float(w[4]),
-                                                        dict(w[5]))
+        rec = lambda w: None if w is None else SpikeRecord(float(w[0]), int(w[1]), str(w[2]), float(w[3]),  # noqa: E731
+                                                           float(w[4]), dict(w[5]))
+        self.worst = rec(state["worst"])
+        self.worst_view = rec(state.get("worst_view"))  # absent in checkpoints written before per-view tracking
+        self.per_view = {str(k): deque((float(x) for x in d), maxlen=self.view_window)
+                         for k, d in state.get("per_view", {}).items()}
+        self.view_count_over = int(state.get("view_count_over", 0))

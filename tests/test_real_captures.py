@@ -181,10 +181,30 @@ def test_spike_monitor_warmup_and_restart():
     assert no_restart.report()["max_ratio"] == pytest.approx(10.0)  # without the restart the step is a "spike"
 
 
+def test_spike_monitor_tells_a_hard_view_from_a_spike():
+    """One view whose loss is 30x the others' at every visit: a large global ratio, no per-view spike;
+    then that view jumps 40x over its own history: a per-view spike, found with its iteration."""
+    m = LossSpikeMonitor(window=50, warmup=10, threshold=10.0, min_history=20, view_window=8, view_min_history=3)
+    views = [f"v{i}" for i in range(10)]
+    it = 0
+    for _ in range(30):
+        for v in views:
+            it += 1
+            m.update(it, 30.0 if v == "v3" else 1.0, v)
+    r = m.report()
+    assert r["max_ratio"] == pytest.approx(30.0) and r["view"] == "v3"
+    assert r["max_view_ratio"] == pytest.approx(1.0) and r["view_count_over_threshold"] == 0
+    assert r["view_median_spread"] == pytest.approx(30.0)
+    m.update(it + 1, 40.0, "v5")
+    r = m.report()
+    assert r["max_view_ratio"] == pytest.approx(40.0) and r["max_view_ratio_at"]["iteration"] == it + 1
+    assert r["max_view_ratio_at"]["view"] == "v5" and r["view_count_over_threshold"] == 1
+
+
 def test_spike_monitor_state_round_trips():
     a = LossSpikeMonitor(window=20, warmup=0, min_history=5)
     for it in range(1, 40):
-        a.update(it, 1.0 + (it == 30) * 20.0, f"v{it}", {"total": 1.0})
+        a.update(it, 1.0 + (it == 30) * 20.0, f"v{it % 4}", {"total": 1.0})
     b = LossSpikeMonitor(window=20, warmup=0, min_history=5)
     b.load_state_dict(json.loads(json.dumps(a.state_dict())))  # plain data only
     assert b.report() == a.report()
