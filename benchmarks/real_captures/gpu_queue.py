@@ -44,10 +44,13 @@ def steps(state: Path, scenes: list[str], resolution: tuple[int, int], iteration
         else:  # a real scene carried in .data/ or .data2/ (the device call's 64 MiB limit splits them)
             scene = state / s
             src = REAL[s]
-            out.append((f"{s}:copy", ["sh", "-c", f"cp -r $(ls -d .data/{src} .data2/{src} | head -1) {scene}"], 10,
-                        False))
+            out.append((f"{s}:copy", ["sh", "-c", f"cp -r $(ls -d .data/{src} .data2/{src} /tmp/gofdata/{src} 2>/dev/null "
+                                                 f"| head -1) {scene}"], 10, False))
         out.append((f"{s}:train", [PY, "-m", "gof_warp.train", str(scene), "--out", str(run), "--iterations",
                                    str(iters.get(s, iterations)), "checkpoint_every=2000", "--resume"], 120, True))
+        if s == "dtu":  # the trained DTU geometry comes back for the extraction benchmarks (benchmarks/extract)
+            out.append((f"{s}:pack", [PY, str(HERE.parent / "extract" / "pack_model.py"), "pack", str(run),
+                                      str(state / "big" / f"{s}_geometry.npz")], 30, False))
         out.append((f"{s}:extract", [PY, "-m", "gof_warp.extract", str(run), "--delaunay-workers", "0"], 240, False))
         if s in ("garden", "background"):
             out.append((f"{s}:evaluate", [PY, "-m", "gof_warp.evaluate", "--mesh", str(run / "mesh_tetra.ply"), "--gt",
@@ -88,6 +91,7 @@ def main() -> int:
     state = Path(a.state)
     scenes = a.scenes.split(",")
     (state / "done").mkdir(parents=True, exist_ok=True)
+    (state / "big").mkdir(parents=True, exist_ok=True)
     names = [s.split(":")[0] for s in scenes]
     for s in names:
         (state / "results" / s).mkdir(parents=True, exist_ok=True)
@@ -123,6 +127,8 @@ def main() -> int:
     if out:
         with tarfile.open(Path(out) / "results.tar.gz", "w:gz") as tar:
             tar.add(state / "results", arcname="results")
+        for big in (state / "big").glob("*.npz"):  # one file each (16 MiB per file back)
+            shutil.copy(big, Path(out) / big.name)
     return 0
 
 
