@@ -13,16 +13,21 @@ releases the GIL) and stitched:
    twice — and only if it is a tetrahedron of the global Delaunay tetrahedralisation: its circumsphere
    lies in the halo box (then every point inside the sphere would be a local point, and there is none),
    or a KD-tree over all points finds no point inside the sphere.
+3. **Exact merge.** The tetrahedra no chunk kept (large ones in empty space whose vertices no single halo
+   holds, or ones owned by a core whose chunk did not see them) fill the region bounded by the faces left
+   unmatched between chunks. One more Qhull call on the vertices of those faces plus the points no kept
+   tetrahedron uses yields every one of them (``_fill_piece`` says why); the global Delaunay ones among its
+   tetrahedra (KD-tree sphere test) that were not kept already are added. ``stats`` reports the unmatched
+   faces before (``delaunay_chunk_unmatched_faces``) and after (``delaunay_unmatched_faces``, 0 when exact).
 
-What this gives, measured (``tests/test_delaunay.py``, ``benchmarks/extract/README.md``): every kept
-tetrahedron is a global Delaunay one (no overlaps); a global tetrahedron is found when all its vertices lie
-in the halo of the core holding its owner point — always for the small ones, which are the ones GOF's cell
-filter keeps. The large ones that no chunk sees (edges longer than the halo, in empty space) are missing:
-``stats`` counts the faces left unmatched between chunks and the fraction of the convex hull's volume
-covered. On points in general position inside a smooth hull the result equals one Qhull call; where 4+
-points are cocircular/cospherical (the corners of a 3σ box face) the tetrahedralisation is not unique and
-chunks may pick another diagonal than one Qhull call would. Flat (zero-volume) tetrahedra are dropped in
-every path, duplicate points merged onto their lowest index, and every tetrahedron is positively oriented.
+Before any of it the points are **perturbed** by 3e-7 of their bounding-box diagonal (seeded, the same for
+equal points: :func:`jittered`): 3σ-box corners are cospherical octuples whose tetrahedralisation is not
+unique, and each Qhull call would pick its own diagonals, so chunks would disagree with each other (holes,
+overlaps). In general position the Delaunay tetrahedralisation is unique, and the chunked result equals one
+Qhull call's (``tests/test_delaunay.py``). The perturbation only decides connectivity (the marching and
+the bisection use the exact points); volumes, orientation and flatness are those of the perturbed points, so the 3σ-box cells that are flat in
+the exact inputs come out as slivers rather than gaps. Duplicate points are merged onto their lowest index
+and every tetrahedron is positively oriented (in the perturbed coordinates).
 
 Memory: Qhull peaks at ~360 B per tetrahedron of a chunk (~6.6 tetrahedra per point) times the chunks in
 flight (= ``workers``); the KD-tree ~40 B per point; the kept tetrahedra 16 B each.
@@ -48,15 +53,26 @@ log = logging.getLogger(__name__)
 # contains flat simplices whose float64 volume is a rounding residue (~1e-16 relative).
 DEGENERATE_REL_VOLUME = 1e-10
 # A point counts as inside a circumsphere when nearer its centre than R (1 - this); nearer to the sphere
-# is cospherical to rounding: Qhull itself keeps tetrahedra with points up to ~3e-9 R inside on 3σ-box
-# corners (float32 inputs, tests/test_delaunay.py), whose sphere-test is decided by rounding.
-SPHERE_RTOL = 1e-7
+# is cospherical to rounding. Measured on 3σ-box corners (tests/test_delaunay.py): unperturbed, Qhull keeps
+# tetrahedra with points up to ~3e-9 R inside; perturbed by JITTER_REL, up to ~1e-10 R.
+SPHERE_RTOL = 1e-9
 CGAL_FILE_PRECISION = 17  # digits: doubles round-trip exactly through CGAL's text output
 BACKENDS = ("scipy", "cgal", "auto")
 PARALLEL_MIN_POINTS = 200_000  # below this one Qhull call is as fast as the chunked path
 CHUNK_POINTS = 150_000  # target points per chunk core (auto chunk count); ~5 s of Qhull on one core
+DUPLICATES_SEEN = 8  # the exact merge maps a point to the lowest index among this many exact copies
+MAX_FILLS = 3  # passes of the exact merge (one suffices in general position; more only guard against rounding)
 HALO_FRACTION = 0.5  # a chunk triangulates its core's points and this fraction more around it
 _FACES = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])  # face i is opposite vertex i (Qhull's order)
+# Symbolic-perturbation stand-in: every point moves by up to this × the points' bounding-box diagonal (a fixed,
+# seeded draw). GOF's points are 3σ-box corners — cospherical octuples whose Delaunay tetrahedralisation is not
+# unique — and Qhull's "Qt" would triangulate each such cell its own way in every chunk. Perturbed, the
+# points are in general position, the tetrahedralisation is unique and every chunk agrees with one Qhull
+# call. Measured on 3σ-box corners: 1e-8 and 3e-8 left chunks disagreeing on a few cells (Qhull's own
+# rounding near cospherical points), 1e-7 at a 1e-8 sphere tolerance too; 3e-7 agreed at 1e-8 and 1e-9.
+# It moves only the triangulation's connectivity decisions: the field and the bisection use the exact points.
+JITTER_REL = 3e-7
+JITTER_SEED = 0x60F
 
 
 def default_workers() -> int:
@@ -78,6 +94,36 @@ def check_points(points) -> np.ndarray:
     if p.shape[0] < 4:
         raise GofError(f"Delaunay needs at least 4 points, got {p.shape[0]}")
     return p
+
+
+def jittered(p: np.ndarray, rel: float = JITTER_REL) -> np.ndarray:
+    """``p [P, 3]`` float64 moved by a seeded uniform draw of at most ``rel`` × the bounding-box diagonal
+    per coordinate; duplicates stay duplicates (the draw is a function of the coordinates' bytes)."""
+    if rel <= 0 or p.shape[0] == 0:
+        return p
+    diag = float(np.linalg.norm(p.max(axis=0) - p.min(axis=0)))
+    if diag == 0.0:
+        return p
+    # a hash of each point's coordinates, so that equal points get equal offsets (duplicates merge as before)
+    h = np.ascontiguousarray(p).view(np.uint64).reshape(-1, 3)
+    mix = (h[:, 0] * np.uint64(0x9E3779B97F4A7C15)) ^ (h[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F)) ^ (
+        h[:, 2] * np.uint64(0x165667B19E3779F9)) ^ np.uint64(JITTER_SEED)
+    offsets = np.empty_like(p)
+    for axis in range(3):
+        mix ^= mix >> np.uint64(31)
+        mix *= np.uint64(0xBF58476D1CE4E5B9)
+        mix ^= mix >> np.uint64(29)
+        offsets[:, axis] = (mix >> np.uint64(11)).astype(np.float64) / float(1 << 53) - 0.5
+    return p + (2.0 * rel * diag) * offsets
+
+
+def _check_spans_volume(p: np.ndarray) -> None:
+    """``GofError`` when the points lie on a plane or a line (thinnest extent <= 1e-9 of the widest)."""
+    q = p - p.mean(axis=0)
+    eig = np.linalg.eigvalsh(q.T @ q)
+    if eig[-1] <= 0 or eig[0] <= 1e-18 * eig[-1]:
+        raise GofError(f"Delaunay failed: the {p.shape[0]} points are degenerate (coplanar/collinear: they span no "
+                       "volume)")
 
 
 def tet_geometry(tets: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -250,13 +296,66 @@ def _triangulate_piece(p: np.ndarray, ids: np.ndarray, core_lo, core_hi, halo_lo
         bad = check[dist < radius[check] * (1.0 - SPHERE_RTOL)]
         keep[bad] = False
         rejected = int(bad.size)
-    nb = tri.neighbors
+    return _piece(t, tri.neighbors, keep, vol6, flat, int(check.size), rejected)
+
+
+def _piece(t: np.ndarray, nb: np.ndarray, keep: np.ndarray, vol6: np.ndarray, flat: np.ndarray, checked: int,
+           rejected: int) -> _Piece:
+    """The kept tetrahedra of one local triangulation ``t [T, 4]`` (global ids; ``nb [T, 4]`` its neighbours, -1 on
+    its hull) and the faces between a kept tetrahedron and one not kept."""
     kept_nb = np.where(nb >= 0, keep[np.maximum(nb, 0)], False)
     border_t, border_f = np.nonzero(keep[:, None] & ~kept_nb)
     faces = np.sort(t[border_t[:, None], _FACES[border_f]], axis=1).astype(np.int32)
     solid = keep & ~flat
     return _Piece(_orient(t[solid], vol6[solid]), float(np.abs(vol6[solid]).sum()), faces,
-                  nb[border_t, border_f] < 0, t[border_t, border_f], int(check.size), rejected)
+                  nb[border_t, border_f] < 0, t[border_t, border_f], checked, rejected)
+
+
+def _rows_in(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``[len(a)]`` bool: row i of ``a`` (sorted ids) occurs in ``b`` (sorted ids); both ``[*, k]`` int."""
+    if a.shape[0] == 0 or b.shape[0] == 0:
+        return np.zeros(a.shape[0], bool)
+    c = np.concatenate([a, b])
+    order = np.lexsort(c.T[::-1])
+    same = np.all(c[order][1:] == c[order][:-1], axis=1)
+    hit = np.zeros(c.shape[0], bool)
+    # an a-row equal to its sorted neighbour that comes from b (b rows are unique, a rows are unique)
+    from_b = order >= a.shape[0]
+    hit[order[1:][same & from_b[:-1]]] = True
+    hit[order[:-1][same & from_b[1:]]] = True
+    return hit[: a.shape[0]]
+
+
+def _fill_piece(p: np.ndarray, pieces: list[_Piece], unmatched: np.ndarray, tree) -> _Piece | None:
+    """The global Delaunay tetrahedra no chunk kept. They fill the region bounded by the unmatched faces, and
+    every vertex of one is a vertex of an unmatched face or a point no kept tetrahedron uses (around a vertex
+    the tetrahedra are connected through faces that contain it, so a vertex with kept and missing tetrahedra
+    lies on a face between the two kinds). One Qhull call on those points gives every missing tetrahedron
+    (its circumsphere is empty of all points, so of these); of its tetrahedra, those with an empty
+    circumsphere (KD-tree over all points) that were not kept already are added."""
+    kept = np.concatenate([pc.tets for pc in pieces])
+    used = np.zeros(p.shape[0], bool)
+    used[kept.ravel()] = True
+    s_mask = ~used
+    s_mask[unmatched.ravel()] = True
+    ids = np.flatnonzero(s_mask)
+    if ids.size < 4:
+        return None
+    # unused points include the copies of duplicated points: map every point to its lowest-index copy in all
+    # points (up to DUPLICATES_SEEN copies), so the new tetrahedra use the same vertex as the chunks did
+    dist, nbr = tree.query(p[ids], k=min(DUPLICATES_SEEN, p.shape[0]))
+    ids_canon = np.where(dist == 0.0, nbr, np.iinfo(np.int64).max).min(axis=1)
+    tri = _qhull(p[ids])
+    t = np.minimum(_canonical_vertices(tri, p, ids), ids_canon)[tri.simplices]
+    vol6, flat, centre, radius = tet_geometry(t, p)
+    keep = ~flat
+    cand = np.flatnonzero(keep)
+    dist, _ = tree.query(centre[cand], k=1)
+    keep[cand[dist < radius[cand] * (1.0 - SPHERE_RTOL)]] = False
+    near = kept[s_mask[kept].all(axis=1)]  # only these can equal a tetrahedron of the S-triangulation
+    cand = np.flatnonzero(keep)
+    keep[cand[_rows_in(np.sort(t[cand], axis=1), np.sort(near, axis=1))]] = False
+    return _piece(t, tri.neighbors, keep, vol6, flat, int(flat.size), int((~keep).sum()))
 
 
 def _unmatched_faces(pieces: list[_Piece], p: np.ndarray, hull_vertices: np.ndarray) -> np.ndarray:
@@ -288,10 +387,24 @@ def _unmatched_faces(pieces: list[_Piece], p: np.ndarray, hull_vertices: np.ndar
     return faces[single]
 
 
+# Inputs of the chunk jobs of one delaunay_chunked(processes=True) call, keyed by a token of that call, set just
+# before its worker processes fork (they read it from their copy of the parent's memory: nothing is pickled
+# but the chunk number and the returned piece) and removed when the call ends.
+_FORKED: dict[int, tuple] = {}
+
+
+def _chunk_in_child(token: int, c: int) -> _Piece:
+    p, lo, hi, halo_lo, halo_hi, tree, rho = _FORKED[token]
+    ids = np.flatnonzero(_in_box(p, halo_lo[c], halo_hi[c], closed=True))
+    return _triangulate_piece(p, ids, lo[c], hi[c], halo_lo[c], halo_hi[c], tree, rho)
+
+
 def delaunay_chunked(p: np.ndarray, chunks: int, workers: int, halo_fraction: float = HALO_FRACTION,
-                     stats: dict | None = None) -> np.ndarray:
+                     stats: dict | None = None, processes: bool = False) -> np.ndarray:
     """The exact global Delaunay tetrahedralisation of float64 ``p [P, 3]`` from ``chunks`` pieces on ``workers``
-    threads (see the module docstring). Returns positively oriented non-flat ``tets [T, 4] int32``."""
+    threads, or forked processes with ``processes`` (Linux; Qhull holds the GIL for part of its work, and the
+    pieces' numpy post-processing too) — see the module docstring. Returns positively oriented non-flat
+    ``tets [T, 4] int32``."""
     from scipy.spatial import ConvexHull, cKDTree
 
     stats = {} if stats is None else stats
@@ -308,15 +421,39 @@ def delaunay_chunked(p: np.ndarray, chunks: int, workers: int, halo_fraction: fl
             ids = np.flatnonzero(_in_box(p, halo_lo[c], halo_hi[c], closed=True))
             return _triangulate_piece(p, ids, lo[c], hi[c], halo_lo[c], halo_hi[c], tree, rho)
 
-        pieces = list(pool.map(run_chunk, range(lo.shape[0])))
+        if processes:
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor
+
+            token = id(p) ^ time.perf_counter_ns()
+            _FORKED[token] = (p, lo, hi, halo_lo, halo_hi, tree, rho)
+            try:
+                with ProcessPoolExecutor(max(1, workers), mp_context=multiprocessing.get_context("fork")) as procs:
+                    pieces = list(procs.map(_chunk_in_child, [token] * lo.shape[0], range(lo.shape[0])))
+            finally:
+                del _FORKED[token]
+        else:
+            pieces = list(pool.map(run_chunk, range(lo.shape[0])))
     t1 = time.perf_counter()
     hull = ConvexHull(p)
     unmatched = _unmatched_faces(pieces, p, hull.vertices)
+    first_unmatched, fills, filled = int(unmatched.shape[0]), 0, 0
+    while unmatched.shape[0] and fills < MAX_FILLS:
+        fill = _fill_piece(p, pieces, unmatched, tree)
+        fills += 1
+        if fill is None or fill.tets.shape[0] == 0:
+            break
+        pieces.append(fill)
+        filled += int(fill.tets.shape[0])
+        unmatched = _unmatched_faces(pieces, p, hull.vertices)
     tets = np.concatenate([pc.tets for pc in pieces])
     coverage = sum(pc.volume6 for pc in pieces) / 6.0 / hull.volume if hull.volume > 0 else 1.0
     stats.update(delaunay_chunks=int(lo.shape[0]), delaunay_workers=int(workers), delaunay_rho=rho,
-                 delaunay_checked=sum(pc.checked for pc in pieces),
-                 delaunay_rejected=sum(pc.rejected for pc in pieces), delaunay_unmatched_faces=int(unmatched.shape[0]),
+                 delaunay_processes=bool(processes),
+                 delaunay_checked=sum(pc.checked for pc in pieces[:lo.shape[0]]),
+                 delaunay_rejected=sum(pc.rejected for pc in pieces[:lo.shape[0]]),
+                 delaunay_chunk_unmatched_faces=first_unmatched, delaunay_fill_passes=fills,
+                 delaunay_filled_tets=filled, delaunay_unmatched_faces=int(unmatched.shape[0]),
                  delaunay_volume_coverage=float(coverage), delaunay_chunks_s=round(t1 - t0, 3),
                  delaunay_stitch_s=round(time.perf_counter() - t1, 3))
     if unmatched.shape[0] or abs(coverage - 1.0) > 1e-6:
@@ -327,7 +464,7 @@ def delaunay_chunked(p: np.ndarray, chunks: int, workers: int, halo_fraction: fl
 
 # ---------------------------------------------------------------------------------------------- public
 def delaunay(points, backend: str = "scipy", *, workers: int | None = 1, chunks: int | None = None,
-             halo_fraction: float = HALO_FRACTION, stats: dict | None = None) -> np.ndarray:
+             halo_fraction: float = HALO_FRACTION, stats: dict | None = None, processes: bool = False) -> np.ndarray:
     """Delaunay tetrahedralisation of ``points [P, 3]`` → ``tets [T, 4] int32``, positively oriented,
     zero-volume tetrahedra dropped.
 
@@ -336,7 +473,8 @@ def delaunay(points, backend: str = "scipy", *, workers: int | None = 1, chunks:
     scipy). ``workers``: threads (``None``: every CPU this process may use); with scipy, more than one worker
     and ``P >= PARALLEL_MIN_POINTS`` the points are triangulated in chunks on the threads and stitched (module
     docstring: the large empty-space tetrahedra no chunk sees are missing); ``chunks`` sets their number
-    (default ~``CHUNK_POINTS`` per chunk, at least two per worker; 1: one call).
+    (default ~``CHUNK_POINTS`` per chunk, at least two per worker; 1: one call); ``processes``: the chunks run
+    in forked worker processes instead of threads (Linux).
     Duplicate points are merged onto their lowest index. ``stats``: the parallel path's counters are written
     into it. Raises ``GofError`` for fewer than 4 points or points that span no volume (coplanar, collinear).
     """
@@ -347,6 +485,9 @@ def delaunay(points, backend: str = "scipy", *, workers: int | None = 1, chunks:
     if not 0.0 < halo_fraction:
         raise GofError(f"halo_fraction must be > 0, got {halo_fraction}")
     p = check_points(points)
+    if backend != "cgal":  # CGAL perturbs symbolically itself; Qhull needs points in general position
+        _check_spans_volume(p)  # before the perturbation, which would lift coplanar points into slivers
+        p = jittered(p)
     if backend == "auto":
         try:
             import CGAL.CGAL_Triangulation_3  # noqa: F401
@@ -361,7 +502,7 @@ def delaunay(points, backend: str = "scipy", *, workers: int | None = 1, chunks:
     if backend == "cgal":
         tets = orient_and_drop_degenerate(_delaunay_cgal(p), p)
     elif chunks > 1:
-        tets = delaunay_chunked(p, chunks, workers, halo_fraction, stats)
+        tets = delaunay_chunked(p, chunks, workers, halo_fraction, stats, processes=processes)
     else:
         tri = _qhull(p)
         tets = orient_and_drop_degenerate(_canonical_vertices(tri, p, np.arange(p.shape[0]))[tri.simplices], p)
