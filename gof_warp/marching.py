@@ -1,10 +1,23 @@
 """Level-set meshes of a scalar field: marching tetrahedra and marching cubes, each refined by a binary
 search along the crossing edges (GOF Sec. 5, "binary search of the level set").
 
-The field is any callable ``field(x) -> values``: ``x`` is ``[M, 3]`` float32 (a numpy array, a torch
-tensor on the working device, or a ``wp.array`` of ``vec3``; see ``field_input``), the result has ``M``
-values (numpy, torch or Warp). It is called once per search step with the midpoints of **all** crossing
-edges (all level sets at once), so an expensive field (GOF's opacity field) is evaluated in large batches.
+The field is either
+
+* host code: any callable ``field(x) -> values``: ``x`` is ``[M, 3]`` float32 (a numpy array, a torch
+  tensor on the working device, or a ``wp.array`` of ``vec3``; see ``field_input``), the result has ``M``
+  values (numpy, torch or Warp). It is called once per search step with the midpoints of **all** crossing
+  edges (all level sets at once), so an expensive field (GOF's opacity field) is evaluated in large batches;
+* or a Warp field function: a ``@wp.func`` ``field(x: wp.vec3[, params: P]) -> float`` (``params`` given as
+  ``field_params``), evaluated by a kernel made once per call with
+  :func:`gof_warp.kernels.marching_tets.make_field_kernel`; each search step is then three launches on the
+  device, with no host round-trip.
+
+Both go through the same marching (count → scan → write → deduplicate) and the same bisection
+(:func:`_refine`); only the batch evaluation differs (``FieldCaller`` or ``WarpField``).
+
+Torch is optional: this module imports it only when the caller's data is torch (a tensor, or
+``field_input="torch"``), so a pure Warp program can use it. Without torch loaded, ``device=None``
+means Warp's current device (``wp.ScopedDevice`` is respected) and launches go to Warp's current stream.
 
 Conventions: *inside* means ``value >= level`` (high opacity); triangles are wound so their normals
 point from inside to outside (from high to low values: outwards for an opacity field). Outputs are
@@ -30,50 +43,26 @@ masks.
 
 from __future__ import annotations
 
-import contextlib
 import logging
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
-import torch
 import warp as wp
 import warp.geometry
 
 from .errors import GofError
 from .kernels import marching_tets as mt
+from .marching_inputs import (FIELD_KINDS, Field, FieldCaller, TetSource, WarpField, as_float_array,  # noqa: F401
+                              as_vec3_array, check_finite, check_levels, check_steps, field_kind, make_field,
+                              resolve_device, torch_stream)
 
 log = logging.getLogger(__name__)
 
 DEFAULT_CHUNK_TETS = 1 << 23  # 8.4M tetrahedra × 24 B ≈ 200 MB of working memory per chunk
 DEFAULT_CHUNK_NODES = 1 << 22  # grid nodes evaluated per field call in marching cubes
-FIELD_KINDS = ("numpy", "torch", "warp")
 # Warp's marching-cubes vertices must lie on the grid edges we attribute them to (float32 rounding only).
 MC_EDGE_MATCH_TOL = 1e-3  # in cell sizes
-
-Field = Callable[[object], object]
-
-
-def _resolve_device(device) -> str:
-    """Warp's name for ``device`` (None: :mod:`gof_warp.devices`' default)."""
-    from .devices import warp_device
-
-    return warp_device(None if device is None else str(device))
-
-
-def _torch_stream(device: str):
-    """On CUDA, launch on torch's current stream, so torch fields and Warp kernels are ordered."""
-    if wp.get_device(device).is_cuda:
-        return wp.ScopedStream(wp.stream_from_torch(wp.device_to_torch(device)))
-    return contextlib.nullcontext()
-
-
-def _field_kind(points) -> str:
-    if isinstance(points, torch.Tensor):
-        return "torch"
-    if isinstance(points, wp.array):
-        return "warp"
-    return "numpy"
 
 
 def compact_mesh(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -87,116 +76,6 @@ def compact_mesh(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.n
 def _empty_mesh() -> tuple[np.ndarray, np.ndarray]:
     return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32)
 
-
-# ---------------------------------------------------------------------------------------------- inputs
-def _as_vec3_array(x, name: str, device: str) -> wp.array:
-    """``[N, 3]`` numpy / torch / ``wp.array(vec3)`` → ``wp.array(vec3)`` on ``device`` (checked finite)."""
-    if isinstance(x, wp.array):
-        if x.dtype == wp.vec3 and x.ndim == 1:
-            return x.to(device)
-        if x.dtype == wp.float32 and x.ndim == 2 and x.shape[1] == 3:
-            return wp.array(ptr=x.ptr, dtype=wp.vec3, shape=x.shape[0], device=x.device, copy=False).to(device)
-        raise GofError(f"{name} must be a wp.array of vec3 or float32 [N, 3], got {x.dtype} {x.shape}")
-    t = x.detach() if isinstance(x, torch.Tensor) else torch.as_tensor(np.asarray(x))
-    if t.ndim != 2 or t.shape[1] != 3:
-        raise GofError(f"{name} must have shape [N, 3], got {tuple(t.shape)}")
-    if not t.is_floating_point():
-        raise GofError(f"{name} must be floating point, got {t.dtype}")
-    if t.numel() and not bool(torch.isfinite(t).all()):
-        raise GofError(f"{name} has NaN/inf entries")
-    if t.shape[0] == 0:  # wp.from_torch rejects empty [0, 3] tensors (strides)
-        return wp.empty(0, dtype=wp.vec3, device=device)
-    t = t.to(device=wp.device_to_torch(device), dtype=torch.float32).contiguous()
-    return wp.from_torch(t, dtype=wp.vec3)
-
-
-def _as_float_array(x, n: int, name: str, device: str) -> wp.array:
-    """``[n]`` (or ``[n, 1]``) values → ``wp.array(float32)`` on ``device`` (checked finite)."""
-    if isinstance(x, wp.array):
-        x = wp.to_torch(x)
-    t = x.detach() if isinstance(x, torch.Tensor) else torch.as_tensor(np.asarray(x))
-    if t.numel() != n or (t.ndim > 1 and t.shape[0] != n):
-        raise GofError(f"{name} must have {n} values (shape [{n}]), got shape {tuple(t.shape)}")
-    t = t.reshape(-1)
-    if not t.is_floating_point():
-        t = t.float()
-    bad = int((~torch.isfinite(t)).sum()) if n else 0
-    if bad:
-        raise GofError(f"{name} has {bad} NaN/inf values")
-    if n == 0:
-        return wp.empty(0, dtype=wp.float32, device=device)
-    t = t.to(device=wp.device_to_torch(device), dtype=torch.float32).contiguous()
-    return wp.from_torch(t, dtype=wp.float32)
-
-
-class _TetSource:
-    """Tetrahedra ``[T, 4]`` (numpy / torch / ``wp.array``) served as device chunks of ``wp.vec4i``."""
-
-    def __init__(self, tets, n_points: int, device: str):
-        self.device = device
-        if isinstance(tets, wp.array):  # trusted (documented): no index check on device arrays
-            if tets.dtype == wp.int32 and tets.ndim == 2 and tets.shape[1] == 4:
-                tets = wp.array(ptr=tets.ptr, dtype=wp.vec4i, shape=tets.shape[0], device=tets.device, copy=False)
-            elif tets.dtype != wp.vec4i:
-                raise GofError(f"tets must be a wp.array of vec4i or int32 [T, 4], got {tets.dtype}")
-            self.data, self.count = tets.to(device), tets.shape[0]
-            return
-        t = tets.detach() if isinstance(tets, torch.Tensor) else np.asarray(tets)
-        if t.ndim != 2 or t.shape[1] != 4:
-            raise GofError(f"tets must have shape [T, 4], got {tuple(t.shape)}")
-        if isinstance(t, torch.Tensor):
-            if t.is_floating_point() or t.dtype == torch.bool:
-                raise GofError(f"tets must hold integer point indices, got {t.dtype}")
-        elif not np.issubdtype(t.dtype, np.integer):
-            raise GofError(f"tets must hold integer point indices, got {t.dtype}")
-        if t.shape[0] and (int(t.min()) < 0 or int(t.max()) >= n_points):
-            raise GofError(f"tets index points outside [0, {n_points}) (min {int(t.min())}, max {int(t.max())})")
-        self.data, self.count = t, t.shape[0]
-
-    def chunk(self, start: int, end: int) -> wp.array:
-        d = self.data[start:end]
-        if isinstance(d, wp.array):
-            return d
-        if isinstance(d, torch.Tensor):
-            d = d.to(device=wp.device_to_torch(self.device), dtype=torch.int32).contiguous()
-            return wp.from_torch(d, dtype=wp.vec4i)
-        return wp.array(np.ascontiguousarray(d, dtype=np.int32), dtype=wp.vec4i, device=self.device)
-
-
-def _check_levels(levels) -> list[float]:
-    lv = [float(x) for x in np.atleast_1d(np.asarray(levels, dtype=np.float64))]
-    if not lv or not all(np.isfinite(lv)):
-        raise GofError(f"levels must be a non-empty list of finite numbers, got {levels!r}")
-    return lv
-
-
-def _check_steps(binary_steps) -> int:
-    if int(binary_steps) != binary_steps or binary_steps < 0:
-        raise GofError(f"binary_steps must be an integer >= 0, got {binary_steps!r}")
-    return int(binary_steps)
-
-
-# ---------------------------------------------------------------------------------------------- field
-class _FieldCaller:
-    """Calls the user's field on a ``wp.array(vec3)`` in the chosen kind and returns ``wp.array(float32)``."""
-
-    def __init__(self, field: Field, kind: str, device: str):
-        if not callable(field):
-            raise GofError(f"field must be callable, got {type(field).__name__}")
-        if kind not in FIELD_KINDS:
-            raise GofError(f"field_input must be one of {FIELD_KINDS}, got {kind!r}")
-        self.field, self.kind, self.device = field, kind, device
-
-    def __call__(self, x: wp.array, what: str) -> wp.array:
-        n = x.shape[0]
-        if self.kind == "numpy":
-            arg = x.numpy().reshape(n, 3)
-        elif self.kind == "torch":
-            arg = wp.to_torch(x).reshape(n, 3)
-        else:
-            arg = x
-        out = self.field(arg)
-        return _as_float_array(out, n, f"field values ({what})", self.device)
 
 
 # ---------------------------------------------------------------------------------------------- search
@@ -220,7 +99,7 @@ class _Brackets:
         return [self.x_in[a:b], self.x_out[a:b], self.f_in[a:b], self.f_out[a:b]]
 
 
-def _refine(br: _Brackets, call_field: _FieldCaller | None, steps: int) -> np.ndarray:
+def _refine(br: _Brackets, call_field: FieldCaller | WarpField | None, steps: int) -> np.ndarray:
     """Bisect every bracket ``steps`` times (one field call per step), then interpolate: ``[V, 3]`` numpy."""
     n = br.x_in.shape[0]
     device = br.x_in.device
@@ -266,7 +145,8 @@ def _deduplicate_corners(keys: wp.array, n: int, n_points: int) -> tuple[wp.arra
     return corner_vertex, vertex_keys
 
 
-def _level_topology(points: wp.array, tets: _TetSource, values: wp.array, level: float, chunk_size: int):
+def _level_topology(points: wp.array, tets: TetSource, values: wp.array, level: float, chunk_size: int,
+                    oriented: bool = False):
     """Faces (as corner→vertex ids) and the edge key of each vertex for one level, tetrahedra in chunks."""
     device, n_points = points.device, points.shape[0]
     ranges = [(s, min(s + chunk_size, tets.count)) for s in range(0, tets.count, chunk_size)]
@@ -292,23 +172,26 @@ def _level_topology(points: wp.array, tets: _TetSource, values: wp.array, level:
             else:
                 chunk, tri_end = cached
             wp.launch(mt.write_triangle_edges, dim=e - s,
-                      inputs=[points, chunk, values, level, tri_end, base, wp.int64(n_points)], outputs=[keys],
+                      inputs=[points, chunk, values, level, tri_end, base, wp.int64(n_points), wp.int32(oriented)],
+                      outputs=[keys],
                       device=device)
         base += n_faces
     return _deduplicate_corners(keys, n_corners, n_points)
 
 
-def marching_tetrahedra(points, tets, values, field: Field | None = None, *, levels: Sequence[float] = (0.5,),
+def marching_tetrahedra(points, tets, values=None, field: Field | None = None, *, levels: Sequence[float] = (0.5,),
                         binary_steps: int = 8, chunk_size: int = DEFAULT_CHUNK_TETS, field_input: str | None = None,
-                        device=None) -> list[tuple[np.ndarray, np.ndarray]]:
+                        device=None, oriented: bool = False, field_params=None) -> list[tuple[np.ndarray, np.ndarray]]:
     """Marching tetrahedra on a tetrahedral grid, with binary search on the crossing edges.
 
     Args:
         points: ``[P, 3]`` grid points (numpy, torch or ``wp.array``).
         tets: ``[T, 4]`` integer point indices, any orientation (numpy, torch or ``wp.array``; numpy
             tetrahedra stay on the host and go to the device ``chunk_size`` at a time).
-        values: ``[P]`` field values at ``points`` (precomputed).
-        field: callable evaluating the field at ``[M, 3]`` points, for the search; ``None`` → linear
+        values: ``[P]`` field values at ``points`` (precomputed); ``None`` only with a Warp field
+            function, which then evaluates them on the device.
+        field: the field, for the search (see the module docstring): a callable evaluating it at
+            ``[M, 3]`` points, or a ``@wp.func`` ``(x: wp.vec3[, params]) -> float``; ``None`` → linear
             interpolation only.
         levels: level sets to extract (default GOF's 0.5); one mesh per level.
         binary_steps: bisection steps per crossing edge (official: 8; 0 = linear interpolation).
@@ -316,34 +199,47 @@ def marching_tetrahedra(points, tets, values, field: Field | None = None, *, lev
         field_input: kind of array passed to ``field`` (``"numpy"``, ``"torch"``, ``"warp"``); default the
             kind of ``points``.
         device: Warp device; default CUDA when available, else CPU.
+        oriented: the tetrahedra are positively oriented (as :func:`gof_warp.delaunay.delaunay` returns them):
+            faces are wound by their vertex order, not by their volume in ``points`` (which is zero or
+            negative for the slivers a perturbed Delaunay leaves on cospherical points).
+        field_params: the ``params`` argument of a Warp field function that takes one (a ``wp.struct``
+            instance, a volume id, ...); ``None`` otherwise.
 
     Returns:
         one ``(vertices [V, 3] float32, faces [F, 3] int32)`` per level. Vertices are shared between faces
         on the same tetrahedron edge; normals point from high to low values. Closed level sets inside the
         grid give watertight meshes.
     """
-    device = _resolve_device(device)
-    levels = _check_levels(levels)
-    steps = _check_steps(binary_steps)
+    if field_input == "torch":
+        import torch  # noqa: F401  (before the device rule: torch and Warp must agree)
+    device = resolve_device(device)
+    levels = check_levels(levels)
+    steps = check_steps(binary_steps)
     if int(chunk_size) < 1:
         raise GofError(f"chunk_size must be >= 1, got {chunk_size!r}")
-    kind = field_input or _field_kind(points)
-    call_field = _FieldCaller(field, kind, device) if field is not None and steps > 0 else None
-    pts = _as_vec3_array(points, "points", device)
+    kind = field_input or field_kind(points)
+    evaluator = make_field(field, field_params, kind, device) if field is not None else None
+    call_field = evaluator if steps > 0 else None
+    pts = as_vec3_array(points, "points", device)
     n_points = pts.shape[0]
-    vals = _as_float_array(values, n_points, "values", device)
-    tet_src = _TetSource(tets, n_points, device)
+    if values is None:
+        if not isinstance(evaluator, WarpField):
+            raise GofError("values may be None only with a Warp field function (@wp.func) as field")
+        vals = check_finite(evaluator(pts, "points"), "field values at points")
+    else:
+        vals = as_float_array(values, n_points, "values", device)
+    tet_src = TetSource(tets, n_points, device)
     if n_points == 0 or tet_src.count == 0:
         log.warning("marching_tetrahedra: %d points, %d tetrahedra: returning empty meshes", n_points, tet_src.count)
         return [_empty_mesh() for _ in levels]
 
-    with _torch_stream(device):
-        return _marching_tetrahedra(pts, tet_src, vals, levels, call_field, steps, int(chunk_size))
+    with torch_stream(device):
+        return _marching_tetrahedra(pts, tet_src, vals, levels, call_field, steps, int(chunk_size), oriented)
 
 
-def _marching_tetrahedra(pts, tet_src, vals, levels, call_field, steps, chunk_size):
+def _marching_tetrahedra(pts, tet_src, vals, levels, call_field, steps, chunk_size, oriented=False):
     device, n_points = pts.device, pts.shape[0]
-    topo = [_level_topology(pts, tet_src, vals, lv, chunk_size) for lv in levels]
+    topo = [_level_topology(pts, tet_src, vals, lv, chunk_size, oriented) for lv in levels]
     sizes = [keys.shape[0] for _, keys in topo]
     br = _Brackets.empty(sum(sizes), device)
     offset = 0
@@ -381,7 +277,7 @@ def _node_positions(idx: np.ndarray, lower: np.ndarray, delta: np.ndarray) -> np
     return lower + idx.astype(np.float32) * delta
 
 
-def _sample_grid(call_field: _FieldCaller, lower, delta, res, chunk_nodes: int) -> np.ndarray:
+def _sample_grid(call_field: FieldCaller, lower, delta, res, chunk_nodes: int) -> np.ndarray:
     nx, ny, nz = res
     grid = np.empty(res, np.float32)
     jk = np.stack(np.meshgrid(np.arange(ny), np.arange(nz), indexing="ij"), -1).reshape(-1, 2)
@@ -409,33 +305,37 @@ def _crossing_grid_edges(grid: np.ndarray, level: float) -> tuple[np.ndarray, np
 
 def marching_cubes(field: Field, bounds, resolution, *, level: float = 0.5, binary_steps: int = 0,
                    field_input: str = "numpy", chunk_size: int = DEFAULT_CHUNK_NODES,
-                   device=None) -> tuple[np.ndarray, np.ndarray]:
+                   device=None, field_params=None) -> tuple[np.ndarray, np.ndarray]:
     """Marching cubes on a dense grid (Warp's ``IsoSurfaceMarchingCubes``), then binary search on each
     vertex's grid edge.
 
     Args:
-        field: callable, ``[M, 3]`` points → ``[M]`` values (see the module docstring); sampled on the
-            grid in batches of ``chunk_size`` nodes, then once per search step on all crossing edges.
+        field: callable, ``[M, 3]`` points → ``[M]`` values, or a ``@wp.func`` (see the module docstring);
+            sampled on the grid in batches of ``chunk_size`` nodes, then once per search step on all
+            crossing edges.
         bounds: ``[[x0, y0, z0], [x1, y1, z1]]``, the positions of the first and last grid nodes.
         resolution: grid nodes per axis, an int or three ints (>= 2).
         level: the level set (inside = ``value >= level``).
         binary_steps: bisection steps per vertex (0 = Warp's linear interpolation).
         field_input: ``"numpy"`` (default), ``"torch"`` or ``"warp"``: what ``field`` receives.
         device: Warp device; default CUDA when available, else CPU.
+        field_params: the ``params`` argument of a Warp field function that takes one.
 
     Returns:
         ``(vertices [V, 3] float32, faces [F, 3] int32)``, normals from high to low values.
     """
-    device = _resolve_device(device)
+    if field_input == "torch":
+        import torch  # noqa: F401  (before the device rule: torch and Warp must agree)
+    device = resolve_device(device)
     lower, delta, res = _grid_spec(bounds, resolution)
-    steps = _check_steps(binary_steps)
-    level = _check_levels([level])[0]
-    call_field = _FieldCaller(field, field_input, device)
-    with _torch_stream(device):
+    steps = check_steps(binary_steps)
+    level = check_levels([level])[0]
+    call_field = make_field(field, field_params, field_input, device)
+    with torch_stream(device):
         return _marching_cubes(call_field, lower, delta, res, level, steps, max(1, int(chunk_size)))
 
 
-def _marching_cubes(call_field: _FieldCaller, lower, delta, res, level: float, steps: int, chunk_nodes: int):
+def _marching_cubes(call_field: FieldCaller | WarpField, lower, delta, res, level: float, steps: int, chunk_nodes: int):
     device = call_field.device
     grid = _sample_grid(call_field, lower, delta, res, chunk_nodes)
     upper = lower + delta * (np.asarray(res, np.float32) - 1)

@@ -19,6 +19,10 @@ Pipeline (host code in :mod:`gof_warp.marching`):
    field values at the midpoints (the field is evaluated by the caller, in one batch per step);
    :func:`interpolate_in_brackets` puts the vertex at the linear zero of the final bracket.
 
+The field of step 4 is either host code filling a batch of values, or a user's ``@wp.func``
+``field(x: wp.vec3[, params: P]) -> float`` turned into a kernel by :func:`make_field_kernel`: then every
+bisection step is three launches on the device and nothing goes back to the host between steps.
+
 Case tables are built (not typed) from the definition below and checked against a reference
 tetrahedron, then stored as ``wp.constant`` matrices: they are compiled into the kernels, so nothing is
 uploaded or cached per device.
@@ -136,12 +140,15 @@ def write_triangle_edges(
     tri_end: wp.array(dtype=wp.int32),
     face_base: int,
     n_points: wp.int64,
+    trust_order: wp.int32,
     corner_keys: wp.array(dtype=wp.int64),
 ):
     """Write the edge keys of each face corner: ``corner_keys[3 f + s]`` for face ``f``, corner ``s``.
 
     ``tri_end [T]`` is the inclusive scan of :func:`count_triangles`; faces of this chunk start at
-    ``face_base``. Faces are wound outwards; for a tetrahedron of negative volume corners 1 and 2 swap.
+    ``face_base``. Faces are wound outwards; for a tetrahedron of negative volume corners 1 and 2 swap,
+    unless ``trust_order`` is 1: the tetrahedra are known to be positively oriented (a Delaunay of perturbed
+    points, whose slivers may be flat or inverted in the exact ``points``: their order is the consistent one).
     """
     t = wp.tid()
     tet = tets[t]
@@ -150,7 +157,7 @@ def write_triangle_edges(
     if n == 0:
         return
     first = face_base + tri_end[t] - n
-    flip = tet_signed_volume6(points, tet) < wp.float64(0.0)
+    flip = trust_order == 0 and tet_signed_volume6(points, tet) < wp.float64(0.0)
     for k in range(n):
         for s in range(3):
             e = MT_TRIANGLE_EDGES[case, 3 * k + s]
@@ -273,3 +280,62 @@ def interpolate_in_brackets(
     if denom > 0.0:
         t = wp.clamp((f_in[v] - level[v]) / denom, 0.0, 1.0)
     vertices[v] = x_in[v] + t * (x_out[v] - x_in[v])
+
+
+@wp.kernel
+def count_nonfinite(values: wp.array(dtype=wp.float32), count: wp.array(dtype=wp.int32)):
+    """``count[0] += 1`` for each NaN/inf of ``values [N]`` (``count`` zeroed by the caller)."""
+    i = wp.tid()
+    if not wp.isfinite(values[i]):
+        wp.atomic_add(count, 0, 1)
+
+
+def field_params_type(field: wp.Function):
+    """The type of the ``params`` argument of a field function, or ``None`` when it takes only ``x``.
+
+    A field function is a ``@wp.func`` ``field(x: wp.vec3) -> float`` or ``field(x: wp.vec3, params: P)
+    -> float`` with ``P`` any concrete Warp type (a ``wp.struct`` holding arrays, a ``wp.uint64`` volume or
+    mesh id, ...). Raises ``TypeError`` for anything else.
+    """
+    if not isinstance(field, wp.Function):
+        raise TypeError(f"a field function must be a @wp.func, got {type(field).__name__}")
+    args = list(field.input_types.items())
+    if len(args) not in (1, 2):
+        raise TypeError(f"field function {field.key} must take (x: wp.vec3) or (x: wp.vec3, params), "
+                        f"it takes {len(args)} arguments")
+    if args[0][1] is not wp.vec3:
+        raise TypeError(f"field function {field.key}: the first argument must be wp.vec3, got {args[0][1]}")
+    return args[1][1] if len(args) == 2 else None
+
+
+def make_field_kernel(field: wp.Function) -> wp.Kernel:
+    """A kernel filling ``values[i] = field(points[i][, params])`` for a user's field function.
+
+    Args:
+        field: ``@wp.func`` ``(x: wp.vec3) -> float`` or ``(x: wp.vec3, params: P) -> float`` (see
+            :func:`field_params_type`); ``x`` in world units.
+    Returns:
+        ``wp.Kernel`` with the arguments ``(points: array(vec3) [M], [params: P,] values: array(float32) [M])``,
+        launched with ``dim=M``. It lives in its own Warp module (``module="unique"``), so the same function
+        gives the same compiled module (Warp hashes it): calling this again for the same field costs no
+        compilation, and no cache of ours is kept.
+    """
+    params_type = field_params_type(field)
+    if params_type is None:
+
+        def fill_field_values(points, values):
+            i = wp.tid()
+            values[i] = wp.float32(field(points[i]))
+
+        annotations = {"points": wp.array(dtype=wp.vec3), "values": wp.array(dtype=wp.float32)}
+    else:
+
+        def fill_field_values(points, params, values):
+            i = wp.tid()
+            values[i] = wp.float32(field(points[i], params))
+
+        annotations = {"points": wp.array(dtype=wp.vec3), "params": params_type, "values": wp.array(dtype=wp.float32)}
+    # set as objects, not strings: this module uses postponed annotations, and params_type is a local
+    fill_field_values.__annotations__ = annotations
+    fill_field_values.__doc__ = f"``values[i] = {field.key}(points[i]{'' if params_type is None else ', params'})``."
+    return wp.kernel(fill_field_values, module="unique", enable_backward=False)

@@ -18,7 +18,7 @@ from gof_warp.camera import look_at
 from gof_warp.errors import GofError
 from gof_warp.marching import marching_cubes, marching_tetrahedra
 from gof_warp.delaunay import delaunay, orient_and_drop_degenerate
-from gof_warp.tetra import (TetraConfig, filter_cells, tetra_points,
+from gof_warp.tetra import (TetraConfig, filter_cells, level_band, tetra_points,
                             tetrahedral_grid)
 
 EXACT_TOL = 2e-6  # float32 rounding of a point on a unit-size edge
@@ -207,7 +207,7 @@ def test_tetra_points_of_gaussians_pipeline(n):
     quats = rng.normal(size=(n, 4))
     points, tets, owner, scale = tetrahedral_grid(means, quats, scales, config=TetraConfig(filter_cells=False))
     assert points.shape == (9 * n, 3) and tets.shape[1] == 4
-    (v, f), = marching_tetrahedra(points, tets, gaussian_field(points), gaussian_field, device="cpu")
+    (v, f), = marching_tetrahedra(points, tets, gaussian_field(points), gaussian_field, device="cpu", oriented=True)
     assert_watertight_outward(v, f)
     assert np.abs(np.linalg.norm(v, axis=1) - sphere_radius(0.5)).max() < SPHERE_TOL_8_STEPS
 
@@ -347,3 +347,31 @@ def test_marching_validation_and_empty(caplog):
         marching_tetrahedra(TET, tets, vals, lambda x: np.zeros(len(x) + 1), device="cpu")
     (v, f), = marching_tetrahedra(TET, tets, np.zeros(4), device="cpu")  # no crossing: empty, no error
     assert v.shape == (0, 3) and f.shape == (0, 3)
+
+
+def test_level_band_keeps_the_mesh_and_drops_the_far_points():
+    """Many small Gaussians filling a ball around the analytic Gaussian's 0.5-level sphere: triangulating only
+    the level band gives a watertight, consistently wound mesh on the sphere, from far fewer points, and no
+    band point is far from the sphere."""
+    rng = np.random.default_rng(11)
+    n = 3000
+    means = rng.uniform(-1.0, 1.0, (n, 3))
+    means = means[np.linalg.norm(means, axis=1) < 1.0]
+    scales = rng.uniform(0.02, 0.06, (len(means), 3))
+    quats = rng.normal(size=(len(means), 4))
+    points, owner, scale = tetra_points(means, quats, scales)
+    values = gaussian_field(points)
+    band = level_band(points, values, owner, scale, [0.5])
+    r = sphere_radius(0.5)
+    dist = np.abs(np.linalg.norm(points, axis=1) - r)
+    assert band.sum() < 0.5 * len(points)
+    assert np.mean(dist[band] < 2.5 * scale.max()) > 0.95  # within reach of a crossing (but whole Gaussians)
+    assert dist[band].max() < 6.0 * scale.max()
+    assert band[dist < 0.25 * scale.min()].mean() > 0.95  # points right at the level: nearly all kept
+    pb, ob, sb = points[band], owner[band], scale[band]
+    tets = filter_cells(delaunay(pb), pb, ob, sb)
+    (v, f), = marching_tetrahedra(pb, tets, values[band], gaussian_field, device="cpu", oriented=True)
+    assert_watertight_outward(v, f)
+    assert np.abs(np.linalg.norm(v, axis=1) - r).max() < SPHERE_TOL_8_STEPS
+    with pytest.raises(GofError, match="disagree"):
+        level_band(points, values[:-1], owner, scale, [0.5])
