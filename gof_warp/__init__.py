@@ -26,7 +26,7 @@ _LAZY = {
     "Gaussians": "model",
     "render": "render", "rasterize": "render", "RenderConfig": "render", "DensifyStats": "render",
     "opacity_field": "opacity_field", "OpacityFieldConfig": "opacity_field",
-    "extract_mesh": "extract", "MeshConfig": "extract",
+    "extract_mesh": "extraction", "MeshConfig": "extraction",
     "evaluate_mesh": "geometry_metrics", "mesh_statistics": "geometry_metrics",
     "image_metrics": "metrics", "psnr": "metrics", "ssim": "metrics",
     "make_scene": "synthetic",

@@ -238,7 +238,7 @@ def _variant(run: Run) -> dict:
 
 def _extract(method: Method, model: Model, scene, render_config):
     """``(verts, faces, error)``: the mesh (None for ``render_only``), or empty with the refusal's message."""
-    from .extract import StageTimer, extract_mesh
+    from .extraction import StageTimer, extract_mesh
 
     if method.method == "none":
         return None, None, None

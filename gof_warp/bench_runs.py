@@ -28,7 +28,7 @@ class Method:
     resolution: int | None = None  # grid resolution (cubes, tsdf)
 
     def mesh_config(self):
-        from .extract import MeshConfig
+        from .extraction import MeshConfig
 
         cfg = MeshConfig(method=self.method, binary_steps=self.binary_steps)
         if self.resolution:

@@ -140,7 +140,7 @@ def probe_extraction(gaussians, cameras, method: str, *, render_config=None, vie
                      far_radius: float | None = FAR_RADIUS) -> dict:
     """Extract with ``method`` (cheap settings) and describe the mesh; scored against ``gt`` when given.
     ``faces_far`` counts faces beyond ``far_radius`` from the origin (``None``: not counted)."""
-    from .extract import MeshConfig, extract_mesh
+    from .extraction import MeshConfig, extract_mesh
     from .geometry_metrics import evaluate_mesh, mesh_statistics
 
     cfg = MeshConfig(method=method, binary_steps=2, cubes_resolution=32)

@@ -41,6 +41,7 @@ log = logging.getLogger(__name__)
 
 BOX_SIGMAS = 3.0  # paper: "3 times the Gaussian scales"
 CORNER_SIGNS = np.array(list(itertools.product((-1.0, 1.0), repeat=3)))  # [8, 3]
+BAND_NEIGHBOURS = 12  # level_band: nearest points looked at per point
 FAST_OPACITY_MIN = 0.2  # TetraConfig.fast(): −34 % points, F-score ±0.2 points (benchmarks/extract)
 
 
@@ -53,9 +54,12 @@ class TetraConfig:
     near: float = 0.02  # frustum mask depth range (official)
     far: float = 1e6
     corner_min_extent: float | None = None  # centre only for Gaussians with 3 max(s) below this
+    band: bool = False  # extract: keep only the points near a level crossing before Delaunay (see level_band)
+    band_neighbours: int = BAND_NEIGHBOURS
     backend: str = "scipy"  # "scipy" (BSD), "cgal" (GPLv3 extra gof_warp[cgal]) or "auto"
-    delaunay_workers: int = 1  # threads for scipy's Delaunay in chunks (0: every CPU; 1: one Qhull call)
+    delaunay_workers: int = 0  # threads for scipy's Delaunay in chunks (0: every CPU; 1: one Qhull call)
     delaunay_chunks: int | None = None  # chunks of the parallel path (None: gof_warp.delaunay's default)
+    delaunay_processes: bool = False  # run the chunks in forked processes instead of threads (Linux)
     filter_cells: bool = True  # paper's edge filter (the official code does not filter)
 
     @classmethod
@@ -181,10 +185,85 @@ def filter_cells(tets, points, owner, point_scale, *, chunk_size: int = 1 << 20,
     return tets[keep]
 
 
+def level_band(points, values, owner, point_scale, levels, *, neighbours: int = BAND_NEIGHBOURS,
+               workers: int = -1, chunk: int = 1 << 20) -> np.ndarray:
+    """``[P]`` bool: the points that can end a crossing edge of the level sets — those with one of their
+    ``neighbours`` nearest points on the other side of some level within the cell filter's reach
+    (``|p_i - p_j| <= scale_i + scale_j``, or both of one Gaussian), and that neighbour — plus every point of
+    a Gaussian that holds such a point or whose own points lie on both sides of a level.
+
+    Why it is enough: after the paper's cell filter every edge that crosses a level joins two such points, so
+    a mesh vertex can only come from them; the points far from every level (deep inside opaque matter, in
+    empty space, the corners of faint floaters) only shape tetrahedra that cross nothing. Dropping them
+    changes which tetrahedra fill the band, not where its crossings are found (the bisection finds the
+    level on each crossing edge). Measured in ``benchmarks/extract/README.md`` (points kept, time, mesh
+    against the full grid's). Cost: a KD-tree and a ``neighbours``-NN query over all points (``workers``
+    threads; ~8 core-s per million points at 12 neighbours).
+
+    Args:
+        points ``[P, 3]``, values ``[P]`` (the field at the points), owner ``[P]`` int (Gaussian),
+        point_scale ``[P]`` (3 max(s) of the owner), levels: the iso-levels.
+    """
+    from scipy.spatial import cKDTree
+
+    p = np.asarray(points, np.float32)
+    v = np.asarray(values, np.float32).reshape(-1)
+    owner, scale = np.asarray(owner), np.asarray(point_scale, np.float32)
+    if not (p.ndim == 2 and p.shape[1] == 3 and v.shape == owner.shape == scale.shape == (p.shape[0],)):
+        raise GofError(f"points [P, 3], values/owner/point_scale [P] disagree: {p.shape}, {v.shape}, {owner.shape}, "
+                       f"{scale.shape}")
+    band = np.zeros(p.shape[0], bool)
+    k = min(neighbours + 1, p.shape[0])
+    if k < 2:
+        return band
+    tree = cKDTree(p, balanced_tree=False, compact_nodes=False)
+    sides = np.stack([v >= float(level) for level in levels], axis=1)  # [P, L]
+    for start in range(0, p.shape[0], chunk):
+        dist, nbr = tree.query(p[start:start + chunk], k=k, workers=workers)
+        dist, nbr = dist[:, 1:], nbr[:, 1:]  # the first is the point itself (or an exact duplicate)
+        own = np.arange(start, start + dist.shape[0])
+        other = np.any(sides[nbr] != sides[own][:, None, :], axis=2)  # [C, K]
+        reach = (dist <= scale[own][:, None] + scale[nbr]) | (owner[nbr] == owner[own][:, None])
+        pair = other & reach
+        band[own[pair.any(axis=1)]] = True
+        band[nbr[pair]] = True
+    # a Gaussian whose 3σ box straddles a level, or that holds a band point, brings all its points: its box
+    # corners span the crossing at its own scale, which a few nearest neighbours among smaller Gaussians miss
+    straddles = np.zeros(int(owner.max()) + 1 if owner.size else 0, bool)
+    for level_side in sides.T:
+        lo = np.ones_like(straddles)
+        hi = np.zeros_like(straddles)
+        np.logical_and.at(lo, owner, level_side)
+        np.logical_or.at(hi, owner, level_side)
+        straddles |= hi & ~lo
+    straddles[owner[band]] = True
+    band |= straddles[owner]
+    log.info("level_band: %d of %d points near a level crossing", int(band.sum()), p.shape[0])
+    return band
+
+
+def tetrahedralize(points, owner, point_scale, config: TetraConfig | None = None, stats: dict | None = None
+                   ) -> np.ndarray:
+    """Delaunay of ``points [P, 3]`` then (optional) the paper's cell filter → ``tets [T, 4] int32``;
+    ``stats`` gets ``delaunay`` and ``filter_cells`` seconds (and the Delaunay's counters)."""
+    cfg = config or TetraConfig()
+    stats = {} if stats is None else stats
+    t1 = time.perf_counter()
+    workers = cfg.delaunay_workers or default_workers()
+    tets = delaunay(points, cfg.backend, workers=workers, chunks=cfg.delaunay_chunks, stats=stats,
+                    processes=cfg.delaunay_processes)
+    t2 = time.perf_counter()
+    if cfg.filter_cells:
+        tets = filter_cells(tets, points, owner, point_scale, workers=workers)
+    stats.update(delaunay=round(t2 - t1, 4), filter_cells=round(time.perf_counter() - t2, 4))
+    return tets
+
+
 def tetrahedral_grid(means, rotations, scales, opacities=None, cameras: Sequence[Camera] | None = None,
                      config: TetraConfig | None = None, stats: dict | None = None
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Points → Delaunay → (optional) cell filter, as ``config`` says. Returns
+    """Points → Delaunay → (optional) cell filter, as ``config`` says (no level band: that needs the field,
+    see :func:`gof_warp.extraction.extract_mesh`). Returns
     ``(points [P, 3] float32, tets [T, 4] int32, owner [P] int32, point_scale [P] float32)``.
 
     ``stats``: when a dict is given, the wall time of each sub-stage is written into it (seconds, keys
@@ -196,12 +275,5 @@ def tetrahedral_grid(means, rotations, scales, opacities=None, cameras: Sequence
         means, rotations, scales, opacities, opacity_min=cfg.opacity_min,
         cameras=cameras if cfg.frustum_mask else None, near=cfg.near, far=cfg.far,
         corner_min_extent=cfg.corner_min_extent)
-    t1 = time.perf_counter()
-    workers = cfg.delaunay_workers or default_workers()
-    tets = delaunay(points, cfg.backend, workers=workers, chunks=cfg.delaunay_chunks, stats=stats)
-    t2 = time.perf_counter()
-    if cfg.filter_cells:
-        tets = filter_cells(tets, points, owner, scale, workers=workers)
-    stats.update(tetra_points=round(t1 - t0, 4), delaunay=round(t2 - t1, 4),
-                 filter_cells=round(time.perf_counter() - t2, 4))
-    return points, tets, owner, scale
+    stats.update(tetra_points=round(time.perf_counter() - t0, 4))
+    return points, tetrahedralize(points, owner, scale, cfg, stats), owner, scale

@@ -51,6 +51,27 @@ def test_tetra_extraction_of_one_gaussian_is_its_analytic_sphere():
     assert errors[8] < errors[0], errors
 
 
+def test_face_budget_and_band_keep_the_sphere_closed():
+    """--max-faces: the decimated tetra mesh honours the budget, stays closed and on the sphere; --band (only the
+    points near the level) gives a closed mesh on the same sphere; bad budgets are clear errors."""
+    cams = _ring_cameras()
+    cfg_render = RenderConfig(alpha_min=0.0, k_max=10.0)
+    full, = extract_mesh(_one_gaussian(), cams, MeshConfig(binary_steps=8, tetra=TetraConfig(filter_cells=False)),
+                         render_config=cfg_render)
+    budget = len(full[1]) // 2
+    (v, f), = extract_mesh(_one_gaussian(), cams, MeshConfig(binary_steps=8, max_faces=budget,
+                                                             tetra=TetraConfig(filter_cells=False)),
+                           render_config=cfg_render)
+    assert 0.8 * budget <= len(f) <= budget and trimesh.Trimesh(v, f).is_watertight  # accuracy: test_decimate.py
+    (v, f), = extract_mesh(_one_gaussian(), cams, MeshConfig(binary_steps=8, tetra=TetraConfig(filter_cells=False,
+                                                                                                 band=True)),
+                           render_config=cfg_render)
+    assert trimesh.Trimesh(v, f).is_watertight and _radial_error(v).max() < 0.02 * RADIUS
+    for bad in ({"max_faces": 0}, {"max_error": -1.0}):
+        with pytest.raises(ValueError, match="max_"):
+            MeshConfig(**bad).validate()
+
+
 def test_every_method_gives_a_closed_sphere_like_mesh():
     cams = _ring_cameras(n=12, size=48)
     g = _one_gaussian()

@@ -8,7 +8,7 @@ import re
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-CLI_MODULES = {"gof_warp.train", "gof_warp.bench", "gof_warp.evaluate", "gof_warp.inspect", "gof_warp.view",
+CLI_MODULES = {"gof_warp.train", "gof_warp.bench", "gof_warp.evaluate", "gof_warp.inspect", "gof_warp.view", "gof_warp.extract",
                "gof_warp.synthetic.__main__"}
 RUNS_CLIS = {"gof_warp.stability_inputs"}  # exercises the CLIs in-process: that is its job
 

@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# Extraction variants on the trained DTU scan 24 geometry (packed by pack_model.py, carried in .dtugeo_a/_b;
+# the DTU scene in /tmp/gofdata for the cameras), on the GPU machine. Writes JSON and logs under $OUT.
+# Usage: bash benchmarks/extract/dtu_gpu.sh VARIANT... (band | full | faces)
+set -u
+EX=/tmp/ex; mkdir -p $EX
+if [ ! -f $EX/dtu.ply ]; then
+  python3 -c "
+import numpy as np, glob
+z = {}
+for f in sorted(glob.glob('/tmp/dtugeo/*.npz')): z.update(dict(np.load(f)))
+np.savez('$EX/dtu_geometry.npz', **z)"
+  python3 benchmarks/extract/pack_model.py unpack $EX/dtu_geometry.npz $EX/dtu.ply
+fi
+for v in "$@"; do
+  case $v in
+    band) args="--band" ;;
+    procs) args="--delaunay-processes" ;;
+    full) args="" ;;
+    faces) args="--max-faces 4300000" ;;
+    procs_faces) args="--delaunay-processes --max-faces 4300000" ;;
+    *) echo "unknown variant $v"; continue ;;
+  esac
+  /usr/bin/time -v python3 -m gof_warp.extract $EX/dtu.ply --scene /tmp/gofdata/dtu_scan24 --out $EX/mesh_$v.ply \
+      --no-pictures $args > $EX/extract_$v.log 2>&1
+  echo "$v rc $?"; tail -3 $EX/extract_$v.log
+  cp $EX/mesh_$v.json $OUT/extract_$v.json 2>/dev/null
+  grep -E "Maximum resident|Elapsed" $EX/extract_$v.log
+  grep -E "Maximum resident|Elapsed" $EX/extract_$v.log > $OUT/time_$v.txt
+done

@@ -1,0 +1,264 @@
+"""Mesh extraction from trained Gaussians — the library behind ``python -m gof_warp.extract`` (GOF Sec. 3.4,
+appendix Algorithms 1–3):
+
+* ``tetra`` (GOF): points from each Gaussian's centre and 3σ-box corners → opacity field at the points →
+  (optional level band) → exact Delaunay tetrahedra (cell filter) → marching tetrahedra with binary search
+  on the crossing edges → (optional) quadric decimation to a face budget.
+* ``cubes``: the same opacity field on a dense grid → marching cubes (+ the same binary search).
+* ``tsdf``: fusion of rendered median depths (the 2DGS/3DGS baseline) → marching cubes.
+
+:class:`MeshConfig` (one dataclass for the stage), :func:`extract_mesh`, :class:`StageTimer` (per-stage wall time
+and peak memory), :func:`meshable`, :func:`save_mesh`. Memory per stage: ``benchmarks/extract/README.md``.
+"""
+
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import resource
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from .camera import Camera
+from .errors import GofError, ModelError
+from .io_utils import atomic_path
+from .marching import compact_mesh
+from .opacity_field import OpacityFieldConfig, opacity_field
+from .render import RenderConfig
+from .tetra import TetraConfig, level_band, tetra_points, tetrahedralize
+from .tsdf import TSDFConfig, extract_tsdf_mesh, fuse_tsdf
+
+log = logging.getLogger("gof_warp.extract")  # one logger name for the stage and its CLI
+METHODS = ("tetra", "cubes", "tsdf")
+
+
+@dataclass
+class MeshConfig:
+    """Mesh extraction settings (defaults: GOF's — level 0.5, 8 bisection steps)."""
+
+    method: str = "tetra"
+    levels: tuple[float, ...] = (0.5,)
+    binary_steps: int = 8
+    cubes_resolution: int = 256  # grid nodes along the longest side (method "cubes")
+    crop: tuple[float, ...] | None = None  # (xmin, ymin, zmin, xmax, ymax, zmax): drop faces outside
+    min_component_faces: int = 0  # drop connected components with fewer faces (0 = keep all)
+    max_faces: int | None = None  # quadric decimation to at most this many faces per mesh (gof_warp.decimate)
+    max_error: float | None = None  # ... or to the fewest faces whose vertices stay this close (world units)
+    tetra: TetraConfig = field(default_factory=TetraConfig)
+    tsdf: TSDFConfig = field(default_factory=TSDFConfig)
+    field: OpacityFieldConfig = field(default_factory=OpacityFieldConfig)
+
+    def validate(self):
+        if self.method not in METHODS:
+            raise GofError(f"mesh method must be one of {METHODS}, got {self.method!r}")
+        if not self.levels or not all(0.0 < float(v) < 1.0 for v in self.levels):
+            raise GofError(f"levels must be opacities in (0, 1), got {self.levels}")
+        if self.binary_steps < 0:
+            raise GofError(f"binary_steps must be >= 0, got {self.binary_steps}")
+        if self.max_faces is not None and not self.max_faces >= 4:
+            raise GofError(f"max_faces must be >= 4, got {self.max_faces}")
+        if self.max_error is not None and not self.max_error > 0:
+            raise GofError(f"max_error must be > 0 (world units), got {self.max_error}")
+
+
+class StageTimer:
+    """Wall time and peak memory (host RSS; on a CUDA ``device`` its torch and Warp-pool peaks) per named stage."""
+
+    def __init__(self, device="cpu", progress=None):
+        from .progress import as_stages
+
+        self.stages: dict[str, dict] = {}
+        self.device = torch.device(str(device))
+        self.progress = as_stages(progress)  # gof_warp.progress.Stages: a line (or ticking line) per stage
+
+    @contextmanager
+    def __call__(self, name: str):
+        cuda = self.device.type == "cuda"
+        if cuda:
+            torch.cuda.synchronize(self.device)
+            torch.cuda.reset_peak_memory_stats(self.device)
+        t0 = time.perf_counter()
+        with self.progress.stage(name):
+            yield
+            if cuda:
+                torch.cuda.synchronize(self.device)
+        entry = {"time_s": round(time.perf_counter() - t0, 4),
+                 "host_peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)}
+        if cuda:
+            import warp as wp
+
+            entry["gpu_peak_allocated_mb"] = round(torch.cuda.max_memory_allocated(self.device) / 2**20, 1)
+            entry["gpu_warp_pool_high_mb"] = round(  # since start
+                wp.get_mempool_used_mem_high(f"cuda:{self.device.index or 0}") / 2**20, 1)
+        self.stages[name] = entry
+
+
+def _postprocess(verts, faces, config: MeshConfig):
+    """Crop and small-component removal; returns compacted ``(verts, faces)``."""
+    keep = np.ones(len(faces), bool)
+    if config.crop is not None:
+        box = np.asarray(config.crop, float)
+        inside = np.all((verts >= box[:3]) & (verts <= box[3:]), axis=1)
+        keep &= inside[faces].all(axis=1)
+    faces = faces[keep]
+    if config.min_component_faces > 0 and len(faces):
+        import trimesh
+
+        labels = trimesh.graph.connected_component_labels(trimesh.graph.face_adjacency(faces), node_count=len(faces))
+        counts = np.bincount(labels)
+        faces = faces[counts[labels] >= config.min_component_faces]
+    verts, faces, _ = compact_mesh(verts, faces)
+    return verts, faces
+
+
+def meshable(gaussians):
+    """The Gaussians that can be bounded and meshed, with a warning naming what was left out.
+
+    A scale whose square overflows float32 (log-scale above ~44, e.g. a diverged model's e^50) turns the
+    covariance, the 3D filter's scale and its opacity compensation into inf/NaN. The renderer already skips
+    such a Gaussian (NaN opacity), but a grid cannot be sized around it nor a 3σ box triangulated, so it is
+    left out here — the mesh is that of the other Gaussians, which is what they render. A model with none
+    left raises :class:`~gof_warp.errors.ModelError`.
+    """
+    with torch.no_grad():
+        s = gaussians.raw_scales
+        ok = (torch.isfinite(s * s).all(dim=1) & torch.isfinite(gaussians.scales).all(dim=1)
+              & torch.isfinite(gaussians.opacities))
+        n_bad = int((~ok).sum())
+        if n_bad == 0:
+            return gaussians
+        top = float(gaussians.log_scales.detach()[~ok].max())
+    why = f"scales too large to represent (log-scale up to {top:.3g}; scale squared overflows float32)"
+    if n_bad == len(gaussians):
+        raise ModelError(f"all {n_bad} Gaussians have {why}: the model is degenerate, nothing to mesh")
+    log.warning("warning: %d of %d Gaussians have %s: left out of the mesh", n_bad, len(gaussians), why)
+    return gaussians.subset(ok)
+
+
+def empty_mesh_message(gaussians, method: str, levels, config: MeshConfig | None = None) -> str:
+    """Why a mesh came out empty, for the one-line error of a CLI that refuses to write it."""
+    with torch.no_grad():
+        s = gaussians.raw_scales.max(dim=1).values
+        o = gaussians.opacities
+        stats = (f"{len(gaussians)} Gaussians, largest scale {float(s.max()):.3g}, median {float(s.median()):.3g}, "
+                 f"opacity up to {float(o.max()):.3g}")
+    lv = ", ".join(f"{x:g}" for x in levels)
+    removed = ""
+    if config is not None and (config.crop is not None or config.min_component_faces > 0):
+        removed = " or the crop/--min-component-faces removed every face"
+    return (f"no surface crosses level {lv} ({method}): the mesh would be empty — the model is empty or degenerate "
+            f"({stats}){removed}; nothing was written")
+
+
+def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = None, *,
+                 render_config: RenderConfig | None = None, views=None, timer: StageTimer | None = None):
+    """Extract one mesh per level from trained Gaussians.
+
+    Args:
+        gaussians: :class:`~gof_warp.model.Gaussians` (on the device to compute on).
+        cameras: the training cameras (the opacity field is the minimum over them).
+        views: :class:`~gof_warp.scene.View` list for TSDF masks (optional; cameras alone otherwise).
+    Returns:
+        list of ``(vertices [V, 3] float32, faces [F, 3] int32)``, one per ``config.levels``.
+    """
+    from .marching import marching_cubes, marching_tetrahedra
+    from .scene import View
+
+    config = config or MeshConfig()
+    config.validate()
+    render_config = render_config or RenderConfig()
+    timer = timer or StageTimer(gaussians.device)
+    if len(gaussians) == 0:
+        raise GofError("the model has no Gaussians: nothing to extract")
+    gaussians = meshable(gaussians)
+
+    def field_fn(points, field_config=config.field):
+        return opacity_field(gaussians, cameras, points, config=field_config, render_config=render_config)
+
+    meshes = []
+    if config.method == "tetra":
+        tc = config.tetra
+        with timer("tetra_points"):
+            points, owner, scale = tetra_points(
+                gaussians.means.detach(), gaussians.rotations.detach(), gaussians.scales.detach(),
+                gaussians.opacities.detach(), opacity_min=tc.opacity_min, cameras=cameras if tc.frustum_mask else None,
+                near=tc.near, far=tc.far, corner_min_extent=tc.corner_min_extent)
+        counts = {"points": int(len(points))}
+        with timer("opacity_field"):  # at every point first: the level band needs it, the marching reuses it
+            values = field_fn(points)
+        if tc.band:
+            with timer("level_band"):
+                keep = level_band(points, values.detach().cpu().numpy(), owner, scale, config.levels,
+                                  neighbours=tc.band_neighbours)
+                points, owner, scale = points[keep], owner[keep], scale[keep]
+                values = values[torch.as_tensor(keep, device=values.device)]
+            counts["band_points"] = int(len(points))
+        if len(points) < 4:  # nothing crosses a level: an empty mesh (the CLI refuses to write it)
+            meshes = [(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int64)) for _ in config.levels]
+        else:
+            substages: dict = {}
+            with timer("delaunay+filter"):
+                tets = tetrahedralize(points, owner, scale, tc, stats=substages)
+            timer.stages["delaunay+filter"]["substages"] = substages
+            log.info("%d points, %d tetrahedra", len(points), len(tets))
+            counts["tetrahedra"] = int(len(tets))
+            with timer("marching_tetrahedra"):
+                meshes = marching_tetrahedra(torch.as_tensor(points, device=gaussians.device), tets, values, field_fn,
+                                             levels=config.levels, binary_steps=config.binary_steps, oriented=True)
+        timer.stages["counts"] = counts
+    elif config.method == "cubes":
+        from .tsdf import scene_bounds
+
+        box = np.asarray(config.crop, float) if config.crop is not None else scene_bounds(
+            gaussians, cameras, near=render_config.near)
+        size = box[3:] - box[:3]
+        if box.shape != (6,) or not np.all(np.isfinite(box)) or not np.all(size > 0):
+            raise GofError(f"marching cubes: the grid box must be 6 finite numbers with max > min, got {box.tolist()}")
+        res = tuple(int(max(2, round(config.cubes_resolution * s / size.max()))) for s in size)
+        for level in config.levels:
+            with timer(f"marching_cubes@{level}"):
+                # a dense grid reaches space no camera sees: count it as empty there (GOF's "unseen = 1" is
+                # meant for tetra points, which the frustum mask already keeps in view; on a grid it builds
+                # walls at the frustum boundaries)
+                grid_field = dataclasses.replace(config.field, unseen_value=0.0)
+                meshes.append(marching_cubes(lambda p: field_fn(p, grid_field).cpu().numpy(), np.stack([box[:3], box[3:]]), res,
+                                             level=level, binary_steps=config.binary_steps))
+    else:
+        views = views or [View(camera=c, image=np.zeros((c.height, c.width, 3), np.uint8), name=c.name) for c in cameras]
+        with timer("tsdf_fusion"):
+            volume = fuse_tsdf(gaussians, views, config.tsdf, render_config)
+        with timer("tsdf_marching_cubes"):
+            v, f, _ = extract_tsdf_mesh(volume, binary_steps=config.binary_steps)
+        meshes = [(v, f)]
+    meshes = [_postprocess(np.asarray(v, np.float32), np.asarray(f, np.int64), config) for v, f in meshes]
+    if config.max_faces is not None or config.max_error is not None:
+        from .decimate import decimate
+
+        out, infos = [], []
+        with timer("decimate"):
+            for v, f in meshes:
+                if len(f) == 0:
+                    out.append((v, f))
+                    continue
+                v, f, info = decimate(v, f, max_faces=config.max_faces, max_error=config.max_error)
+                out.append((v, f.astype(np.int64)))
+                infos.append(info)
+        timer.stages["decimate"]["meshes"] = infos
+        meshes = out
+    return meshes
+
+
+def save_mesh(path, verts: np.ndarray, faces: np.ndarray) -> None:
+    """Write a triangle mesh as binary PLY, atomically."""
+    import trimesh
+
+    mesh = trimesh.Trimesh(vertices=verts, faces=faces, process=False)
+    with atomic_path(path) as tmp:
+        mesh.export(tmp, file_type="ply")
+
+
