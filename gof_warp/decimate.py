@@ -254,7 +254,7 @@ def _decimate_to(v, f, target, agg, keep_border):
 
 def decimate(verts, faces, *, max_faces: int | None = None, max_error: float | None = None,
              keep_border: bool = True, agg: float = 7.0, error_samples: int = 50_000,
-             seed: int = 0) -> tuple[np.ndarray, np.ndarray, dict]:
+             seed: int = 0, measure: bool = True) -> tuple[np.ndarray, np.ndarray, dict]:
     """Quadric-decimate a triangle mesh to a face budget and/or an error bound.
 
     Args:
@@ -269,6 +269,10 @@ def decimate(verts, faces, *, max_faces: int | None = None, max_error: float | N
         agg: the library's aggressiveness (its default 7; lower is slower and more careful).
         error_samples: measure the error on at most this many input vertices (seeded subset).
         seed: seed of that subset.
+        measure: with ``max_faces`` alone, measure the error of the result (``False``: ``error_max`` and
+            ``error_p95`` are None). The measurement prunes triangles by the largest one's size, so on meshes
+            with a few huge triangles (a GOF mesh's far background) its memory grows with the whole mesh per
+            sample: the extraction's ``--max-faces`` skips it.
 
     Returns:
         ``(verts [V', 3] float32, faces [F', 3] int32, info)`` with ``info``: ``faces_before``,
@@ -310,7 +314,7 @@ def decimate(verts, faces, *, max_faces: int | None = None, max_error: float | N
     if max_error is None:
         out_v, out_f, repairs, border_kept = _decimate_to(v, f, budget, agg, keep_border)
         decimations = 1
-        return finish(out_v, out_f, _measure(sample, out_v, out_f), {})
+        return finish(out_v, out_f, _measure(sample, out_v, out_f) if measure else (None, None), {})
 
     # max_error: bisection on the face count in log space; `best` is the fewest faces measured to meet it.
     best = None

@@ -48,6 +48,12 @@ def main(argv=None) -> int:
                     help="quadric decimation (fast-simplification) to at most this many faces per mesh")
     ap.add_argument("--max-error", type=float, default=None,
                     help="decimate to the fewest faces whose input vertices stay within this distance (world units)")
+    ap.add_argument("--volume", action="store_true",
+                    help="bake the opacity field into a sparse NanoVDB volume (RUN/opacity_volume.nvdb + .json) for Warp "
+                         "kernels instead of a mesh (docs/warp_volume.md)")
+    ap.add_argument("--voxel-size", type=float, default=None,
+                    help="--volume voxel edge in world units (default: median 3-sigma extent of the opaque Gaussians / 4)")
+    ap.add_argument("--volume-band", type=int, default=4, help="--volume: voxels kept on each side of the 0.5 level")
     ap.add_argument("--device", default="auto")
     ap.add_argument("--no-pictures", action="store_true",
                     help="do not write RUN/pictures/mesh_<stem>.png (views of the model and the shaded mesh)")
@@ -60,6 +66,14 @@ def main(argv=None) -> int:
 
         device = pick_device(a.device)
         run = Path(a.run)
+        if a.volume:
+            from .volume import bake_run
+
+            info = bake_run(run, scene=a.scene, out_path=a.out, voxel_size=a.voxel_size, band=a.volume_band,
+                            device=device)
+            print(f"wrote {info['nvdb']}: {info['active_voxels']} voxels of {info['voxel_size']:.4g}, "
+                  f"{info['bytes'] / 2**20:.1f} MiB, {info['time_s']['total']:.1f} s")
+            return
         cfg = MeshConfig(method=a.method, levels=tuple(a.levels), binary_steps=a.binary_steps,
                          min_component_faces=a.min_component_faces, max_faces=a.max_faces, max_error=a.max_error,
                          tetra=TetraConfig(backend=a.delaunay, opacity_min=a.opacity_min,

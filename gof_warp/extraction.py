@@ -245,7 +245,8 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
                 if len(f) == 0:
                     out.append((v, f))
                     continue
-                v, f, info = decimate(v, f, max_faces=config.max_faces, max_error=config.max_error)
+                v, f, info = decimate(v, f, max_faces=config.max_faces, max_error=config.max_error,
+                                      measure=config.max_error is not None)
                 out.append((v, f.astype(np.int64)))
                 infos.append(info)
         timer.stages["decimate"]["meshes"] = infos

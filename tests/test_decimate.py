@@ -162,3 +162,13 @@ def test_bad_inputs_raise(kwargs, match):
     verts, faces = kwargs.pop("verts"), kwargs.pop("faces")
     with pytest.raises(GofError, match=match):
         decimate(verts, faces, **kwargs)
+
+
+def test_budget_alone_can_skip_the_error_measurement():
+    import trimesh
+
+    m = trimesh.creation.icosphere(subdivisions=3)
+    _, f, info = decimate(m.vertices, m.faces, max_faces=len(m.faces) // 2, measure=False)
+    assert len(f) <= len(m.faces) // 2 and info["error_max"] is None and info["error_p95"] is None
+    _, _, info = decimate(m.vertices, m.faces, max_faces=len(m.faces) // 2)
+    assert info["error_max"] is not None and info["error_max"] > 0
