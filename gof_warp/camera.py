@@ -56,19 +56,23 @@ class Intrinsics:
     width: int
     height: int
 
+    def _finite_numbers(self, names, label: str = "") -> None:
+        """Each field in ``names`` as a finite float, or a ``SceneError`` naming it (``label``: e.g. "distortion ")."""
+        for k in names:
+            try:
+                v = float(getattr(self, k))
+            except (TypeError, ValueError):
+                raise SceneError(f"{self._what()}: {label}{k} must be a number, got {getattr(self, k)!r}") from None
+            if not np.isfinite(v):
+                raise SceneError(f"{self._what()}: {label}{k} is not finite")
+            object.__setattr__(self, k, v)
+
     def _what(self) -> str:
         """How messages name this object."""
         return "intrinsics"
 
     def __post_init__(self):
-        for k in ("fx", "fy", "cx", "cy"):
-            try:
-                v = float(getattr(self, k))
-            except (TypeError, ValueError):
-                raise SceneError(f"{self._what()}: {k} must be a number, got {getattr(self, k)!r}") from None
-            if not np.isfinite(v):
-                raise SceneError(f"{self._what()}: {k} is not finite")
-            object.__setattr__(self, k, v)
+        self._finite_numbers(("fx", "fy", "cx", "cy"))
         if self.fx <= 0 or self.fy <= 0:
             raise SceneError(f"{self._what()}: focal lengths must be positive (fx={self.fx}, fy={self.fy})")
         w, h = int(self.width), int(self.height)

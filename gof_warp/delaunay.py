@@ -35,16 +35,15 @@ flight (= ``workers``); the KD-tree ~40 B per point; the kept tetrahedra 16 B ea
 
 from __future__ import annotations
 
-import itertools
 import logging
 import os
-import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
 
+from .delaunay_cgal import delaunay_cgal as _delaunay_cgal
 from .errors import GofError
 
 log = logging.getLogger(__name__)
@@ -56,7 +55,6 @@ DEGENERATE_REL_VOLUME = 1e-10
 # is cospherical to rounding. Measured on 3σ-box corners (tests/test_delaunay.py): unperturbed, Qhull keeps
 # tetrahedra with points up to ~3e-9 R inside; perturbed by JITTER_REL, up to ~1e-10 R.
 SPHERE_RTOL = 1e-9
-CGAL_FILE_PRECISION = 17  # digits: doubles round-trip exactly through CGAL's text output
 BACKENDS = ("scipy", "cgal", "auto")
 PARALLEL_MIN_POINTS = 200_000  # below this one Qhull call is as fast as the chunked path
 CHUNK_POINTS = 150_000  # target points per chunk core (auto chunk count); ~5 s of Qhull on one core
@@ -185,48 +183,6 @@ def _canonical_vertices(tri, p: np.ndarray, ids: np.ndarray) -> np.ndarray:
         dup = np.all(p[ids[pt]] == p[ids[vtx]], axis=1)
         np.minimum.at(glob, vtx[dup], ids[pt[dup]])
     return glob
-
-
-def _read_numbers(f, n_lines: int, dtype, block: int = 1 << 20) -> np.ndarray:
-    """Next ``n_lines`` whitespace-separated number lines of a text file, in blocks."""
-    parts = []
-    for start in range(0, n_lines, block):
-        text = b"".join(itertools.islice(f, min(block, n_lines - start))).decode()
-        parts.append(np.fromstring(text, dtype=dtype, sep=" "))  # text mode (not deprecated), 4x split()
-    return np.concatenate(parts) if parts else np.zeros(0, dtype)
-
-
-def _delaunay_cgal(p: np.ndarray) -> np.ndarray:
-    """CGAL's ``Delaunay_triangulation_3`` (pip ``cgal``, SWIG bindings, GPLv3): insert all points, write
-    the triangulation as text (full precision), read finite cells, map CGAL's vertices back to our indices
-    by their exact coordinates (duplicates map to their first copy)."""
-    try:
-        from CGAL.CGAL_Kernel import Point_3
-        from CGAL.CGAL_Triangulation_3 import Delaunay_triangulation_3
-    except ImportError as e:
-        raise GofError("backend='cgal' needs the optional CGAL bindings (GPLv3): pip install 'gof_warp[cgal]'") from e
-    tri = Delaunay_triangulation_3()
-    tri.insert([Point_3(x, y, z) for x, y, z in p.tolist()])
-    if tri.dimension() < 3:
-        raise GofError(f"Delaunay failed: the {p.shape[0]} points are degenerate (dimension {tri.dimension()})")
-    with tempfile.TemporaryDirectory(prefix="gof_cgal_") as tmp:
-        path = os.path.join(tmp, "triangulation.txt")
-        tri.write_to_file(path, CGAL_FILE_PRECISION)
-        del tri
-        with open(path, "rb") as f:  # dimension, n, n vertex lines, n_cells, n_cells cell lines, neighbours
-            int(f.readline())
-            n = int(f.readline())
-            xyz = _read_numbers(f, n, np.float64).reshape(n, 3)
-            n_cells = int(f.readline())
-            cells = _read_numbers(f, n_cells, np.int64).reshape(n_cells, 4)
-    cells = cells[(cells != 0).all(axis=1)] - 1  # index 0 is the infinite vertex
-    unique, first = np.unique(p, axis=0, return_index=True)
-    order = np.lexsort(xyz.T[::-1])
-    if unique.shape != xyz.shape or not np.array_equal(unique, xyz[order]):
-        raise RuntimeError("CGAL's vertices do not match the input points")
-    to_input = np.empty(n, np.int64)
-    to_input[order] = first
-    return to_input[cells]
 
 
 # ---------------------------------------------------------------------------------------------- chunks

@@ -69,14 +69,7 @@ class LensCamera(Intrinsics):
 
     def __post_init__(self):
         super().__post_init__()
-        for k in ("k1", "k2", "p1", "p2", "k3"):
-            try:
-                v = float(getattr(self, k))
-            except (TypeError, ValueError):
-                raise SceneError(f"{self._what()}: distortion {k} must be a number, got {getattr(self, k)!r}") from None
-            if not np.isfinite(v):
-                raise SceneError(f"{self._what()}: distortion {k} is not finite")
-            object.__setattr__(self, k, v)
+        self._finite_numbers(("k1", "k2", "p1", "p2", "k3"), label="distortion ")
 
     @property
     def has_distortion(self) -> bool:
