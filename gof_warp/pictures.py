@@ -14,6 +14,9 @@ list), with the columns
   :mod:`gof_warp.panels` (:func:`view_panels`, :func:`shade_mesh`, …; those names are importable from here
   too) with the run's render settings.
 
+Training also writes ``RUN/pictures/views_it<N>.png`` (the same panels and views) for the model at each of
+its ``snapshot_iterations`` (:func:`snapshot_pictures_or_warning`).
+
 This module finds what to draw — the run's Gaussians, cameras, render settings, the views to show and their
 photos — and holds the CLI. Library code (``train`` and ``extract`` call :func:`pictures_or_warning`).
 """
@@ -215,11 +218,52 @@ def write_run_pictures(run_dir, *, mesh_path=None, views: int = 3, out_dir=None,
                  base / "scene")
     out = Path(out_dir) if out_dir is not None else base / "pictures"
     path = out / ("views.png" if mesh is None else f"{mesh_picture_stem(mesh_path)}.png")
+    return [draw_views(gaussians, chosen, path, photos=photos, mesh=mesh, render_config=render_config,
+                       max_width=max_width)]
+
+
+def draw_views(gaussians, chosen: list[tuple[Camera, str]], path, *, photos=None, mesh=None, render_config=None,
+               max_width: int = MAX_WIDTH) -> Path:
+    """The views picture of ``gaussians`` (module docstring) for ``chosen`` ``(camera, split)`` pairs (see
+    :func:`choose_views`), rows labelled ``name (split)``, written to ``path``; returns ``path``. The one
+    drawing path of ``views.png`` (:func:`write_run_pictures`) and of training snapshots
+    (:func:`write_model_views`)."""
+    path = Path(path)
     labels = [f"{c.name} ({split})" for c, split in chosen]
     view_panels(gaussians, [c for c, _ in chosen], photos=photos, mesh=mesh, render_config=render_config, path=path,
                 labels=labels, max_width=max_width)
     log.debug("wrote %s", path)
-    return [path]
+    return path
+
+
+def write_model_views(gaussians, scene, path, *, render_config=None, views: int = 3,
+                      max_width: int = MAX_WIDTH) -> Path:
+    """The views picture of an in-memory model (``views.png``'s panels, the same views: the run's test views
+    if any, else train views) over a loaded :class:`~gof_warp.scene.Scene`, whose images are the photos:
+    what training writes at each snapshot (``RUN/pictures/views_it<N>.png``) without reloading the run."""
+    chosen = choose_views(scene.train_cameras, [v.camera for v in scene.test], views)
+    by_name = {v.camera.name: v.image for v in scene.all_views}
+    photos = [by_name.get(c.name) for c, _ in chosen]
+    return draw_views(gaussians, chosen, path, photos=photos, render_config=render_config, max_width=max_width)
+
+
+def snapshot_picture_name(iteration: int) -> str:
+    """``views_it<N>.png``: the picture of the snapshot at iteration ``N`` in ``RUN/pictures``."""
+    return f"views_it{int(iteration)}.png"
+
+
+def snapshot_pictures_or_warning(trainer, record: dict | None = None, *, views: int = 3) -> list[Path]:
+    """``RUN/pictures/views_it<N>.png`` for a :class:`~gof_warp.trainer.Trainer` at a snapshot (its current
+    model, scene and render settings; ``record`` is the snapshot's record, unused beyond its iteration). Like
+    :func:`pictures_or_warning`, a failure only logs a warning and returns ``[]``: training goes on."""
+    iteration = record["iteration"] if record else trainer.iteration
+    path = Path(trainer.out_dir) / "pictures" / snapshot_picture_name(iteration)
+    try:
+        return [write_model_views(trainer.gaussians, trainer.scene, path, render_config=trainer.render_config,
+                                  views=views)]
+    except Exception as e:  # noqa: BLE001 - any failure of a convenience output
+        log.warning("could not write the picture of the snapshot at iteration %d: %s", iteration, e)
+        return []
 
 
 def pictures_or_warning(run_dir, **kwargs) -> list[Path]:

@@ -9,7 +9,8 @@ Overrides are ``section.key=value`` pairs applied on top of the preset, e.g.
 
 Progress: a bar with loss, PSNR, Gaussian count and ETA in a terminal, a plain line every few seconds
 otherwise (logs, CI); ``--quiet``: neither. At the end ``RUN/pictures/views.png`` and ``RUN/pictures/curves.png``
-(loss, train PSNR and Gaussian count against the iteration). ``--viewer``: the live web viewer of
+(loss, train PSNR and Gaussian count against the iteration), and ``RUN/pictures/views_it<N>.png`` at each of
+``snapshot_iterations``. ``--viewer``: the live web viewer of
 :mod:`gof_warp.viewer` during training (``--viewer-port``, ``--viewer-every N`` iterations), kept up after
 training until Ctrl-C.
 """
@@ -49,7 +50,8 @@ def main(argv=None) -> int:
     ap.add_argument("--resume", action="store_true", help="continue from the newest checkpoint in --out")
     ap.add_argument("--no-pictures", action="store_true", help="do not write RUN/pictures/views.png (photo | render "
                                                                "| depth | normal of a few views) and curves.png "
-                                                               "(loss, PSNR, Gaussians) at the end")
+                                                               "(loss, PSNR, Gaussians) at the end, nor "
+                                                               "views_it<N>.png at snapshots")
     ap.add_argument("--quiet", action="store_true", help="no progress bar or log lines (errors and warnings still shown)")
     ap.add_argument("--viewer", action="store_true", help="serve the live web viewer during training (needs "
                     "pip install 'gof_warp[viewer]'); it stays up after training until Ctrl-C")
@@ -126,6 +128,14 @@ def _keep_serving(viewer) -> None:
         print("viewer stopped", file=sys.stderr)
 
 
+def _snapshot_pictures(trainer, record: dict) -> None:
+    """The trainer's snapshot callback: ``RUN/pictures/views_it<N>.png`` (a failure only warns)."""
+    from .pictures import snapshot_pictures_or_warning
+
+    for p in snapshot_pictures_or_warning(trainer, record):
+        log.info("wrote %s", p)
+
+
 def _run(a) -> int:
     from .data import load_scene
     from .io_utils import ensure_writable_dir
@@ -175,7 +185,8 @@ def _run(a) -> int:
     viewer = _start_viewer(a, trainer, out) if a.viewer else None
     try:
         with TrainingProgress(cfg.iterations, start=trainer.iteration, quiet=a.quiet) as progress:
-            metrics = trainer.run(progress=_on_iteration(progress, viewer, a.viewer_every, trainer))
+            metrics = trainer.run(progress=_on_iteration(progress, viewer, a.viewer_every, trainer),
+                                  on_snapshot=None if a.no_pictures else _snapshot_pictures)
         if not a.no_pictures:
             from .curves import curves_or_warning
             from .pictures import pictures_or_warning

@@ -286,8 +286,12 @@ class Trainer:
         return result
 
     # ------------------------------------------------------------------ the run
-    def run(self, progress: Callable[[int, dict], None] | None = None) -> dict:
+    def run(self, progress: Callable[[int, dict], None] | None = None,
+            on_snapshot: Callable[["Trainer", dict], None] | None = None) -> dict:
         """Train to ``config.iterations``, checkpointing; then evaluate and write the outputs.
+
+        ``on_snapshot(trainer, record)`` is called after each snapshot is written (:meth:`write_snapshot`), e.g.
+        to draw its picture; its time is not counted as training time, and it must not change the model.
 
         Ctrl-C during training stops at the end of the current iteration: a checkpoint of that iteration is
         written (atomically, like every checkpoint) and :class:`TrainingInterrupted` is raised; the final
@@ -296,7 +300,7 @@ class Trainer:
         cfg = self.config
         self._write_static_files()
         with _deferred_interrupt() as interrupted:
-            last = self._train_loop(progress, interrupted)
+            last = self._train_loop(progress, interrupted, on_snapshot)
         train_time = self.elapsed
         self.save_checkpoint()
         self.gaussians.save_ply(self.out_dir / "point_cloud.ply")
@@ -317,7 +321,7 @@ class Trainer:
         write_json_atomic(self.out_dir / "metrics.json", metrics)
         return metrics
 
-    def _train_loop(self, progress, interrupted: Callable[[], bool]) -> dict:
+    def _train_loop(self, progress, interrupted: Callable[[], bool], on_snapshot=None) -> dict:
         """Iterate to ``config.iterations`` (history, progress, snapshots, checkpoints); the last step's terms."""
         cfg = self.config
         t0 = time.perf_counter() - self.elapsed
@@ -334,7 +338,9 @@ class Trainer:
                 progress(it, {**last, "its_per_s": it / self.elapsed if self.elapsed > 0 else math.nan})
             if it in snapshot_at:  # before the checkpoint of the same iteration, which then records it
                 t_snap = time.perf_counter()
-                self.write_snapshot()
+                record = self.write_snapshot()
+                if on_snapshot is not None:
+                    on_snapshot(self, record)
                 t0 += time.perf_counter() - t_snap  # not training time
             if cfg.checkpoint_every > 0 and it % cfg.checkpoint_every == 0 and it < cfg.iterations:
                 self.save_checkpoint()
