@@ -39,3 +39,23 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip(f"real data folder {SHARED_DATA} is absent")
     return SHARED_DATA
+
+
+# A few-iteration `python -m gof_warp.train` on a 5-view 32x32 default scene (the train command's tests).
+_TINY_TRAIN_OVERRIDES = ["log_every=2", "checkpoint_every=100", "model.sh_degree=0", "model.init=random",
+                         "model.random_init_points=300", "optim.means_lr_max_steps=6", "densify.start_iter=100",
+                         "densify.stop_iter=100", "densify.filter_3d_until_iter=0", "loss.regularization_from_iter=100"]
+
+
+@pytest.fixture
+def tiny_train_overrides() -> list[str]:
+    """``key=value`` overrides that make a training run of a few iterations cheap and deterministic."""
+    return list(_TINY_TRAIN_OVERRIDES)
+
+
+@pytest.fixture(scope="module")
+def tiny_train_scene(tmp_path_factory):
+    """A 5-view 32x32 synthetic default scene folder (module-scoped)."""
+    from gof_warp.synthetic import make_scene
+
+    return make_scene("default", tmp_path_factory.mktemp("scene") / "s", views=5, resolution=(32, 32), device="cpu")

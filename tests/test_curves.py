@@ -114,24 +114,15 @@ def test_write_curves_from_metrics_json(tmp_path, caplog):
 
 
 # ------------------------------------------------------------------------------- the train command
-TINY_OVERRIDES = ["log_every=2", "checkpoint_every=100", "model.sh_degree=0", "model.init=random",
-                  "model.random_init_points=300", "optim.means_lr_max_steps=6", "densify.start_iter=100",
-                  "densify.stop_iter=100", "densify.filter_3d_until_iter=0", "loss.regularization_from_iter=100"]
 
 
-@pytest.fixture(scope="module")
-def tiny_scene(tmp_path_factory):
-    from gof_warp.synthetic import make_scene
-
-    return make_scene("default", tmp_path_factory.mktemp("scene") / "s", views=5, resolution=(32, 32), device="cpu")
-
-
-def test_train_writes_the_curves_and_prints_progress_unless_quiet(tiny_scene, tmp_path, capsys):
+def test_train_writes_the_curves_and_prints_progress_unless_quiet(tiny_train_scene, tiny_train_overrides, tmp_path,
+                                                                  capsys):
     from gof_warp import train
 
     run = tmp_path / "run"
-    assert train.main([str(tiny_scene), "--out", str(run), "--config", "quick", "--iterations", "6",
-                       "--device", "cpu", *TINY_OVERRIDES]) == 0
+    assert train.main([str(tiny_train_scene), "--out", str(run), "--config", "quick", "--iterations", "6",
+                       "--device", "cpu", *tiny_train_overrides]) == 0
     err = capsys.readouterr().err
     assert re.search(r"^it 6/6 loss \d\.\d{4} psnr [\d.]+ N 300 [\d.]+ it/s elapsed \d:\d\d ETA 0:00$", err, re.M), err
     assert "\r" not in err
@@ -140,8 +131,8 @@ def test_train_writes_the_curves_and_prints_progress_unless_quiet(tiny_scene, tm
     assert (run / "pictures" / "views.png").is_file()
 
     quiet = tmp_path / "quiet"
-    assert train.main([str(tiny_scene), "--out", str(quiet), "--config", "quick", "--iterations", "6", "--device",
-                       "cpu", "--quiet", "--no-pictures", *TINY_OVERRIDES]) == 0
+    assert train.main([str(tiny_train_scene), "--out", str(quiet), "--config", "quick", "--iterations", "6", "--device",
+                       "cpu", "--quiet", "--no-pictures", *tiny_train_overrides]) == 0
     out = capsys.readouterr()
     assert not re.search(r"^it \d", out.err, re.M), out.err
     assert "done: 6 iterations" in out.out

@@ -6,33 +6,22 @@ import logging
 from types import SimpleNamespace
 
 import numpy as np
-import pytest
 from PIL import Image
 
 from gof_warp import pictures
 
-TINY_OVERRIDES = ["log_every=2", "checkpoint_every=100", "model.sh_degree=0", "model.init=random",
-                  "model.random_init_points=300", "optim.means_lr_max_steps=6", "densify.start_iter=100",
-                  "densify.stop_iter=100", "densify.filter_3d_until_iter=0", "loss.regularization_from_iter=100"]
 
 
-@pytest.fixture(scope="module")
-def tiny_scene(tmp_path_factory):
-    from gof_warp.synthetic import make_scene
-
-    return make_scene("default", tmp_path_factory.mktemp("scene") / "s", views=5, resolution=(32, 32), device="cpu")
-
-
-def _train(scene, run, *extra):
+def _train(scene, run, overrides, *extra):
     from gof_warp import train
 
     return train.main([str(scene), "--out", str(run), "--config", "quick", "--iterations", "4", "--device", "cpu",
-                       "--quiet", *extra, *TINY_OVERRIDES, "snapshot_iterations=[2]"])
+                       "--quiet", *extra, *overrides, "snapshot_iterations=[2]"])
 
 
-def test_a_snapshot_writes_its_views_picture_unless_no_pictures(tiny_scene, tmp_path):
+def test_a_snapshot_writes_its_views_picture_unless_no_pictures(tiny_train_scene, tiny_train_overrides, tmp_path):
     run = tmp_path / "run"
-    assert _train(tiny_scene, run) == 0
+    assert _train(tiny_train_scene, run, tiny_train_overrides) == 0
     snap = run / "pictures" / "views_it2.png"
     assert snap.is_file()
     with Image.open(snap) as im:
@@ -45,7 +34,7 @@ def test_a_snapshot_writes_its_views_picture_unless_no_pictures(tiny_scene, tmp_
     assert [s["iteration"] for s in json.loads((run / "metrics.json").read_text())["snapshots"]] == [2]
 
     quiet = tmp_path / "quiet"
-    assert _train(tiny_scene, quiet, "--no-pictures") == 0
+    assert _train(tiny_train_scene, quiet, tiny_train_overrides, "--no-pictures") == 0
     assert (quiet / "snapshots" / "iter_2" / "point_cloud.ply").is_file()
     assert not (quiet / "pictures").exists()
     # drawing the snapshot does not change the run
@@ -60,14 +49,14 @@ def test_a_snapshot_picture_failure_only_warns(tmp_path, caplog):
     assert not (tmp_path / "pictures" / "views_it7.png").exists()
 
 
-def test_training_goes_on_when_a_snapshot_picture_fails(tiny_scene, tmp_path, monkeypatch, caplog):
+def test_training_goes_on_when_a_snapshot_picture_fails(tiny_train_scene, tiny_train_overrides, tmp_path, monkeypatch, caplog):
     def fail(*args, **kwargs):
         raise RuntimeError("no drawing today")
 
     monkeypatch.setattr(pictures, "write_model_views", fail)
     run = tmp_path / "run"
     with caplog.at_level(logging.WARNING, logger="gof_warp.pictures"):
-        assert _train(tiny_scene, run) == 0
+        assert _train(tiny_train_scene, run, tiny_train_overrides) == 0
     assert "could not write the picture of the snapshot at iteration 2: no drawing today" in caplog.text
     assert (run / "point_cloud.ply").is_file() and (run / "snapshots" / "iter_2" / "snapshot.json").is_file()
     assert (run / "pictures" / "views.png").is_file() and not (run / "pictures" / "views_it2.png").exists()
