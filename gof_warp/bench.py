@@ -236,27 +236,31 @@ def _variant(run: Run) -> dict:
             "regularisers": not (loss.get("lambda_distortion") == 0.0 and loss.get("lambda_normal") == 0.0)}
 
 
-def _extract(method: Method, model: Model, scene, render_config):
-    """``(verts, faces, error)``: the mesh (None for ``render_only``), or empty with the refusal's message."""
+def _extract(method: Method, model: Model, scene, render_config, grid_cache: dict | None = None):
+    """``(verts, faces, error, grid_shared)``: the mesh (None for ``render_only``), or empty with the refusal's
+    message; ``grid_shared``: the tetrahedral grid came from ``grid_cache`` (built by an earlier method of the
+    same model: this row's time leaves it out)."""
     from .extraction import StageTimer, extract_mesh
 
     if method.method == "none":
-        return None, None, None
+        return None, None, None, False
+    timer = StageTimer(model.gaussians.device)
     try:
         (verts, faces), = extract_mesh(model.gaussians, scene.train_cameras, method.mesh_config(),
-                                       render_config=render_config, views=scene.train,
-                                       timer=StageTimer(model.gaussians.device))
-        return verts, faces, None
+                                       render_config=render_config, views=scene.train, timer=timer,
+                                       grid_cache=grid_cache)
+        return verts, faces, None, "grid_shared" in timer.stages
     except GofError as e:  # a clear refusal is a result of the configuration (recorded), not a bench failure
-        return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32), str(e)
+        return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32), str(e), "grid_shared" in timer.stages
 
 
 def _extract_row(run: Run, method: Method, model: Model, scene, render_config, metrics, scene_dir: Path,
-                 machine: dict) -> dict:
-    """Extract one mesh from ``model``, score it, and return its results row (with the machine it ran on)."""
+                 machine: dict, grid_cache: dict | None = None) -> dict:
+    """Extract one mesh from ``model``, score it, and return its results row (with the machine it ran on).
+    ``grid_cache``: one dict per model, so its tetrahedral grid is built once (the row says ``grid_shared``)."""
     reset_peak_memory()
     t0 = time.perf_counter()
-    verts, faces, error = _extract(method, model, scene, render_config)
+    verts, faces, error, grid_shared = _extract(method, model, scene, render_config, grid_cache)
     if error:
         log.warning("run %s @%d, %s: %s", run.name, model.iteration, method.name, error)
     extract_time = time.perf_counter() - t0 if verts is not None else None
@@ -281,7 +285,7 @@ def _extract_row(run: Run, method: Method, model: Model, scene, render_config, m
         "faces": st.get("faces"), "vertices": st.get("vertices"),
         "test_psnr": model.test.get("psnr"), "test_ssim": model.test.get("ssim"), "num_gaussians": len(model.gaussians),
         "train_time_s": model.train_time_s,
-        "extract_time_s": None if extract_time is None else round(extract_time, 3),
+        "extract_time_s": None if extract_time is None else round(extract_time, 3), "grid_shared": grid_shared,
         "total_time_s": round(float(model.train_time_s or 0.0) + (extract_time or 0.0), 3),
         "eval_time_s": round(time.perf_counter() - t1, 3) if verts is not None else None,
         "train_host_peak_rss_mb": train_mem.get("host_peak_rss_mb", metrics.get("host_peak_rss_mb")),
@@ -347,9 +351,11 @@ def run_suite(name: str, out, device: str = "cpu", runs: list[Run] | None = None
             with reporter.bar(sum(len(m) for _, m in todo), "extract", unit="mesh") as bar:
                 for iteration, methods in todo:
                     model = _model_at(iteration, gaussians, metrics, run_dir, device)
+                    grid_cache: dict = {}  # the model's tetrahedral grid, built by its first tetra method
                     for method in methods:
                         log.info("run %s @%d: %s", run.name, iteration, method.name)
-                        row = _extract_row(run, method, model, scene, render_config, metrics, scene_dir, machine)
+                        row = _extract_row(run, method, model, scene, render_config, metrics, scene_dir, machine,
+                                           grid_cache)
                         rows.append(row)
                         write_table(out, name, rows, machine)  # after every row: an interruption loses one at most
                         log.info("  %s: chamfer %s, F %s, %s faces, %s s", method.name, row.get("chamfer"),

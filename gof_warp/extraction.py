@@ -155,14 +155,50 @@ def empty_mesh_message(gaussians, method: str, levels, config: MeshConfig | None
             f"({stats}){removed}; nothing was written")
 
 
+def _tetra_grid(gaussians, cameras, config: MeshConfig, tc: TetraConfig, field_fn, timer: StageTimer):
+    """The tetra path's grid: points → the field at them → (band) → Delaunay + cell filter. Returns
+    ``(points [P, 3] float32, values [P] (the field, on the model's device), tets [T, 4] int32 or None when fewer
+    than 4 points are left, counts)``; each stage is timed on ``timer``."""
+    with timer("tetra_points"):
+        points, owner, scale = tetra_points(
+            gaussians.means.detach(), gaussians.rotations.detach(), gaussians.scales.detach(),
+            gaussians.opacities.detach(), opacity_min=tc.opacity_min, cameras=cameras if tc.frustum_mask else None,
+            near=tc.near, far=tc.far, corner_min_extent=tc.corner_min_extent)
+    counts = {"points": int(len(points))}
+    with timer("opacity_field"):  # at every point first: the level band needs it, the marching reuses it
+        values = field_fn(points)
+    if tc.band:
+        with timer("level_band"):
+            keep = level_band(points, values.detach().cpu().numpy(), owner, scale, config.levels,
+                              neighbours=tc.band_neighbours)
+            points, owner, scale = points[keep], owner[keep], scale[keep]
+            values = values[torch.as_tensor(keep, device=values.device)]
+        counts["band_points"] = int(len(points))
+    if len(points) < 4:
+        return points, values, None, counts
+    substages: dict = {}
+    with timer("delaunay+filter"):
+        tets = tetrahedralize(points, owner, scale, tc, stats=substages)
+    timer.stages["delaunay+filter"]["substages"] = substages
+    log.info("%d points, %d tetrahedra", len(points), len(tets))
+    counts["tetrahedra"] = int(len(tets))
+    return points, values, tets, counts
+
+
 def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = None, *,
-                 render_config: RenderConfig | None = None, views=None, timer: StageTimer | None = None):
+                 render_config: RenderConfig | None = None, views=None, timer: StageTimer | None = None,
+                 grid_cache: dict | None = None):
     """Extract one mesh per level from trained Gaussians.
 
     Args:
         gaussians: :class:`~gof_warp.model.Gaussians` (on the device to compute on).
         cameras: the training cameras (the opacity field is the minimum over them).
         views: :class:`~gof_warp.scene.View` list for TSDF masks (optional; cameras alone otherwise).
+        grid_cache: a dict kept by the caller for one model (the same ``gaussians``, cameras and render settings):
+            the tetra path stores its grid there (points, field values, tetrahedra) and a later call with the same
+            grid settings (tetra config, field config, and the levels when the band is on) reuses it, so extractions
+            that differ only in search steps, levels or decimation build it once. ``timer.stages["grid_shared"]``
+            says so, with the seconds the grid took when it was built.
     Returns:
         list of ``(vertices [V, 3] float32, faces [F, 3] int32)``, one per ``config.levels``.
     """
@@ -183,30 +219,20 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
     meshes = []
     if config.method == "tetra":
         tc = config.tetra
-        with timer("tetra_points"):
-            points, owner, scale = tetra_points(
-                gaussians.means.detach(), gaussians.rotations.detach(), gaussians.scales.detach(),
-                gaussians.opacities.detach(), opacity_min=tc.opacity_min, cameras=cameras if tc.frustum_mask else None,
-                near=tc.near, far=tc.far, corner_min_extent=tc.corner_min_extent)
-        counts = {"points": int(len(points))}
-        with timer("opacity_field"):  # at every point first: the level band needs it, the marching reuses it
-            values = field_fn(points)
-        if tc.band:
-            with timer("level_band"):
-                keep = level_band(points, values.detach().cpu().numpy(), owner, scale, config.levels,
-                                  neighbours=tc.band_neighbours)
-                points, owner, scale = points[keep], owner[keep], scale[keep]
-                values = values[torch.as_tensor(keep, device=values.device)]
-            counts["band_points"] = int(len(points))
-        if len(points) < 4:  # nothing crosses a level: an empty mesh (the CLI refuses to write it)
+        key = ("tetra", repr(tc), repr(config.field), tuple(config.levels) if tc.band else None)
+        cached = grid_cache.get(key) if grid_cache is not None else None
+        if cached is not None:
+            points, values, tets, counts = cached["points"], cached["values"], cached["tets"], dict(cached["counts"])
+            timer.stages["grid_shared"] = {"built_s": cached["built_s"]}
+        else:
+            t_grid = time.perf_counter()
+            points, values, tets, counts = _tetra_grid(gaussians, cameras, config, tc, field_fn, timer)
+            if grid_cache is not None:
+                grid_cache[key] = {"points": points, "values": values, "tets": tets, "counts": counts,
+                                   "built_s": round(time.perf_counter() - t_grid, 4)}
+        if tets is None:  # nothing crosses a level: an empty mesh (the CLI refuses to write it)
             meshes = [(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int64)) for _ in config.levels]
         else:
-            substages: dict = {}
-            with timer("delaunay+filter"):
-                tets = tetrahedralize(points, owner, scale, tc, stats=substages)
-            timer.stages["delaunay+filter"]["substages"] = substages
-            log.info("%d points, %d tetrahedra", len(points), len(tets))
-            counts["tetrahedra"] = int(len(tets))
             with timer("marching_tetrahedra"):
                 meshes = marching_tetrahedra(torch.as_tensor(points, device=gaussians.device), tets, values, field_fn,
                                              levels=config.levels, binary_steps=config.binary_steps, oriented=True)

@@ -147,3 +147,27 @@ def test_save_mesh_is_atomic_and_loadable(tmp_path):
     save_mesh(tmp_path / "tri.ply", verts, np.array([[0, 1, 2]]))
     assert len(trimesh.load(tmp_path / "tri.ply").faces) == 1
     assert not list(tmp_path.glob(".*.tmp"))
+
+
+def test_grid_cache_builds_the_tetrahedral_grid_once_per_model():
+    """Two extractions of one model that differ in search steps share the grid: the second says so, skips the
+    grid stages, and gives the mesh a fresh extraction with its settings gives."""
+    from gof_warp.extraction import StageTimer
+
+    cams = _ring_cameras(n=8)
+    cfg_render = RenderConfig(alpha_min=0.0, k_max=10.0)
+    g = _one_gaussian()
+    cache: dict = {}
+    first, second = StageTimer("cpu"), StageTimer("cpu")
+    extract_mesh(g, cams, MeshConfig(binary_steps=2), render_config=cfg_render, timer=first, grid_cache=cache)
+    (v, f), = extract_mesh(g, cams, MeshConfig(binary_steps=6), render_config=cfg_render, timer=second,
+                           grid_cache=cache)
+    assert "grid_shared" not in first.stages and "delaunay+filter" in first.stages
+    assert second.stages["grid_shared"]["built_s"] > 0 and "delaunay+filter" not in second.stages
+    (v2, f2), = extract_mesh(g, cams, MeshConfig(binary_steps=6), render_config=cfg_render)
+    np.testing.assert_array_equal(f, f2)
+    np.testing.assert_allclose(v, v2, atol=1e-6)
+    assert len(cache) == 1
+    extract_mesh(g, cams, MeshConfig(binary_steps=2, tetra=TetraConfig(filter_cells=False)), render_config=cfg_render,
+                 grid_cache=cache)
+    assert len(cache) == 2  # another grid setting is another grid
