@@ -45,6 +45,7 @@ from .camera import Camera
 from .devices import warp_device
 from .errors import GofError
 from .io_utils import atomic_path, write_bytes_atomic
+from .kernels import volume as vk
 from .opacity_field import OpacityFieldConfig, opacity_field
 from .render import RenderConfig
 from .tetra import frustum_mask
@@ -99,22 +100,6 @@ class VolumeConfig:
         if self.batch_bricks < 1:
             raise GofError(f"volume batch_bricks must be >= 1, got {self.batch_bricks}")
         return self
-
-
-@wp.kernel
-def _store_voxels(volume: wp.uint64, ijk: wp.array(dtype=wp.vec3i), values: wp.array(dtype=wp.float32)):
-    """Write ``values[t]`` at voxel ``ijk[t]`` (the voxel's brick is allocated)."""
-    t = wp.tid()
-    c = ijk[t]
-    wp.volume_store_f(volume, c[0], c[1], c[2], values[t])
-
-
-@wp.kernel
-def _sample_world(volume: wp.uint64, points: wp.array(dtype=wp.vec3), values: wp.array(dtype=wp.float32)):
-    """``values[t]``: trilinear sample of the volume at world point ``points[t]``."""
-    t = wp.tid()
-    uvw = wp.volume_world_to_index(volume, points[t])
-    values[t] = wp.volume_sample_f(volume, uvw, wp.Volume.LINEAR)
 
 
 def derive_voxel_size(gaussians, config: VolumeConfig | None = None) -> float:
@@ -222,7 +207,7 @@ def _fine_pass(gaussians, cameras, h, origin, bricks, wdev, render_config, confi
         ijk_t = torch.as_tensor(ijk, device=gaussians.device).contiguous()
         pts = (origin_t + h * ijk_t.double()).float()
         vals = _field(gaussians, cameras, pts, render_config, config).contiguous()
-        wp.launch(_store_voxels, dim=len(ijk), device=wdev,
+        wp.launch(vk.store_voxels, dim=len(ijk), device=wdev,
                   inputs=[volume.id, wp.from_torch(ijk_t, dtype=wp.vec3i), wp.from_torch(vals)])
     wp.synchronize_device(wdev)
     return volume
@@ -325,7 +310,7 @@ def sample_volume(volume: wp.Volume, points) -> np.ndarray:
         raise GofError(f"points must be [M, 3], got {list(pts.shape)}")
     out = wp.zeros(len(pts), dtype=wp.float32, device=volume.device)
     if len(pts):
-        wp.launch(_sample_world, dim=len(pts), device=volume.device,
+        wp.launch(vk.sample_volume_world, dim=len(pts), device=volume.device,
                   inputs=[volume.id, wp.array(pts, dtype=wp.vec3, device=volume.device)], outputs=[out])
     return out.numpy()
 

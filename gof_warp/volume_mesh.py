@@ -30,6 +30,7 @@ import numpy as np
 import warp as wp
 
 from .errors import GofError
+from .kernels import volume as vk
 from .marching import marching_cubes
 
 DEFAULT_MAX_NODES = 1 << 27  # ~8 GB of host working memory at ~60 B per lattice node
@@ -43,14 +44,6 @@ class VolumeLattice:
     filled: wp.array3d(dtype=wp.float32)  # [nx, ny, nz] node values, unstored voxels = nearest stored value
     stored: wp.array3d(dtype=wp.uint8)  # [nx, ny, nz] 1 where the volume stores the voxel
     lo: wp.vec3i  # index of lattice node (0, 0, 0)
-
-
-@wp.kernel
-def _lookup_stored(volume: wp.uint64, ijk: wp.array(dtype=wp.vec3i), values: wp.array(dtype=wp.float32)):
-    """``values[t]``: the value stored at voxel ``ijk[t]`` (no interpolation)."""
-    t = wp.tid()
-    c = ijk[t]
-    values[t] = wp.volume_lookup_f(volume, c[0], c[1], c[2])
 
 
 @wp.func
@@ -126,7 +119,7 @@ def lattice_of(volume: wp.Volume, info: dict, max_nodes: int = DEFAULT_MAX_NODES
         raise GofError(f"the volume's lattice {res} is flat: marching cubes needs >= 2 nodes per axis")
     dev = volume.device
     vals = wp.empty(len(ijk), dtype=wp.float32, device=dev)
-    wp.launch(_lookup_stored, dim=len(ijk), device=dev,
+    wp.launch(vk.lookup_stored_voxels, dim=len(ijk), device=dev,
               inputs=[volume.id, wp.array(ijk.astype(np.int32), dtype=wp.vec3i, device=dev)], outputs=[vals])
     rel = tuple((ijk - lo).T)
     stored = np.zeros(res, np.uint8)

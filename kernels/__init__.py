@@ -54,6 +54,7 @@ _MODULES = {
     "tsdf": ("integrate_tsdf", "sample_grid_trilinear"),
     "raycast": ("cast_pinhole_rays", "shade_hits", "resolve_pixels"),
     "undistort": ("distort_opencv", "undistort_remap"),
+    "volume": ("store_voxels", "sample_volume_world", "lookup_stored_voxels"),
 }
 _WHERE = {name: module for module, names in _MODULES.items() for name in names}
 
