@@ -15,6 +15,8 @@ entries``. Nothing else grows with the scene.
 
 from __future__ import annotations
 
+import dataclasses
+
 import logging
 from dataclasses import dataclass
 from typing import Sequence
@@ -41,6 +43,15 @@ class OpacityFieldConfig:
 
     unseen_value: float = 1.0  # field of points no view sees (GOF: 1)
     chunk_size: int = 1 << 22  # points per device chunk
+    # Screen tile (pixels) of the per-view Gaussian lists the points are evaluated against; None: CPU_TILE_SIZE on
+    # the CPU, the renderer's tile on a GPU. The value is the same for any tile (the lists are conservative and
+    # each point tests its own ray: bit-identical, tests/test_opacity_field.py); smaller tiles mean shorter lists
+    # per point and more list entries. Measured on the 2-core CPU (default scene, 9k Gaussians, 40 views 128²,
+    # 20k points): 16 px 4.5-5.0 s, 8 px 2.9 s, 4 px 2.1-2.4 s, 2 px 1.9 s. Not measured on a GPU yet: unchanged there.
+    tile_size: int | None = None
+
+
+CPU_TILE_SIZE = 4
 
 
 def _wp_device(t: torch.Tensor) -> str:
@@ -92,6 +103,11 @@ def opacity_field(gaussians, cameras: Sequence[Camera], points, *, config: Opaci
         return (field, seen) if return_seen else field
     wp.init()
     wdev = _wp_device(pts)
+    tile = config.tile_size if config.tile_size is not None else (
+        CPU_TILE_SIZE if wdev == "cpu" else render_config.tile_size)
+    if isinstance(tile, bool) or not isinstance(tile, int) or tile < 1:
+        raise GofError(f"opacity field tile_size must be a positive integer (pixels), got {config.tile_size!r}")
+    render_config = dataclasses.replace(render_config, tile_size=tile)
     params = [gaussians.means, gaussians.rotations, gaussians.scales, gaussians.opacities]
     means, quats, scales, opacities = (wp.from_torch(p.detach().contiguous().float(), dtype=d)
                                        for p, d in zip(params, (wp.vec3, wp.vec4, wp.vec3, wp.float32)))
