@@ -103,7 +103,7 @@ def jittered(p: np.ndarray, rel: float = JITTER_REL) -> np.ndarray:
     if diag == 0.0:
         return p
     # a hash of each point's coordinates, so that equal points get equal offsets (duplicates merge as before)
-    h = np.ascontiguousarray(p).view(np.uint64).reshape(-1, 3)
+    h = np.ascontiguousarray(p + 0.0).view(np.uint64).reshape(-1, 3)  # + 0.0: -0.0 hashes as 0.0
     mix = (h[:, 0] * np.uint64(0x9E3779B97F4A7C15)) ^ (h[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F)) ^ (
         h[:, 2] * np.uint64(0x165667B19E3779F9)) ^ np.uint64(JITTER_SEED)
     offsets = np.empty_like(p)
@@ -349,10 +349,14 @@ def _unmatched_faces(pieces: list[_Piece], p: np.ndarray, hull_vertices: np.ndar
 _FORKED: dict[int, tuple] = {}
 
 
-def _chunk_in_child(token: int, c: int) -> _Piece:
-    p, lo, hi, halo_lo, halo_hi, tree, rho = _FORKED[token]
+def _chunk(p, lo, hi, halo_lo, halo_hi, tree, rho, c: int) -> _Piece:
+    """Chunk ``c``: Qhull on the points of its halo box, the tetrahedra its core keeps."""
     ids = np.flatnonzero(_in_box(p, halo_lo[c], halo_hi[c], closed=True))
     return _triangulate_piece(p, ids, lo[c], hi[c], halo_lo[c], halo_hi[c], tree, rho)
+
+
+def _chunk_in_child(token: int, c: int) -> _Piece:
+    return _chunk(*_FORKED[token], c)
 
 
 def delaunay_chunked(p: np.ndarray, chunks: int, workers: int, halo_fraction: float = HALO_FRACTION,
@@ -373,23 +377,20 @@ def delaunay_chunked(p: np.ndarray, chunks: int, workers: int, halo_fraction: fl
         halo_lo, halo_hi = lo - halo[:, None], hi + halo[:, None]
         tree = tree_job.result()
 
-        def run_chunk(c):
-            ids = np.flatnonzero(_in_box(p, halo_lo[c], halo_hi[c], closed=True))
-            return _triangulate_piece(p, ids, lo[c], hi[c], halo_lo[c], halo_hi[c], tree, rho)
-
+        inputs = (p, lo, hi, halo_lo, halo_hi, tree, rho)
         if processes:
             import multiprocessing
             from concurrent.futures import ProcessPoolExecutor
 
             token = id(p) ^ time.perf_counter_ns()
-            _FORKED[token] = (p, lo, hi, halo_lo, halo_hi, tree, rho)
+            _FORKED[token] = inputs
             try:
                 with ProcessPoolExecutor(max(1, workers), mp_context=multiprocessing.get_context("fork")) as procs:
                     pieces = list(procs.map(_chunk_in_child, [token] * lo.shape[0], range(lo.shape[0])))
             finally:
                 del _FORKED[token]
         else:
-            pieces = list(pool.map(run_chunk, range(lo.shape[0])))
+            pieces = list(pool.map(lambda c: _chunk(*inputs, c), range(lo.shape[0])))
     t1 = time.perf_counter()
     hull = ConvexHull(p)
     unmatched = _unmatched_faces(pieces, p, hull.vertices)
@@ -427,8 +428,8 @@ def delaunay(points, backend: str = "scipy", *, workers: int | None = 1, chunks:
     ``backend``: ``"scipy"`` (Qhull, BSD, default), ``"cgal"`` (optional extra ``gof_warp[cgal]``, GPLv3;
     one call: its Python bindings export cells through a text file) or ``"auto"`` (CGAL if importable, else
     scipy). ``workers``: threads (``None``: every CPU this process may use); with scipy, more than one worker
-    and ``P >= PARALLEL_MIN_POINTS`` the points are triangulated in chunks on the threads and stitched (module
-    docstring: the large empty-space tetrahedra no chunk sees are missing); ``chunks`` sets their number
+    and ``P >= PARALLEL_MIN_POINTS`` the points are triangulated in chunks on the threads and merged exactly
+    (module docstring: the same tetrahedra as one call on the perturbed points); ``chunks`` sets their number
     (default ~``CHUNK_POINTS`` per chunk, at least two per worker; 1: one call); ``processes``: the chunks run
     in forked worker processes instead of threads (Linux).
     Duplicate points are merged onto their lowest index. ``stats``: the parallel path's counters are written
@@ -441,9 +442,6 @@ def delaunay(points, backend: str = "scipy", *, workers: int | None = 1, chunks:
     if not 0.0 < halo_fraction:
         raise GofError(f"halo_fraction must be > 0, got {halo_fraction}")
     p = check_points(points)
-    if backend != "cgal":  # CGAL perturbs symbolically itself; Qhull needs points in general position
-        _check_spans_volume(p)  # before the perturbation, which would lift coplanar points into slivers
-        p = jittered(p)
     if backend == "auto":
         try:
             import CGAL.CGAL_Triangulation_3  # noqa: F401
@@ -451,6 +449,9 @@ def delaunay(points, backend: str = "scipy", *, workers: int | None = 1, chunks:
             backend = "cgal"
         except ImportError:
             backend = "scipy"
+    if backend != "cgal":  # CGAL perturbs symbolically itself; Qhull needs points in general position
+        _check_spans_volume(p)  # before the perturbation, which would lift coplanar points into slivers
+        p = jittered(p)
     workers = default_workers() if workers is None else workers
     if chunks is None:  # one call unless there are threads to share the work and enough points to split
         parallel = workers > 1 and p.shape[0] >= PARALLEL_MIN_POINTS
