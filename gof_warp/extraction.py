@@ -30,7 +30,7 @@ from .io_utils import atomic_path
 from .marching import compact_mesh
 from .opacity_field import OpacityFieldConfig, opacity_field
 from .render import RenderConfig
-from .tetra import TetraConfig, level_band, tetra_points, tetrahedralize
+from .tetra import TetraConfig, grid_points, level_band, tetrahedralize
 from .tsdf import TSDFConfig, extract_tsdf_mesh, fuse_tsdf
 
 log = logging.getLogger("gof_warp.extract")  # one logger name for the stage and its CLI
@@ -160,10 +160,8 @@ def _tetra_grid(gaussians, cameras, config: MeshConfig, tc: TetraConfig, field_f
     ``(points [P, 3] float32, values [P] (the field, on the model's device), tets [T, 4] int32 or None when fewer
     than 4 points are left, counts)``; each stage is timed on ``timer``."""
     with timer("tetra_points"):
-        points, owner, scale = tetra_points(
-            gaussians.means.detach(), gaussians.rotations.detach(), gaussians.scales.detach(),
-            gaussians.opacities.detach(), opacity_min=tc.opacity_min, cameras=cameras if tc.frustum_mask else None,
-            near=tc.near, far=tc.far, corner_min_extent=tc.corner_min_extent)
+        points, owner, scale = grid_points(gaussians.means.detach(), gaussians.rotations.detach(),
+                                           gaussians.scales.detach(), gaussians.opacities.detach(), cameras, tc)
     counts = {"points": int(len(points))}
     with timer("opacity_field"):  # at every point first: the level band needs it, the marching reuses it
         values = field_fn(points)

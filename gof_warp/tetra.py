@@ -64,16 +64,13 @@ class TetraConfig:
 
     @classmethod
     def fast(cls, **overrides) -> TetraConfig:
-        """Faster grid: Gaussians with opacity < 0.2 give no points, and Delaunay runs in chunks on every CPU.
+        """Faster grid: Gaussians with opacity < 0.2 give no points (the Delaunay runs in exact chunks on every CPU
+        by default anyway).
 
         Measured (``benchmarks/extract/README.md``): on a trained synthetic scene ``opacity_min = 0.2`` kept
         66 % of the points; F-score at τ = 0.5 % of the scene moved −0.2 points with linear interpolation and
-        +0.2 with 8 search steps. Chunked Delaunay (``gof_warp.delaunay``) on the same model: F-score within
-        ±0.0004 of one Qhull call, the same face count ±1; on 900k points on a 16-core host 65 s → 11 s. It
-        misses large empty-space tetrahedra no chunk sees (reported in the stage stats), which the cell filter
-        mostly drops anyway; at 16 chunks one 3-edge hole appeared. ``corner_min_extent`` is scale-dependent
-        and left off."""
-        return cls(**{"opacity_min": FAST_OPACITY_MIN, "delaunay_workers": 0, **overrides})
+        +0.2 with 8 search steps. ``corner_min_extent`` is scale-dependent and left off."""
+        return cls(**{"opacity_min": FAST_OPACITY_MIN, **overrides})
 
 
 # ---------------------------------------------------------------------------------------------- points
@@ -192,12 +189,12 @@ def level_band(points, values, owner, point_scale, levels, *, neighbours: int = 
     (``|p_i - p_j| <= scale_i + scale_j``, or both of one Gaussian), and that neighbour — plus every point of
     a Gaussian that holds such a point or whose own points lie on both sides of a level.
 
-    Why it is enough: after the paper's cell filter every edge that crosses a level joins two such points, so
-    a mesh vertex can only come from them; the points far from every level (deep inside opaque matter, in
-    empty space, the corners of faint floaters) only shape tetrahedra that cross nothing. Dropping them
-    changes which tetrahedra fill the band, not where its crossings are found (the bisection finds the
-    level on each crossing edge). Measured in ``benchmarks/extract/README.md`` (points kept, time, mesh
-    against the full grid's). Cost: a KD-tree and a ``neighbours``-NN query over all points (``workers``
+    An approximation: after the paper's cell filter a crossing edge joins two points within reach on either
+    side of a level, but the partner need not be among the few nearest points (a point's nearest ones are
+    mostly its own Gaussian's corners), and dropping the far points changes which tetrahedra fill the band.
+    Measured on the DTU model (``benchmarks/extract/README.md``): 29 % of the points with nearest neighbours
+    alone (F 0.90 against the full grid's mesh at 0.1 % of the diagonal), 75 % with whole Gaussians (F 0.95):
+    not the same mesh, hence off by default. Cost: a KD-tree and a ``neighbours``-NN query over all points (``workers``
     threads; ~8 core-s per million points at 12 neighbours).
 
     Args:
@@ -259,6 +256,15 @@ def tetrahedralize(points, owner, point_scale, config: TetraConfig | None = None
     return tets
 
 
+def grid_points(means, rotations, scales, opacities=None, cameras: Sequence[Camera] | None = None,
+                config: TetraConfig | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`tetra_points` with the point reductions and frustum mask that ``config`` asks for."""
+    cfg = config or TetraConfig()
+    return tetra_points(means, rotations, scales, opacities, opacity_min=cfg.opacity_min,
+                        cameras=cameras if cfg.frustum_mask else None, near=cfg.near, far=cfg.far,
+                        corner_min_extent=cfg.corner_min_extent)
+
+
 def tetrahedral_grid(means, rotations, scales, opacities=None, cameras: Sequence[Camera] | None = None,
                      config: TetraConfig | None = None, stats: dict | None = None
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -271,9 +277,6 @@ def tetrahedral_grid(means, rotations, scales, opacities=None, cameras: Sequence
     cfg = config or TetraConfig()
     stats = {} if stats is None else stats
     t0 = time.perf_counter()
-    points, owner, scale = tetra_points(
-        means, rotations, scales, opacities, opacity_min=cfg.opacity_min,
-        cameras=cameras if cfg.frustum_mask else None, near=cfg.near, far=cfg.far,
-        corner_min_extent=cfg.corner_min_extent)
+    points, owner, scale = grid_points(means, rotations, scales, opacities, cameras, cfg)
     stats.update(tetra_points=round(time.perf_counter() - t0, 4))
     return points, tetrahedralize(points, owner, scale, cfg, stats), owner, scale
