@@ -135,8 +135,16 @@ def _clean(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray
     remap = np.cumsum(used) - 1
     verts, f = verts[used], remap[f]
     # the fans of a pinch can be chosen three ways (see _split_pinches); keep the first that closes it
-    tries = [_split_pinches(verts, f, turn) for turn in (0, 1, -1)]
-    verts, f, split = min(tries, key=lambda t: int((_edge_counts(t[1]) != 2).sum()))
+    # (in order; the first with the fewest edges not shared by two faces wins, so one that leaves none ends the search)
+    best, best_bad = None, None
+    for turn in (0, 1, -1):
+        tried = _split_pinches(verts, f, turn)
+        bad = int((_edge_counts(tried[1]) != 2).sum())
+        if best is None or bad < best_bad:
+            best, best_bad = tried, bad
+        if bad == 0:
+            break
+    verts, f, split = best
     return verts, f, {"degenerate_removed": int(degenerate), "coincident_removed": int((~keep).sum()),
                       "pinch_vertices_split": split}
 
