@@ -80,20 +80,21 @@ def test_some_huge_scales_are_left_out_with_a_warning(tmp_path, scene, capsys, c
 
 
 # --------------------------------------------------------------------------------- 2: non-invertible cameras
+def _zero_frame(root, make, name: str, frame: int) -> str:
+    """A NeRF-style scene from ``make`` whose ``frame`` in ``name`` has an all-zero transform matrix."""
+    make(root)
+    d = json.loads((root / name).read_text())
+    d["frames"][frame]["transform_matrix"] = np.zeros((4, 4)).tolist()
+    (root / name).write_text(json.dumps(d))
+    return f"{name} frame {frame}"
+
+
 def _zero_blender(root):
-    make_blender_scene(root)
-    d = json.loads((root / "transforms_train.json").read_text())
-    d["frames"][2]["transform_matrix"] = np.zeros((4, 4)).tolist()
-    (root / "transforms_train.json").write_text(json.dumps(d))
-    return "transforms_train.json frame 2"
+    return _zero_frame(root, make_blender_scene, "transforms_train.json", 2)
 
 
 def _zero_ingp(root):
-    make_ingp_scene(root)
-    d = json.loads((root / "transforms.json").read_text())
-    d["frames"][1]["transform_matrix"] = np.zeros((4, 4)).tolist()
-    (root / "transforms.json").write_text(json.dumps(d))
-    return "transforms.json frame 1"
+    return _zero_frame(root, make_ingp_scene, "transforms.json", 1)
 
 
 def _zero_dtu(root):
