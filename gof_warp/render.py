@@ -44,6 +44,9 @@ class RenderConfig:
             (paper Eq. 13), whose gradient is ~10⁴ times larger at scene depths of a few units, so λ_d must
             then be scaled down accordingly. Weights are detached in both (gradient only through t*).
         far: the far plane of m(t) (GOF: 100).
+        tile_cull: bin each Gaussian only into the screen tiles its projected ellipse meets (exact,
+            conservative; same images and gradients, fewer list entries); False: every tile of its
+            bounding rectangle (as 3DGS/GOF), for comparisons.
     """
 
     near: float = 0.2
@@ -55,6 +58,7 @@ class RenderConfig:
     background: tuple = (0.0, 0.0, 0.0)
     distortion: str = "gof"
     far: float = 100.0
+    tile_cull: bool = True
 
     def validate(self) -> None:
         if not self.near > 0:
@@ -80,7 +84,8 @@ def raster_settings_for(camera: Camera, config: RenderConfig, pixel_pad: float =
     ``gof_warp.kernels.render_types``; 0 for rendering pixel centres)."""
     return make_raster_settings(camera.width, camera.height, config.near, config.alpha_min, config.alpha_max,
                                 config.transmittance_min, config.k_max, config.background, config.tile_size,
-                                pixel_pad=pixel_pad, distortion=config.distortion, far=config.far)  # fmt: skip
+                                pixel_pad=pixel_pad, distortion=config.distortion, far=config.far,
+                                tile_cull=config.tile_cull)  # fmt: skip
 
 
 class DensifyStats:

@@ -1,9 +1,13 @@
 """Tile binning: one (tile, depth) key per Gaussian per touched tile, radix-sorted, then per-tile ranges.
 
-Variable-size output in two passes (``docs/rendering.md``): ``screen_bounds`` counts the tiles of each
-Gaussian, an inclusive ``array_scan`` gives offsets, :func:`write_tile_keys` writes the keys
-``tile_id << 32 | float_bits(μ_v.z)`` (view depth > near > 0, so its IEEE bits sort like the float) and
-the Gaussian index as value. ``radix_sort_pairs`` is stable and the keys are written in index order, so
+A Gaussian is binned into the tiles of its bounding rectangle (``screen_bounds``) that its projected
+ellipse meets (exact and conservative: :mod:`.tile_overlap`), row by row from the first to the last such
+tile. Variable-size output in two passes (``docs/rendering.md``): :func:`count_tile_keys` counts the tiles
+of each Gaussian, an inclusive ``array_scan`` gives offsets, :func:`write_tile_keys` runs the same per-row
+test and writes the keys ``tile_id << 32 | float_bits(μ_v.z)`` (view depth > near > 0, so its IEEE bits
+sort like the float) and the Gaussian index as value. Both passes call :func:`row_tile_span`, compiled in
+this module without floating-point contraction (``fuse_fp``: no FMA), so the float64 test takes the same
+decisions bit for bit in both kernels and the counts size the lists exactly. ``radix_sort_pairs`` is stable and the keys are written in index order, so
 equal depths stay in ascending index order (the spec's tie rule). :func:`tile_ranges` finds where each
 tile's run starts and ends by comparing neighbouring keys.
 """
@@ -12,27 +16,60 @@ from __future__ import annotations
 
 import warp as wp
 
+from .render_types import CameraParams, RasterSettings
+from .tile_overlap import TileEllipse, row_tile_span
+
+# no FMA contraction: the count and write kernels must evaluate the float64 tile test identically
+wp.set_module_options({"fuse_fp": False, "enable_backward": False})
+
+
+@wp.kernel
+def count_tile_keys(
+    rect: wp.array(dtype=wp.vec4i),
+    ellipse: wp.array(dtype=TileEllipse),
+    cam: CameraParams,
+    settings: RasterSettings,
+    tiles_touched: wp.array(dtype=wp.int32),
+):
+    """Inputs ``rect, ellipse [N]`` from ``screen_bounds``; output ``tiles_touched [N]``: the number of tiles
+    of ``rect`` that the Gaussian is binned into (per row, the span of :func:`row_tile_span`)."""
+    k = wp.tid()
+    r = rect[k]
+    e = ellipse[k]
+    n = int(0)
+    for ty in range(r[1], r[3]):
+        span = row_tile_span(e, ty, r[0], r[2], cam, settings)
+        n += span[1] - span[0]
+    tiles_touched[k] = n
+
 
 @wp.kernel
 def write_tile_keys(
     rect: wp.array(dtype=wp.vec4i),
+    ellipse: wp.array(dtype=TileEllipse),
     offsets: wp.array(dtype=wp.int32),
+    tiles_touched: wp.array(dtype=wp.int32),
     depth_bits: wp.array(dtype=wp.int32),
-    tiles_x: int,
+    cam: CameraParams,
+    settings: RasterSettings,
     keys: wp.array(dtype=wp.int64),
     values: wp.array(dtype=wp.int32),
 ):
-    """``offsets`` = inclusive scan of the tile counts; writes ``keys/values[offsets[k]-count_k : offsets[k]]``."""
+    """``offsets`` = inclusive scan of ``tiles_touched`` (``[N]`` each, from :func:`count_tile_keys`); writes
+    the keys of the same tiles to ``keys/values[offsets[k] − tiles_touched[k] : offsets[k]]`` (never more)."""
     k = wp.tid()
     r = rect[k]
-    n = (r[2] - r[0]) * (r[3] - r[1])
-    idx = offsets[k] - n
+    e = ellipse[k]
+    end = offsets[k]
+    idx = end - tiles_touched[k]
     d = wp.int64(depth_bits[k])
     for ty in range(r[1], r[3]):
-        for tx in range(r[0], r[2]):
-            keys[idx] = (wp.int64(ty * tiles_x + tx) << wp.int64(32)) | d
-            values[idx] = k
-            idx += 1
+        span = row_tile_span(e, ty, r[0], r[2], cam, settings)
+        for tx in range(span[0], span[1]):
+            if idx < end:
+                keys[idx] = (wp.int64(ty * settings.tiles_x + tx) << wp.int64(32)) | d
+                values[idx] = k
+                idx += 1
 
 
 @wp.kernel
@@ -56,12 +93,16 @@ def float_bits_view(a: wp.array) -> wp.array:
     return wp.array(ptr=a.ptr, dtype=wp.int32, shape=a.shape, device=a.device, copy=False)
 
 
-def bin_gaussians(rect: wp.array, tiles_touched: wp.array, depth: wp.array, tiles_x: int, num_tiles: int):
+def bin_gaussians(rect: wp.array, tiles_touched: wp.array, depth: wp.array, tiles_x: int, num_tiles: int,
+                  ellipse: wp.array | None = None, cam: CameraParams | None = None, settings: RasterSettings | None = None):  # fmt: skip
     """Sorted per-tile lists of Gaussian indices.
 
     Args:
-        rect, tiles_touched, depth: ``[N]`` outputs of ``screen_bounds``.
+        rect, tiles_touched, depth: ``[N]`` outputs of ``screen_bounds``. With ``ellipse``,
+            ``tiles_touched`` is overwritten by the count pass (the tiles each Gaussian is binned into).
         tiles_x: tiles per image row; num_tiles: tiles in the image.
+        ellipse, cam, settings: the ``[N]`` ``ellipse`` output of ``screen_bounds`` and the camera and
+            settings it ran with: bin into the tiles the ellipse meets. ``None``: every tile of ``rect``.
 
     Returns:
         ``(values, range_start, range_end, count)``: ``values [count]`` int32 Gaussian indices, sorted by
@@ -73,6 +114,13 @@ def bin_gaussians(rect: wp.array, tiles_touched: wp.array, depth: wp.array, tile
     range_end = wp.zeros(num_tiles, dtype=wp.int32, device=device)
     if n == 0:
         return wp.zeros(0, dtype=wp.int32, device=device), range_start, range_end, 0
+    if ellipse is None:  # exact = 0 everywhere: the whole rectangle, counted by screen_bounds
+        ellipse = wp.zeros(n, dtype=TileEllipse, device=device)
+        cam = CameraParams()
+        settings = RasterSettings()
+        settings.tiles_x = int(tiles_x)
+    else:
+        wp.launch(count_tile_keys, dim=n, inputs=[rect, ellipse, cam, settings], outputs=[tiles_touched], device=device, record_tape=False)
     offsets = wp.empty(n, dtype=wp.int32, device=device)
     wp.utils.array_scan(tiles_touched, offsets, inclusive=True)
     count = int(offsets[n - 1 : n].numpy()[0])  # one small device-to-host copy (sizes the lists)
@@ -80,7 +128,8 @@ def bin_gaussians(rect: wp.array, tiles_touched: wp.array, depth: wp.array, tile
         return wp.zeros(0, dtype=wp.int32, device=device), range_start, range_end, 0
     keys = wp.empty(2 * count, dtype=wp.int64, device=device)  # radix sort needs 2x scratch
     values = wp.empty(2 * count, dtype=wp.int32, device=device)
-    wp.launch(write_tile_keys, dim=n, inputs=[rect, offsets, float_bits_view(depth), tiles_x], outputs=[keys, values], device=device)
+    wp.launch(write_tile_keys, dim=n, inputs=[rect, ellipse, offsets, tiles_touched, float_bits_view(depth), cam, settings],
+              outputs=[keys, values], device=device, record_tape=False)  # fmt: skip
     wp.utils.radix_sort_pairs(keys, values, count, begin_bit=0, end_bit=32 + max(1, int(num_tiles - 1).bit_length()))
-    wp.launch(tile_ranges, dim=count, inputs=[keys, count], outputs=[range_start, range_end], device=device)
+    wp.launch(tile_ranges, dim=count, inputs=[keys, count], outputs=[range_start, range_end], device=device, record_tape=False)
     return values[:count], range_start, range_end, count

@@ -6,7 +6,9 @@ Two kernels, one per Gaussian:
   ``μ_v = R_cam μ + t_cam``, ``P = S⁻¹ R_vᵀ`` with ``R_v = R_cam R(q)``, ``o_g = −P μ_v`` and the SH colour
   seen from the camera centre. These 15 floats + opacity are all the per-pixel loop reads.
 * :func:`screen_bounds` (not differentiable) — culling, the exact bounding box of the projected
-  binning ellipsoid ``{x : ‖S⁻¹R_vᵀ(x − μ_v)‖ ≤ k}``, its tile rectangle, radius and sort depth.
+  binning ellipsoid ``{x : ‖S⁻¹R_vᵀ(x − μ_v)‖ ≤ k}``, its tile rectangle, radius and sort depth, and the
+  conic of its exact silhouette (:mod:`.tile_overlap`) with which the binning keeps only the tiles of the
+  rectangle that the ellipse meets.
 
 Bounding box (``docs/rendering.md``): image column ``u = fx x/z + cx`` is constant on planes through the
 camera with normal ``n = (fx, 0, cx − u)``. Such a plane touches the ellipsoid (centre ``μ``, covariance
@@ -23,6 +25,7 @@ import warp as wp
 
 from .gaussian_math import quat_to_rotation, sh_to_color
 from .render_types import CameraParams, RasterSettings
+from .tile_overlap import TileEllipse, tile_ellipse
 
 # Relative enlargement of k for the box: the per-pixel float32 d² has a relative error ~1e-6.
 BOUNDS_K_MARGIN = wp.constant(1.0e-4)
@@ -79,12 +82,17 @@ def screen_bounds(
     tiles_touched: wp.array(dtype=wp.int32),
     radii: wp.array(dtype=wp.int32),
     depth: wp.array(dtype=float),
+    ellipse: wp.array(dtype=TileEllipse),
 ):
-    """Outputs per Gaussian: tile rectangle ``(x0, y0, x1, y1)`` (half-open), its tile count, the
-    screen radius in pixels (0 = not visible) and the sort depth ``μ_v.z``."""
+    """Outputs per Gaussian (``[N]`` each): tile rectangle ``(x0, y0, x1, y1)`` (half-open) of the bounding
+    box, its tile count (an upper bound of the binned tiles: ``bin_gaussians`` recounts with ``ellipse``),
+    the screen radius in pixels (0 = not visible), the sort depth ``μ_v.z`` and the silhouette conic of
+    the tile test (``exact = 0``: all tiles of ``rect``, as when the ellipsoid crosses the near plane or
+    ``settings.tile_cull == 0``)."""
     k = wp.tid()
     mv = mu_v[k]
     depth[k] = mv[2]
+    ellipse[k] = TileEllipse()
     rect[k] = wp.vec4i(0, 0, 0, 0)
     tiles_touched[k] = 0
     radii[k] = 0
@@ -125,6 +133,8 @@ def screen_bounds(
         y1 = wp.min(y1, int(wp.floor(wp.clamp(bv[1] - half + pad, -lim, lim))))
         ext = wp.max(bu[1] - bu[0], bv[1] - bv[0]) * half
         radius = int(wp.ceil(wp.min(ext, lim)))
+        if settings.tile_cull != 0:
+            ellipse[k] = tile_ellipse(wp.vec3d(mx, my, mz), R_v, s, Sigma, k2)
     if x0 > x1 or y0 > y1:
         return
     ts = settings.tile_size

@@ -41,6 +41,7 @@ class RasterSettings:
     distortion_ndc: int  # 1: GOF's Σ w_i w_j (m_i − m_j)² on NDC depth m(t); 0: the paper's Σ w_i w_j |t_i − t_j|
     far: float  # far plane of the NDC depth map m(t) = far (t − near) / ((far − near) t)
     reduce_min_radius: int  # CUDA backward: warp-reduce the gradients of Gaussians at least this large (pixels)
+    tile_cull: int  # 1: bin into the tiles the projected ellipse meets; 0: every tile of its bounding box
 
 
 def make_camera_params(R, t, fx, fy, cx, cy, width, height) -> CameraParams:
@@ -78,6 +79,7 @@ def make_raster_settings(
     pixel_pad: float = 0.0,
     distortion: str = "gof",
     far: float = 100.0,
+    tile_cull: bool = True,
 ) -> RasterSettings:
     """``RasterSettings`` for a ``width`` × ``height`` image (defaults: GOF's, see ``RenderConfig``)."""
     s = RasterSettings()
@@ -91,6 +93,7 @@ def make_raster_settings(
     s.distortion_ndc = 1 if distortion == "gof" else 0
     s.far = float(far)
     s.reduce_min_radius = int(reduce_min_radius)
+    s.tile_cull = 1 if tile_cull else 0
     s.tiles_x = (int(width) + s.tile_size - 1) // s.tile_size
     s.tiles_y = (int(height) + s.tile_size - 1) // s.tile_size
     return s

@@ -2,6 +2,7 @@
 
     python benchmarks/render/bench_render.py --check            # CUDA (tiled and plain) vs float64 reference
     python benchmarks/render/bench_render.py --sweep --out DIR  # 100k..3M Gaussians x 800x600, 1920x1080
+    python benchmarks/render/bench_render.py --sweep --no-tile-cull --out DIR2  # bounding-box binning, to compare
 
 Each sweep point runs in its own process (clean peak-memory counters). The scene is a "realistic"
 synthetic distribution: flat Gaussians on the surfaces of a ground plane, a sphere and a box (tangent
@@ -140,9 +141,10 @@ def _time(fn, iters, warmup=2):
     return float(np.median(times)), float(np.min(times))
 
 
-def _stage_times(params, cam, tiled, iters=5, reduce_min_radius=8):
-    """Median per-stage milliseconds from ``profile`` events of the Warp entry points."""
-    settings = make_raster_settings(cam.width, cam.height, reduce_min_radius=reduce_min_radius)
+def _stage_times(params, cam, tiled, iters=5, reduce_min_radius=8, tile_cull=True):
+    """Median per-stage milliseconds from ``profile`` events of the Warp entry points, and the number of
+    (Gaussian, tile) entries."""
+    settings = make_raster_settings(cam.width, cam.height, reduce_min_radius=reduce_min_radius, tile_cull=tile_cull)
     camp = camera_params_from(cam)
     types = (wp.vec3, wp.vec4, wp.vec3, None, wp.vec3)
     wpar = [wp.from_torch(p, dtype=t) for p, t in zip(params, types)]
@@ -163,11 +165,12 @@ def _stage_times(params, cam, tiled, iters=5, reduce_min_radius=8):
     return {k: float(np.median(v)) for k, v in stages.items()}, entries
 
 
-def bench_one(n, size, iters):
+def bench_one(n, size, iters, tile_cull=True):
     W, H = SIZES[size]
     cam = make_camera(W, H)
     params = make_scene(n)
-    res = dict(n=n, size=size, machine=machine_info())
+    config = RenderConfig(tile_cull=tile_cull)
+    res = dict(n=n, size=size, tile_cull=tile_cull, machine=machine_info())
     torch.cuda.synchronize()
     torch.cuda.reset_peak_memory_stats()
     leaves = [p.clone().requires_grad_(True) for p in params]
@@ -175,25 +178,25 @@ def bench_one(n, size, iters):
 
     def fwd():
         with torch.no_grad():
-            rasterize(*params, cam, stats=stats)
+            rasterize(*params, cam, stats=stats, config=config)
 
     def fwd_bwd():
-        out = rasterize(*leaves, cam, stats=stats)
+        out = rasterize(*leaves, cam, stats=stats, config=config)
         w = weights
         sum((out[k] * w[k]).sum() for k in OUTPUT_KEYS).backward()
 
-    weights = _loss_weights(rasterize(*params, cam))
+    weights = _loss_weights(rasterize(*params, cam, config=config))
     res["fwd_ms"], res["fwd_ms_min"] = _time(fwd, iters)
     res["fwd_bwd_ms"], res["fwd_bwd_ms_min"] = _time(fwd_bwd, iters)
     torch.cuda.synchronize()
     res["peak_torch_mb"] = torch.cuda.max_memory_allocated() / 2**20
     res["peak_warp_mb"] = wp.get_mempool_used_mem_high("cuda:0") / 2**20  # fresh process: Warp's temporaries only
     res["params_mb"] = sum(p.numel() * 4 for p in params) / 2**20
-    res["stages_tiled_ms"], res["tile_entries"] = _stage_times(params, cam, tiled=True)
-    res["stages_plain_ms"], _ = _stage_times(params, cam, tiled=False)
-    res["raster_backward_ms_by_reduce_min_radius"] = {m: _stage_times(params, cam, tiled=True, reduce_min_radius=m)[0]["raster_backward"]
+    res["stages_tiled_ms"], res["tile_entries"] = _stage_times(params, cam, tiled=True, tile_cull=tile_cull)
+    res["stages_plain_ms"], _ = _stage_times(params, cam, tiled=False, tile_cull=tile_cull)
+    res["raster_backward_ms_by_reduce_min_radius"] = {m: _stage_times(params, cam, tiled=True, reduce_min_radius=m, tile_cull=tile_cull)[0]["raster_backward"]
                                                       for m in (0, 8, 32, 128, 1 << 30)}  # fmt: skip
-    out = rasterize(*params, cam)
+    out = rasterize(*params, cam, config=config)
     res["mean_alpha"] = float(out["alpha"].mean())
     res["entries_per_tile"] = res["tile_entries"] / (math.ceil(W / 16) * math.ceil(H / 16))
     return res
@@ -238,6 +241,8 @@ def main():
     ap.add_argument("--one", nargs=2, metavar=("N", "SIZE"))
     ap.add_argument("--iters", type=int, default=7)
     ap.add_argument("--out", default=str(REPO / "benchmarks" / "render" / "results"))
+    ap.add_argument("--no-tile-cull", action="store_true",
+                    help="bin each Gaussian into every tile of its bounding box (the exact tile-ellipse test off)")
     args = ap.parse_args()
     wp.init()
     out_dir = Path(args.out)
@@ -247,15 +252,15 @@ def main():
         print(json.dumps(rep, indent=1))
         (out_dir / "cuda_check.json").write_text(json.dumps(dict(machine=machine_info(), check=rep), indent=1))
     if args.one:
-        res = bench_one(int(args.one[0]), args.one[1], args.iters)
+        res = bench_one(int(args.one[0]), args.one[1], args.iters, tile_cull=not args.no_tile_cull)
         print("RESULT " + json.dumps(res))
     if args.sweep:
         results = []
         for size in SIZES:
             for n in COUNTS:
                 t0 = time.time()
-                p = subprocess.run([sys.executable, __file__, "--one", str(n), size, "--iters", str(args.iters), "--out", str(out_dir)],
-                                   capture_output=True, text=True, env=os.environ)  # fmt: skip
+                p = subprocess.run([sys.executable, __file__, "--one", str(n), size, "--iters", str(args.iters), "--out", str(out_dir)]
+                                   + (["--no-tile-cull"] if args.no_tile_cull else []), capture_output=True, text=True, env=os.environ)  # fmt: skip
                 line = [ln for ln in p.stdout.splitlines() if ln.startswith("RESULT ")]
                 if not line:
                     print(p.stdout[-2000:], p.stderr[-4000:])
