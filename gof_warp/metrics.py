@@ -92,9 +92,9 @@ def psnr(img: torch.Tensor, gt: torch.Tensor, mask=None, *, data_range: float = 
 
 def gaussian_window_1d(window_size: int, sigma: float, dtype=torch.float32, device=None) -> torch.Tensor:
     """``[window_size]`` normalised Gaussian ``exp(-(i - window_size//2)^2 / (2 sigma^2))``."""
-    i = torch.arange(window_size, dtype=torch.float64) - window_size // 2
-    g = torch.exp(-(i**2) / (2.0 * sigma**2))
-    return (g / g.sum()).to(dtype=dtype, device=device)
+    i = torch.arange(window_size, dtype=torch.float64, device=device) - window_size // 2  # built where it is used:
+    g = torch.exp(-(i**2) / (2.0 * sigma**2))  # a host-to-device copy per call would synchronise the GPU
+    return (g / g.sum()).to(dtype=dtype)
 
 
 def ssim(img: torch.Tensor, gt: torch.Tensor, window_size: int = 11, sigma: float = 1.5, *,

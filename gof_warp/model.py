@@ -198,7 +198,9 @@ class Gaussians:
         if self.filter_3d is None:
             return o
         s2 = self.raw_scales ** 2
-        ratio = torch.prod(s2, dim=1) / torch.prod(s2 + self.filter_3d[:, None] ** 2, dim=1)
+        f2 = s2 + self.filter_3d[:, None] ** 2
+        # products written out: torch.prod's backward reads a zero count back to the host (a GPU sync)
+        ratio = (s2[:, 0] * s2[:, 1] * s2[:, 2]) / (f2[:, 0] * f2[:, 1] * f2[:, 2])
         return o * torch.sqrt(ratio)
 
     @property

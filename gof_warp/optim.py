@@ -55,6 +55,12 @@ class OptimConfig:
     appearance_network_lr: float = 1e-3
     eps: float = 1e-15
     betas: tuple[float, float] = (0.9, 0.999)
+    fused: bool | None = None  # torch's one-kernel Adam; None: on CUDA yes, on the CPU no (the loop version)
+
+    def adam_kwargs(self, device) -> dict:
+        """``torch.optim.Adam`` keyword arguments for parameters on ``device`` (eps, betas, fused)."""
+        fused = torch.device(device).type == "cuda" if self.fused is None else bool(self.fused)
+        return {"eps": self.eps, "betas": tuple(self.betas), "fused": fused}
 
     def param_lr(self, name: str) -> float:
         """Constant learning rate of a non-position parameter."""
@@ -96,7 +102,7 @@ def make_optimizer(gaussians: Gaussians, config: OptimConfig, extent: float) -> 
     for name in PARAM_NAMES:
         lr = position_lr(0, config, extent) if name == "means" else config.param_lr(name)
         groups.append({"params": [gaussians.params[name]], "lr": lr, "name": name})
-    return torch.optim.Adam(groups, lr=0.0, eps=config.eps, betas=config.betas)
+    return torch.optim.Adam(groups, lr=0.0, **config.adam_kwargs(gaussians.device))
 
 
 def update_learning_rate(optimizer: torch.optim.Optimizer, iteration: int, config: OptimConfig, extent: float) -> float:

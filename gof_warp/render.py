@@ -183,7 +183,7 @@ class _RasterizeFunction(torch.autograd.Function):
         return (*grad_in, None, None, None, None)
 
 
-def _check_params(means, quats, scales, opacities, sh):
+def _check_params(means, quats, scales, opacities, sh, check_values: bool = True):
     """Shapes, dtypes and devices of the activated parameters (clear ``ValueError``s)."""
     params = dict(zip(_PARAM_NAMES, (means, quats, scales, opacities, sh)))
     for name, x in params.items():
@@ -200,11 +200,12 @@ def _check_params(means, quats, scales, opacities, sh):
             raise ValueError(f"rasterize: {name} must have shape {list(shape)} (N={n}), got {list(params[name].shape)}")
     if sh.dim() != 3 or sh.shape[0] != n or sh.shape[2] != 3 or sh.shape[1] not in (1, 4, 9, 16):
         raise ValueError(f"rasterize: sh must have shape [N, K, 3] with N={n} and K in (1, 4, 9, 16), got {list(sh.shape)}")
-    if n > 0 and not bool((scales > 0).all()):
+    if check_values and n > 0 and not bool((scales > 0).all()):  # reads a flag back: a GPU sync
         raise ValueError("rasterize: scales must be positive (activated)")
 
 
-def rasterize(means, quats, scales, opacities, sh, camera: Camera, *, sh_degree=None, config=None, stats=None) -> dict:
+def rasterize(means, quats, scales, opacities, sh, camera: Camera, *, sh_degree=None, config=None, stats=None,
+              check_values: bool = True) -> dict:
     """Render activated Gaussian parameters from ``camera`` (differentiable w.r.t. all five tensors).
 
     Args:
@@ -215,6 +216,8 @@ def rasterize(means, quats, scales, opacities, sh, camera: Camera, *, sh_degree=
         sh_degree: active SH degree (default: the maximum ``sh`` holds).
         config: :class:`RenderConfig` (default thresholds of GOF).
         stats: optional :class:`DensifyStats` filled by this render's forward and backward.
+        check_values: check that the scales are positive (one device-to-host read; :func:`render` skips it: a
+            model's activated scales are positive by construction).
 
     Returns:
         dict of ``[H, W]``/``[H, W, 3]`` float32 tensors: ``rgb``, ``alpha`` (1 − T), ``depth`` (expected
@@ -228,7 +231,7 @@ def rasterize(means, quats, scales, opacities, sh, camera: Camera, *, sh_degree=
     if not isinstance(config, RenderConfig):
         raise TypeError(f"rasterize: config must be a RenderConfig, got {type(config).__name__}")
     config.validate()
-    _check_params(means, quats, scales, opacities, sh)
+    _check_params(means, quats, scales, opacities, sh, check_values)
     max_degree = int(round(math.sqrt(sh.shape[1]))) - 1
     sh_degree = max_degree if sh_degree is None else int(sh_degree)
     if not 0 <= sh_degree <= max_degree:
@@ -260,4 +263,4 @@ def render(gaussians, camera: Camera, *, config=None, stats=None, sh_degree=None
             raise TypeError(f"render: gaussians has no attribute {attr!r} (expected a gof_warp.model.Gaussians)")
     degree = gaussians.active_sh_degree if sh_degree is None else sh_degree
     return rasterize(gaussians.means, gaussians.rotations, gaussians.scales, gaussians.opacities, gaussians.sh, camera,
-                     sh_degree=degree, config=config, stats=stats)  # fmt: skip
+                     sh_degree=degree, config=config, stats=stats, check_values=False)  # fmt: skip

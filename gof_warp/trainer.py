@@ -21,13 +21,10 @@ run: the parameters at the end are the same bit for bit on CPU.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
 import logging
 import math
 import resource
-import signal
-import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,6 +42,7 @@ from .devices import warp_device
 from .errors import GofError
 from .filter3d import update_filter_3d
 from .init_points import initial_point_cloud
+from .interrupts import deferred_interrupt
 from .io_utils import ensure_writable_dir, write_json_atomic, write_text_atomic
 from .loss_monitor import LossSpikeMonitor
 from .losses import LossConfig, total_loss
@@ -53,8 +51,12 @@ from .model import Gaussians
 from .optim import OptimConfig, make_optimizer, update_learning_rate
 from .render import DensifyStats, RenderConfig, render
 from .scene import Scene
+from .step_scalars import IterationScalars, PendingScalars
 
 log = logging.getLogger(__name__)
+
+SCALARS_FLUSH_EVERY = 50  # iterations between reads of the loss terms (a host-device synchronisation)
+_stage = torch.profiler.record_function  # names the step's parts in a torch.profiler trace; ~1 µs otherwise
 
 
 class TrainingError(GofError):
@@ -74,32 +76,6 @@ class TrainingInterrupted(KeyboardInterrupt):
     def __init__(self, iteration: int, total: int, checkpoint: Path | None):
         super().__init__(f"training interrupted at iteration {iteration} of {total}")
         self.iteration, self.total, self.checkpoint = iteration, total, checkpoint
-
-
-@contextlib.contextmanager
-def _deferred_interrupt():
-    """Within: the first Ctrl-C (SIGINT) only raises a flag, which the loop checks at the end of each
-    iteration; a second Ctrl-C interrupts at once, as usual. Yields ``pressed() -> bool``.
-
-    Only where Python's own SIGINT handler is installed and in the main thread (signal handlers can be set
-    nowhere else); otherwise Ctrl-C is left alone and ``pressed`` is always False. The previous handler is
-    restored on exit.
-    """
-    if (threading.current_thread() is not threading.main_thread()
-            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
-        yield lambda: False
-        return
-    pressed = []
-
-    def on_sigint(signum, frame):
-        pressed.append(signum)
-        signal.signal(signal.SIGINT, signal.default_int_handler)  # the next Ctrl-C raises KeyboardInterrupt
-
-    signal.signal(signal.SIGINT, on_sigint)
-    try:
-        yield lambda: bool(pressed)
-    finally:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 INIT_MODES = ("auto", "sfm", "random")
@@ -213,6 +189,7 @@ class Trainer:
         self.spikes = LossSpikeMonitor()
         self._rng = np.random.default_rng(config.seed)
         self._stack: list[int] = []
+        self._pending = PendingScalars()  # iterations whose loss terms are still on the device
         torch.manual_seed(config.seed)
         self.gaussians, self.init_info = initial_gaussians(scene, config.model, config.seed, self.device)
         if config.model.use_filter_3d:
@@ -227,7 +204,7 @@ class Trainer:
                 {"params": self.appearance.embedding.parameters(), "lr": config.optim.appearance_embedding_lr},
                 {"params": [p for n, p in self.appearance.named_parameters() if not n.startswith("embedding")],
                  "lr": config.optim.appearance_network_lr},
-            ], eps=config.optim.eps)
+            ], **config.optim.adam_kwargs(self.device))
 
     # ------------------------------------------------------------------ one iteration
     def _next_view(self) -> int:
@@ -237,7 +214,13 @@ class Trainer:
         return self._stack.pop()
 
     def step(self) -> dict:
-        """Run iteration ``self.iteration + 1``; returns its loss terms (floats)."""
+        """Run iteration ``self.iteration + 1``; returns its loss terms, PSNR and Gaussian count (floats)."""
+        self._pending.add(*self._step())
+        return self._drain()
+
+    def _step(self) -> tuple[IterationScalars, dict[str, torch.Tensor]]:
+        """One iteration without reading anything back from the device: its record and its terms as 0-d
+        tensors (``l1 … total``, ``psnr``), for :class:`~gof_warp.step_scalars.PendingScalars`."""
         cfg = self.config
         it = self.iteration + 1
         g = self.gaussians
@@ -246,44 +229,60 @@ class Trainer:
         idx = self._next_view()
         cam, gt = self.cameras[idx], self.images[idx]
         stats = DensifyStats(len(g), device=self.device) if it < cfg.densify.stop_iter else None
-        out = render(g, cam, config=self.render_config, stats=stats)
-        l1_pair = None
-        if self.appearance is not None:
-            chw = out["rgb"].permute(2, 0, 1)
-            corrected = self.appearance.apply(chw, idx)
-            if corrected.numel():
-                l1_pair = (corrected.permute(1, 2, 0), AppearanceModel.crop(gt.permute(2, 0, 1)).permute(1, 2, 0))
-        loss, terms = total_loss(out, gt, cam, cfg.loss, it, l1_pair=l1_pair)
-        if not torch.isfinite(loss):
-            raise TrainingError(
-                f"the loss became {loss.item()} at iteration {it} (view {cam.name!r}); training stopped. "
-                f"The last good checkpoint in {self.out_dir / 'checkpoints'} is kept: lower the learning rates "
-                "or check the input images, then resume with --resume")
-        loss.backward()
-        with torch.no_grad():
+        with _stage("train.render"):
+            out = render(g, cam, config=self.render_config, stats=stats)
+        with _stage("train.loss"):
+            l1_pair = None
+            if self.appearance is not None:
+                chw = out["rgb"].permute(2, 0, 1)
+                corrected = self.appearance.apply(chw, idx)
+                if corrected.numel():
+                    l1_pair = (corrected.permute(1, 2, 0), AppearanceModel.crop(gt.permute(2, 0, 1)).permute(1, 2, 0))
+            loss, terms = total_loss(out, gt, cam, cfg.loss, it, l1_pair=l1_pair)
+            terms["psnr"] = psnr(out["rgb"].detach(), gt)
+        with _stage("train.backward"):
+            loss.backward()
+        with torch.no_grad(), _stage("train.densify"):
             if stats is not None:
                 self.densifier.after_backward(stats, it)
             report = self.densifier.step(it, g, self.optimizer, self.scene.extent)
-            if report.opacity_reset:
-                self.spikes.restart()  # the reset makes every Gaussian transparent: a new baseline, not a spike
             if len(g) == 0:
                 raise TrainingError(f"every Gaussian was pruned at iteration {it}: check the scene's near plane "
                                     "(render.near), background colour and densify.min_opacity")
             if cfg.model.use_filter_3d and report.filter_3d_due:
                 update_filter_3d(g, self.cameras, near=self.render_config.near)
-        self.optimizer.step()
-        self.optimizer.zero_grad(set_to_none=True)
-        if self.appearance_optimizer is not None:
-            self.appearance_optimizer.step()
-            self.appearance_optimizer.zero_grad(set_to_none=True)
+        with _stage("train.optimizer"):
+            self.optimizer.step()
+            self.optimizer.zero_grad(set_to_none=True)
+            if self.appearance_optimizer is not None:
+                self.appearance_optimizer.step()
+                self.appearance_optimizer.zero_grad(set_to_none=True)
         self.iteration = it
-        result = {k: float(v) for k, v in terms.items()}
-        if it == cfg.loss.regularization_from_iter:
-            self.spikes.restart()  # the loss gains the regularisers here: compare like with like
-        self.spikes.update(it, result["total"], cam.name, result)
-        result["psnr"] = float(psnr(out["rgb"].detach(), gt))
-        result["num_gaussians"] = len(g)
-        return result
+        # the opacity reset makes every Gaussian transparent, and the regularisers change what the loss
+        # measures: a new baseline for the spike monitor, not a spike
+        restart = report.opacity_reset or it == cfg.loss.regularization_from_iter
+        return IterationScalars(it, cam.name, len(g), restart, self.elapsed, {}), terms
+
+    def _drain(self) -> dict:
+        """Read the queued iterations' terms back (one copy), stop on a non-finite loss, feed the spike monitor
+        and the history; returns the newest iteration's values (empty when nothing was queued)."""
+        last = {}
+        for rec in self._pending.flush():
+            total = rec.values["total"]
+            if not math.isfinite(total):
+                raise TrainingError(
+                    f"the loss became {total} at iteration {rec.iteration} (view {rec.view!r}); training stopped. "
+                    f"The last good checkpoint in {self.out_dir / 'checkpoints'} is kept: lower the learning rates "
+                    "or check the input images, then resume with --resume")
+            if rec.restart_monitor:
+                self.spikes.restart()
+            terms = {k: v for k, v in rec.values.items() if k != "psnr"}
+            self.spikes.update(rec.iteration, total, rec.view, terms)
+            last = {**rec.values, "num_gaussians": rec.num_gaussians}
+            if rec.iteration % self.config.log_every == 0 or rec.iteration == self.config.iterations:
+                self.history.append({"iteration": rec.iteration, "elapsed_s": round(rec.elapsed_s, 3),
+                                     **{k: round(v, 6) for k, v in last.items()}})
+        return last
 
     # ------------------------------------------------------------------ the run
     def run(self, progress: Callable[[int, dict], None] | None = None,
@@ -299,7 +298,7 @@ class Trainer:
         """
         cfg = self.config
         self._write_static_files()
-        with _deferred_interrupt() as interrupted:
+        with deferred_interrupt() as interrupted:
             last = self._train_loop(progress, interrupted, on_snapshot)
         train_time = self.elapsed
         self.save_checkpoint()
@@ -328,23 +327,28 @@ class Trainer:
         last = {}
         snapshot_at = set(cfg.snapshot_iterations)
         while self.iteration < cfg.iterations:
-            last = self.step()
+            record, terms = self._step()
             it = self.iteration
-            self.elapsed = time.perf_counter() - t0
-            if it % cfg.log_every == 0 or it == cfg.iterations:
-                entry = {"iteration": it, "elapsed_s": round(self.elapsed, 3), **{k: round(v, 6) for k, v in last.items()}}
-                self.history.append(entry)
+            self.elapsed = record.elapsed_s = time.perf_counter() - t0
+            self._pending.add(record, terms)
+            checkpoint_due = cfg.checkpoint_every > 0 and it % cfg.checkpoint_every == 0 and it < cfg.iterations
+            if (len(self._pending) >= SCALARS_FLUSH_EVERY or it % cfg.log_every == 0 or it == cfg.iterations
+                    or it in snapshot_at or checkpoint_due):
+                last = self._drain()  # waits for the GPU: the time now includes the queued work
+                self.elapsed = time.perf_counter() - t0
             if progress is not None:
-                progress(it, {**last, "its_per_s": it / self.elapsed if self.elapsed > 0 else math.nan})
+                progress(it, {**last, "num_gaussians": len(self.gaussians),
+                              "its_per_s": it / self.elapsed if self.elapsed > 0 else math.nan})
             if it in snapshot_at:  # before the checkpoint of the same iteration, which then records it
                 t_snap = time.perf_counter()
                 record = self.write_snapshot()
                 if on_snapshot is not None:
                     on_snapshot(self, record)
                 t0 += time.perf_counter() - t_snap  # not training time
-            if cfg.checkpoint_every > 0 and it % cfg.checkpoint_every == 0 and it < cfg.iterations:
+            if checkpoint_due:
                 self.save_checkpoint()
             if interrupted():
+                self._drain()
                 raise self._interrupted()
         return last
 

@@ -1,0 +1,168 @@
+"""Per-iteration profile of the trainer: where one training step's time goes, on the GPU and on the host.
+
+    python benchmarks/train/profile_train.py SCENE --config dtu [--ply MODEL.ply] --start 20000 \
+        [--iterations 300] [--trace 30] [--out DIR] [override ...]
+
+The trainer is built as ``python -m gof_warp.train`` builds it (preset + overrides), then optionally given a
+trained model (``--ply``, e.g. the DTU scan 24 model unpacked by ``benchmarks/extract/pack_model.py``; higher SH
+bands are zero if the PLY has none) and moved to iteration ``--start`` — ≥ ``densify.stop_iter`` for the
+regularised phase (distortion + normal terms, no densification statistics), below it for the densification
+phase — so that a step is timed on the model size and in the phase of a real run without training to it.
+
+Measured:
+
+* ``wall_ms_per_it``: wall time of ``--iterations`` iterations of the trainer's own loop
+  (``Trainer._train_loop``: the same reads-back, history and progress path as a run), after 20 warm-up
+  iterations, synchronised at both ends.
+* with ``torch.profiler`` over ``--trace`` further iterations (CPU + CUDA activities): for each part of the
+  step that the trainer names (``train.render``, ``train.loss``, ``train.backward``, ``train.densify``,
+  ``train.optimizer``; :func:`torch.profiler.record_function`, absent in code before the change) the host time
+  and the device time of the kernels it launched; the device's busy time per iteration (sum of kernel
+  times) against the wall time (the rest is the GPU waiting for the host); the 25 costliest kernels.
+
+Writes ``DIR/profile.json`` and ``DIR/trace.json.gz`` (chrome://tracing / Perfetto).
+"""
+
+from __future__ import annotations
+
+import argparse
+import gzip
+import json
+import platform
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+STAGES = ("train.render", "train.loss", "train.backward", "train.densify", "train.optimizer")
+
+
+def _sync(device):
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def _with_model(trainer, ply: Path) -> None:
+    """Give ``trainer`` the Gaussians of ``ply`` (SH padded with zeros to the preset's degree), fresh Adam state."""
+    from gof_warp.model import Gaussians, num_sh_coeffs
+    from gof_warp.optim import make_optimizer
+
+    g = Gaussians.load_ply(ply, device=trainer.device)
+    want = num_sh_coeffs(trainer.config.model.sh_degree) - 1
+    rest = g.params["sh_rest"]
+    if rest.shape[1] < want:
+        pad = torch.zeros(rest.shape[0], want - rest.shape[1], 3, device=rest.device)
+        g.params["sh_rest"] = torch.cat([rest, pad], 1)
+    g.max_sh_degree = trainer.config.model.sh_degree
+    trainer.gaussians = g
+    trainer.optimizer = make_optimizer(g, trainer.config.optim, trainer.scene.extent)
+    trainer.densifier.reset_stats()
+
+
+def _run_loop(trainer, n: int) -> float:
+    """``n`` iterations of the trainer's loop; wall seconds, synchronised."""
+    trainer.config.iterations = trainer.iteration + n
+    trainer.config.checkpoint_every = 0
+    trainer.config.snapshot_iterations = []
+    _sync(trainer.device)
+    t0 = time.perf_counter()
+    trainer._train_loop(None, lambda: False)
+    _sync(trainer.device)
+    return time.perf_counter() - t0
+
+
+def _device_time(evt) -> float:
+    """Device (CUDA) time of a key-averaged event in µs, across torch versions."""
+    for name in ("device_time_total", "cuda_time_total"):
+        if hasattr(evt, name):
+            return float(getattr(evt, name))
+    return 0.0
+
+
+def _self_device_time(evt) -> float:
+    for name in ("self_device_time_total", "self_cuda_time_total"):
+        if hasattr(evt, name):
+            return float(getattr(evt, name))
+    return 0.0
+
+
+def profile(trainer, n_trace: int, out_dir: Path) -> dict:
+    from torch.profiler import ProfilerActivity, profile as torch_profile
+
+    acts = [ProfilerActivity.CPU] + ([ProfilerActivity.CUDA] if trainer.device.type == "cuda" else [])
+    with torch_profile(activities=acts) as prof:
+        wall = _run_loop(trainer, n_trace)
+    trace = out_dir / "trace.json"
+    prof.export_chrome_trace(str(trace))
+    with open(trace, "rb") as src, gzip.open(str(trace) + ".gz", "wb") as dst:
+        shutil.copyfileobj(src, dst)
+    trace.unlink()
+    events = prof.key_averages()
+    stages = {}
+    for e in events:
+        if e.key in STAGES:
+            stages[e.key] = {"host_ms_per_it": round(e.cpu_time_total / 1e3 / n_trace, 3),
+                             "device_ms_per_it": round(_device_time(e) / 1e3 / n_trace, 3), "calls": e.count}
+    kernels = sorted((e for e in events if _self_device_time(e) > 0), key=_self_device_time, reverse=True)
+    busy = sum(_self_device_time(e) for e in kernels) / 1e3 / n_trace
+    return {
+        "traced_iterations": n_trace,
+        "wall_ms_per_it_traced": round(wall * 1e3 / n_trace, 3),
+        "device_busy_ms_per_it": round(busy, 3),
+        "stages": stages,
+        "top_kernels": [{"name": e.key[:120], "ms_per_it": round(_self_device_time(e) / 1e3 / n_trace, 3),
+                         "calls_per_it": round(e.count / n_trace, 2)} for e in kernels[:25]],
+        "kernel_launches_per_it": round(sum(e.count for e in kernels) / n_trace, 1),
+    }
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("scene")
+    ap.add_argument("--config", default="dtu")
+    ap.add_argument("--ply", type=Path, default=None, help="start from this model (e.g. a trained run's point_cloud.ply)")
+    ap.add_argument("--start", type=int, default=20000, help="iteration to profile at")
+    ap.add_argument("--iterations", type=int, default=300)
+    ap.add_argument("--trace", type=int, default=30)
+    ap.add_argument("--device", default="auto")
+    ap.add_argument("--out", type=Path, default=Path("profile_out"))
+    ap.add_argument("--label", default="", help="free text stored in the JSON (e.g. the commit)")
+    ap.add_argument("overrides", nargs="*", help="section.key=value, as for gof_warp.train")
+    a = ap.parse_intermixed_args(argv)
+
+    from gof_warp.data import load_scene
+    from gof_warp.devices import resolve_device
+    from gof_warp.preset_choice import resolve_config
+    from gof_warp.trainer import Trainer
+
+    a.out.mkdir(parents=True, exist_ok=True)
+    cfg = resolve_config(a.config, a.overrides, None)
+    device = resolve_device(a.device)
+    scene = load_scene(a.scene, cfg.data)
+    trainer = Trainer(scene, cfg, a.out / "run", device)
+    if a.ply is not None:
+        _with_model(trainer, a.ply)
+    trainer.iteration = a.start
+    trainer.densifier.update_sh_degree(a.start + 1, trainer.gaussians)
+    _run_loop(trainer, 20)  # warm-up: Warp module loads, allocator pools, Adam state
+    n0 = len(trainer.gaussians)
+    wall = _run_loop(trainer, a.iterations)
+    result = {
+        "label": a.label, "scene": str(a.scene), "config": a.config, "overrides": a.overrides,
+        "start_iteration": a.start, "phase": "regularised" if a.start >= cfg.densify.stop_iter else "densifying",
+        "num_gaussians": [n0, len(trainer.gaussians)], "image": [trainer.cameras[0].width, trainer.cameras[0].height],
+        "device": torch.cuda.get_device_name(trainer.device) if trainer.device.type == "cuda" else platform.processor(),
+        "torch": torch.__version__, "iterations": a.iterations, "wall_ms_per_it": round(wall * 1e3 / a.iterations, 3),
+    }
+    result.update(profile(trainer, a.trace, a.out))
+    (a.out / "profile.json").write_text(json.dumps(result, indent=1))
+    print(json.dumps({k: v for k, v in result.items() if k != "top_kernels"}, indent=1))
+    for k in result["top_kernels"][:12]:
+        print(f"{k['ms_per_it']:8.3f} ms  x{k['calls_per_it']:<6} {k['name']}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
