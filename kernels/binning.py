@@ -2,12 +2,14 @@
 
 A Gaussian is binned into the tiles of its bounding rectangle (``screen_bounds``) that its projected
 ellipse meets (exact and conservative: :mod:`.tile_overlap`), row by row from the first to the last such
-tile. Variable-size output in two passes (``docs/rendering.md``): :func:`count_tile_keys` counts the tiles
+tile; an ellipsoid crossing the near plane (whole-image rectangle, ``exact = 2``) into the tiles that its
+general conic meets, found per 8 × 8 block of tiles as a bit mask (:func:`conic_block_mask`). Variable-size output in two passes (``docs/rendering.md``): :func:`count_tile_keys` counts the tiles
 of each Gaussian, an inclusive ``array_scan`` gives offsets, :func:`write_tile_keys` runs the same per-row
 test and writes the keys ``tile_id << 32 | float_bits(μ_v.z)`` (view depth > near > 0, so its IEEE bits
 sort like the float) and the Gaussian index as value. Both passes call :func:`row_tile_span`, compiled in
 this module without floating-point contraction (``fuse_fp``: no FMA), so the float64 test takes the same
-decisions bit for bit in both kernels and the counts size the lists exactly. ``radix_sort_pairs`` is stable and the keys are written in index order, so
+decisions bit for bit in both kernels and the counts size the lists exactly (likewise
+:func:`conic_block_mask`). ``radix_sort_pairs`` is stable and the keys are written in index order, so
 equal depths stay in ascending index order (the spec's tie rule). :func:`tile_ranges` finds where each
 tile's run starts and ends by comparing neighbouring keys.
 """
@@ -17,7 +19,7 @@ from __future__ import annotations
 import warp as wp
 
 from .render_types import CameraParams, RasterSettings
-from .tile_overlap import TileEllipse, row_tile_span
+from .tile_overlap import CONIC_BLOCK, TileEllipse, conic_block_mask, row_tile_span
 
 # no FMA contraction: the count and write kernels must evaluate the float64 tile test identically
 wp.set_module_options({"fuse_fp": False, "enable_backward": False})
@@ -32,14 +34,23 @@ def count_tile_keys(
     tiles_touched: wp.array(dtype=wp.int32),
 ):
     """Inputs ``rect, ellipse [N]`` from ``screen_bounds``; output ``tiles_touched [N]``: the number of tiles
-    of ``rect`` that the Gaussian is binned into (per row, the span of :func:`row_tile_span`)."""
+    of ``rect`` that the Gaussian is binned into (per row, the span of :func:`row_tile_span`; for
+    ``exact = 2`` the set bits of :func:`conic_block_mask` over the 8 × 8 blocks of ``rect``)."""
     k = wp.tid()
     r = rect[k]
     e = ellipse[k]
     n = int(0)
-    for ty in range(r[1], r[3]):
-        span = row_tile_span(e, ty, r[0], r[2], cam, settings)
-        n += span[1] - span[0]
+    if e.exact == 2:
+        for by in range(r[1], r[3], CONIC_BLOCK):
+            for bx in range(r[0], r[2], CONIC_BLOCK):
+                m = conic_block_mask(e, bx, by, r[2], r[3], cam, settings)
+                while m != wp.uint64(0):
+                    m = m & (m - wp.uint64(1))
+                    n += 1
+    else:
+        for ty in range(r[1], r[3]):
+            span = row_tile_span(e, ty, r[0], r[2], cam, settings)
+            n += span[1] - span[0]
     tiles_touched[k] = n
 
 
@@ -63,13 +74,26 @@ def write_tile_keys(
     end = offsets[k]
     idx = end - tiles_touched[k]
     d = wp.int64(depth_bits[k])
-    for ty in range(r[1], r[3]):
-        span = row_tile_span(e, ty, r[0], r[2], cam, settings)
-        for tx in range(span[0], span[1]):
-            if idx < end:
-                keys[idx] = (wp.int64(ty * settings.tiles_x + tx) << wp.int64(32)) | d
-                values[idx] = k
-                idx += 1
+    if e.exact == 2:
+        for by in range(r[1], r[3], CONIC_BLOCK):
+            for bx in range(r[0], r[2], CONIC_BLOCK):
+                m = conic_block_mask(e, bx, by, r[2], r[3], cam, settings)
+                if m != wp.uint64(0):
+                    for bit in range(CONIC_BLOCK * CONIC_BLOCK):
+                        if ((m >> wp.uint64(bit)) & wp.uint64(1)) != wp.uint64(0) and idx < end:
+                            tx = bx + bit % CONIC_BLOCK
+                            ty = by + bit / CONIC_BLOCK
+                            keys[idx] = (wp.int64(ty * settings.tiles_x + tx) << wp.int64(32)) | d
+                            values[idx] = k
+                            idx += 1
+    else:
+        for ty in range(r[1], r[3]):
+            span = row_tile_span(e, ty, r[0], r[2], cam, settings)
+            for tx in range(span[0], span[1]):
+                if idx < end:
+                    keys[idx] = (wp.int64(ty * settings.tiles_x + tx) << wp.int64(32)) | d
+                    values[idx] = k
+                    idx += 1
 
 
 @wp.kernel

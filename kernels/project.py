@@ -8,7 +8,8 @@ Two kernels, one per Gaussian:
 * :func:`screen_bounds` (not differentiable) — culling, the exact bounding box of the projected
   binning ellipsoid ``{x : ‖S⁻¹R_vᵀ(x − μ_v)‖ ≤ k}``, its tile rectangle, radius and sort depth, and the
   conic of its exact silhouette (:mod:`.tile_overlap`) with which the binning keeps only the tiles of the
-  rectangle that the ellipse meets.
+  rectangle that the ellipse meets (for an ellipsoid crossing the near plane: the general conic of the
+  lines through the camera that meet it).
 
 Bounding box (``docs/rendering.md``): image column ``u = fx x/z + cx`` is constant on planes through the
 camera with normal ``n = (fx, 0, cx − u)``. Such a plane touches the ellipsoid (centre ``μ``, covariance
@@ -87,8 +88,10 @@ def screen_bounds(
     """Outputs per Gaussian (``[N]`` each): tile rectangle ``(x0, y0, x1, y1)`` (half-open) of the bounding
     box, its tile count (an upper bound of the binned tiles: ``bin_gaussians`` recounts with ``ellipse``),
     the screen radius in pixels (0 = not visible), the sort depth ``μ_v.z`` and the silhouette conic of
-    the tile test (``exact = 0``: all tiles of ``rect``, as when the ellipsoid crosses the near plane or
-    ``settings.tile_cull == 0``)."""
+    the tile test (``exact = 0``: all tiles of ``rect``, as when ``settings.tile_cull == 0`` or the camera
+    centre is inside the ellipsoid). An ellipsoid crossing the near plane keeps the whole image as its
+    box and its radius (``max(W, H)``), but the binning keeps only the tiles that lines through the
+    camera and the ellipsoid reach (``exact = 2``, :mod:`.tile_overlap`)."""
     k = wp.tid()
     mv = mu_v[k]
     depth[k] = mv[2]
@@ -119,7 +122,10 @@ def screen_bounds(
     y0 = 0
     y1 = H - 1
     radius = wp.max(W, H)
-    if mz - k64 * wp.sqrt(Sigma[2, 2]) > wp.float64(settings.near):
+    in_front = mz - k64 * wp.sqrt(Sigma[2, 2]) > wp.float64(settings.near)
+    x_inside = False  # the silhouette's box lies within the image columns (rows): not clamped
+    y_inside = False
+    if in_front:
         bu = _axis_bounds(mx, mz, Sigma[0, 0], Sigma[0, 2], Sigma[2, 2], k2, wp.float64(cam.fx), wp.float64(cam.cx))
         bv = _axis_bounds(my, mz, Sigma[1, 1], Sigma[1, 2], Sigma[2, 2], k2, wp.float64(cam.fy), wp.float64(cam.cy))
         half = wp.float64(0.5)
@@ -127,14 +133,18 @@ def screen_bounds(
         # pixel i is covered when its centre i + 0.5 lies in [lo − pad, hi + pad] (pad 0.5: any point of
         # the pixel, for rays through arbitrary points); clamp before converting to int
         lim = wp.float64(1.0e9)
-        x0 = wp.max(x0, int(wp.ceil(wp.clamp(bu[0] - half - pad, -lim, lim))))
-        x1 = wp.min(x1, int(wp.floor(wp.clamp(bu[1] - half + pad, -lim, lim))))
-        y0 = wp.max(y0, int(wp.ceil(wp.clamp(bv[0] - half - pad, -lim, lim))))
-        y1 = wp.min(y1, int(wp.floor(wp.clamp(bv[1] - half + pad, -lim, lim))))
+        ux0 = int(wp.ceil(wp.clamp(bu[0] - half - pad, -lim, lim)))
+        ux1 = int(wp.floor(wp.clamp(bu[1] - half + pad, -lim, lim)))
+        vy0 = int(wp.ceil(wp.clamp(bv[0] - half - pad, -lim, lim)))
+        vy1 = int(wp.floor(wp.clamp(bv[1] - half + pad, -lim, lim)))
+        x_inside = ux0 >= x0 and ux1 <= x1
+        y_inside = vy0 >= y0 and vy1 <= y1
+        x0 = wp.max(x0, ux0)
+        x1 = wp.min(x1, ux1)
+        y0 = wp.max(y0, vy0)
+        y1 = wp.min(y1, vy1)
         ext = wp.max(bu[1] - bu[0], bv[1] - bv[0]) * half
         radius = int(wp.ceil(wp.min(ext, lim)))
-        if settings.tile_cull != 0:
-            ellipse[k] = tile_ellipse(wp.vec3d(mx, my, mz), R_v, s, Sigma, k2)
     if x0 > x1 or y0 > y1:
         return
     ts = settings.tile_size
@@ -142,3 +152,10 @@ def screen_bounds(
     rect[k] = r
     tiles_touched[k] = (r[2] - r[0]) * (r[3] - r[1])
     radii[k] = wp.max(radius, 1)
+    # An elliptic silhouette whose whole box lies in one tile row (or column) meets every tile of that row
+    # between its leftmost and rightmost points: the float64 conic (the costliest part of this kernel) is
+    # built only where culling can remove a tile.
+    one_row = r[3] - r[1] == 1 and y_inside
+    one_column = r[2] - r[0] == 1 and x_inside
+    if settings.tile_cull != 0 and not (one_row or one_column):
+        ellipse[k] = tile_ellipse(wp.vec3d(mx, my, mz), R_v, s, Sigma, k2, in_front)

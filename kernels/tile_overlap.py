@@ -4,7 +4,8 @@ A Gaussian affects a pixel only if the pixel's ray passes within Mahalanobis dis
 i.e. meets the ellipsoid ``{x : (x − μ)ᵀΣ⁻¹(x − μ) ≤ k²}`` (``kernels/project.py``). The ray ``t d``,
 ``d = (a, b, 1)`` with normalised image coordinates ``a = (u − cx)/fx``, ``b = (v − cy)/fy``, passes at
 squared Mahalanobis distance ``min_t ‖P(t d − μ)‖² = ‖Pμ × Pd‖² / ‖Pd‖²`` (``P = S⁻¹R_vᵀ``), and
-``Pμ × Pd = cof(P)(μ × d)`` gives ``(μ × d)ᵀ Σ (μ × d) / (dᵀ adj(Σ) d)``. So the ray meets the ellipsoid iff
+``Pμ × Pd = cof(P)(μ × d)`` gives ``(μ × d)ᵀ Σ (μ × d) / (dᵀ adj(Σ) d)`` (minimum over all real ``t``: the
+whole line). So the line meets the ellipsoid (for an ellipsoid in front of the near plane: the ray) iff
 
     q(d) = dᵀ Q d ≤ 0,   Q = [μ]ₓᵀ Σ [μ]ₓ − k² adj(Σ),   adj(Σ) = R_v diag(s₁²s₂², s₀²s₂², s₀²s₁²) R_vᵀ,
 
@@ -20,6 +21,32 @@ Rounding: evaluating ``q`` in float64 errs by far less than ``τ (|μ|² tr Σ +
 ``τ = 1e-10`` (≈10⁶ ulps of the terms' magnitudes), so that amount is subtracted from ``Q``'s diagonal
 (the test keeps every tile within a few millipixels of the ellipse). The tile is the pixel-centre
 rectangle of its in-image pixels grown by ``pixel_pad`` on each side (as the box of ``screen_bounds``).
+
+Ellipsoids crossing the near plane (``exact = 2``; their box is the whole image). ``q(d) ≤ 0`` says that
+the whole LINE through the camera centre along ``d`` meets the ellipsoid; that is necessary for the pixel
+ray (the half-line ``t d``, ``t > near``) to meet it, whatever the near plane cuts away: the per-pixel
+rule (``d² ≤ k²``, ``t* > near``, ``α ≥ alpha_min``) only removes pixels from ``{q ≤ 0}``. So a tile with
+``q > 0`` at every point of its padded rectangle holds no pixel the Gaussian can affect, and dropping it
+removes from that tile's list only entries that the per-pixel loop skips without touching any state
+(no blending, no transmittance change, and no early stop either: only a Gaussian that passes the
+per-pixel test can trigger it): every pixel sees the same passing Gaussians in the same order (the list
+keeps its depth order), so every output and gradient is bitwise unchanged. Here
+``{q ≤ 0}`` may be any conic region (a filled ellipse, a parabola's inside, one or two hyperbola pieces:
+not convex in general), so no row-span shortcut; the test is the exact minimum of the 2-D quadratic
+``q(a, b)`` over the rectangle, whose candidates are the 4 corners, on each edge the vertex of the 1-D
+restriction when it is convex there (clamped to the edge: the edge minimum), and the interior critical
+point when the 2×2 part is positive definite (clamped into the rectangle: any point of the rectangle is a
+valid witness, and an interior minimiser is exactly reached). Every candidate is a point of the
+rectangle, so the test never keeps a tile for a point outside it, and the minimum is among them, so it
+never drops a tile that has a point with ``q ≤ 0`` (up to rounding, covered by the allowance above, which
+is subtracted from ``Q`` in both cases). When the camera centre is inside the ellipsoid (``μᵀΣ⁻¹μ ≤ k²``,
+evaluated as ``Σᵢ (R_vᵀμ)ᵢ² Πⱼ≠ᵢ sⱼ² ≤ k² Πⱼ sⱼ²``, no ``Σ⁻¹``) every line through the camera meets it,
+``q ≤ 0`` everywhere, and ``exact = 0`` keeps the whole rectangle without testing (this is only a
+shortcut: the general test would keep every tile too). To keep the cost of a whole-image rectangle low
+the tiles are visited in 8 × 8 blocks: a block (its tiles' rectangle hull, gaps between tiles included)
+that fails the test is skipped, else each 8-tile row segment, then each tile; skipping is conservative
+because the hull contains every tile's rectangle, and the decision of each tile is a fixed function of
+the Gaussian, so the count and write passes agree.
 """
 
 from __future__ import annotations
@@ -40,28 +67,41 @@ class TileEllipse:
 
     conic: vec6d  # (q00, q01, q02, q11, q12, q22) of Q (tolerance included); inside iff dᵀQd ≤ 0
     centre: wp.vec2d  # the projected mean in normalised coordinates (a point inside the ellipse)
-    exact: int  # 1: test each tile; 0: every tile of the bounding rectangle (near plane crossed, degenerate)
+    exact: int  # 1: filled ellipse, row spans; 2: any conic, block/tile minimum test; 0: every tile of the rectangle
 
 
 @wp.func
-def tile_ellipse(mu: wp.vec3d, R_v: wp.mat33d, s: wp.vec3d, Sigma: wp.mat33d, k2: wp.float64) -> TileEllipse:
-    """The tile test's conic for the ellipsoid ``(μ, Σ = R_v diag(s²) R_vᵀ, k² = k2)``, which must lie in front
-    of the near plane. ``exact = 0`` if the conic is not a proper ellipse (degenerate input)."""
+def tile_ellipse(mu: wp.vec3d, R_v: wp.mat33d, s: wp.vec3d, Sigma: wp.mat33d, k2: wp.float64, in_front: bool) -> TileEllipse:
+    """The tile test's conic for the ellipsoid ``(μ, Σ = R_v diag(s²) R_vᵀ, k² = k2)``. ``in_front``: the
+    ellipsoid lies beyond the near plane (``exact = 1`` if the conic is a proper ellipse, else the general
+    test ``exact = 2``); otherwise ``exact = 0`` if the camera centre is inside the ellipsoid, else 2.
+    ``exact = 0`` too for non-finite input."""
     e = TileEllipse()
     e.exact = 0
     e.centre = wp.vec2d(mu[0] / mu[2], mu[1] / mu[2])
     zero = wp.float64(0.0)
     mx = wp.mat33d(zero, -mu[2], mu[1], mu[2], zero, -mu[0], -mu[1], mu[0], zero)  # [μ]ₓ d = μ × d
     s2 = wp.cw_mul(s, s)
-    G = R_v * wp.diag(wp.vec3d(s2[1] * s2[2], s2[0] * s2[2], s2[0] * s2[1])) * wp.transpose(R_v)
+    g = wp.vec3d(s2[1] * s2[2], s2[0] * s2[2], s2[0] * s2[1])
+    G = R_v * wp.diag(g) * wp.transpose(R_v)
     Q = wp.transpose(mx) * Sigma * mx - k2 * G
     tol = wp.float64(CONIC_TOL) * (wp.dot(mu, mu) * (Sigma[0, 0] + Sigma[1, 1] + Sigma[2, 2]) + k2 * (G[0, 0] + G[1, 1] + G[2, 2]))
     q00 = Q[0, 0] - tol
     q11 = Q[1, 1] - tol
     q01 = wp.float64(0.5) * (Q[0, 1] + Q[1, 0])
     e.conic = vec6d(q00, q01, wp.float64(0.5) * (Q[0, 2] + Q[2, 0]), q11, wp.float64(0.5) * (Q[1, 2] + Q[2, 1]), Q[2, 2] - tol)
-    if q00 > zero and q11 > zero and q00 * q11 - q01 * q01 > zero:
-        e.exact = 1
+    total = e.conic[0] + e.conic[1] + e.conic[2] + e.conic[3] + e.conic[4] + e.conic[5]
+    if not (total - total == zero):  # inf or nan somewhere: keep the rectangle
+        return e
+    if in_front:
+        if q00 > zero and q11 > zero and q00 * q11 - q01 * q01 > zero:
+            e.exact = 1
+        else:
+            e.exact = 2
+        return e
+    w = wp.transpose(R_v) * mu  # μ in the Gaussian's frame: μᵀ adj(Σ) μ = Σᵢ wᵢ² gᵢ, det Σ = s₀²s₁²s₂²
+    if w[0] * w[0] * g[0] + w[1] * w[1] * g[1] + w[2] * w[2] * g[2] > k2 * s2[0] * g[0]:
+        e.exact = 2  # camera outside: test the tiles
     return e
 
 
@@ -110,8 +150,8 @@ def tile_meets_ellipse(e: TileEllipse, tx: int, ty: int, cam: CameraParams, sett
 def row_tile_span(e: TileEllipse, ty: int, x0: int, x1: int, cam: CameraParams, settings: RasterSettings) -> wp.vec2i:
     """Half-open column range ``[lo, hi)`` of the tiles of row ``ty`` within ``[x0, x1)`` that are binned:
     from the first to the last tile that meets the ellipse (the tiles of a row that meet a convex set are
-    contiguous), all of ``[x0, x1)`` when ``e.exact == 0``, empty (``lo == hi``) when none meets it."""
-    if e.exact == 0:
+    contiguous), all of ``[x0, x1)`` unless ``e.exact == 1``, empty (``lo == hi``) when none meets it."""
+    if e.exact != 1:
         return wp.vec2i(x0, x1)
     lo = x0
     while lo < x1 and not tile_meets_ellipse(e, lo, ty, cam, settings):
@@ -122,3 +162,66 @@ def row_tile_span(e: TileEllipse, ty: int, x0: int, x1: int, cam: CameraParams, 
     while hi > lo and not tile_meets_ellipse(e, hi, ty, cam, settings):
         hi -= 1
     return wp.vec2i(lo, hi + 1)
+
+
+@wp.func
+def rect_meets_conic(c: vec6d, a0: wp.float64, a1: wp.float64, b0: wp.float64, b1: wp.float64) -> bool:
+    """Whether ``min q ≤ 0`` over the rectangle ``[a0, a1] × [b0, b1]`` for any conic ``c`` (exact minimum of
+    a 2-D quadratic over a rectangle: corners, convex edge vertices, positive definite interior minimum)."""
+    zero = wp.float64(0.0)
+    if conic_at(c, a0, b0) <= zero or conic_at(c, a1, b0) <= zero or conic_at(c, a0, b1) <= zero or conic_at(c, a1, b1) <= zero:
+        return True
+    if c[3] > zero:  # vertical edges a = a0, a1: convex in b, smallest at b = −(q01 a + q12)/q11
+        if conic_at(c, a0, wp.clamp(-(c[1] * a0 + c[4]) / c[3], b0, b1)) <= zero:
+            return True
+        if conic_at(c, a1, wp.clamp(-(c[1] * a1 + c[4]) / c[3], b0, b1)) <= zero:
+            return True
+    if c[0] > zero:  # horizontal edges b = b0, b1: convex in a, smallest at a = −(q01 b + q02)/q00
+        if conic_at(c, wp.clamp(-(c[1] * b0 + c[2]) / c[0], a0, a1), b0) <= zero:
+            return True
+        if conic_at(c, wp.clamp(-(c[1] * b1 + c[2]) / c[0], a0, a1), b1) <= zero:
+            return True
+    det = c[0] * c[3] - c[1] * c[1]
+    if c[0] > zero and c[3] > zero and det > zero:  # interior minimum of q (a point of the rectangle once clamped)
+        a = wp.clamp((c[1] * c[4] - c[3] * c[2]) / det, a0, a1)
+        b = wp.clamp((c[1] * c[2] - c[0] * c[4]) / det, b0, b1)
+        return conic_at(c, a, b) <= zero
+    return False
+
+
+@wp.func
+def tiles_meet_conic(e: TileEllipse, tx0: int, tx1: int, ty0: int, ty1: int, cam: CameraParams, settings: RasterSettings) -> bool:
+    """Whether the hull of tiles ``[tx0, tx1) × [ty0, ty1)`` (from the first tile's padded pixel-centre
+    rectangle to the last's; for one tile the rectangle of :func:`tile_meets_ellipse`) meets ``{q ≤ 0}``."""
+    ts = settings.tile_size
+    half_pad = wp.float64(0.5) - wp.float64(wp.max(settings.pixel_pad, 0.0))
+    u0 = wp.float64(tx0 * ts) + half_pad
+    u1 = wp.float64(wp.min(tx1 * ts, cam.width)) - half_pad
+    v0 = wp.float64(ty0 * ts) + half_pad
+    v1 = wp.float64(wp.min(ty1 * ts, cam.height)) - half_pad
+    fx = wp.float64(cam.fx)
+    fy = wp.float64(cam.fy)
+    cx = wp.float64(cam.cx)
+    cy = wp.float64(cam.cy)
+    return rect_meets_conic(e.conic, (u0 - cx) / fx, (u1 - cx) / fx, (v0 - cy) / fy, (v1 - cy) / fy)
+
+
+CONIC_BLOCK = wp.constant(8)  # tiles per side of the blocks of the general test (8 × 8 = 64 mask bits)
+
+
+@wp.func
+def conic_block_mask(e: TileEllipse, bx: int, by: int, x1: int, y1: int, cam: CameraParams, settings: RasterSettings) -> wp.uint64:
+    """``exact = 2``: the tiles of the block ``[bx, min(bx + 8, x1)) × [by, min(by + 8, y1))`` that meet the
+    conic, bit ``8 (ty − by) + (tx − bx)``. The block hull, then each row segment, then each tile is tested
+    (a hull that misses the conic contains no tile that meets it)."""
+    ex = wp.min(bx + CONIC_BLOCK, x1)
+    ey = wp.min(by + CONIC_BLOCK, y1)
+    mask = wp.uint64(0)
+    if not tiles_meet_conic(e, bx, ex, by, ey, cam, settings):
+        return mask
+    for ty in range(by, ey):
+        if ey - by == 1 or tiles_meet_conic(e, bx, ex, ty, ty + 1, cam, settings):
+            for tx in range(bx, ex):
+                if ex - bx == 1 or tiles_meet_conic(e, tx, tx + 1, ty, ty + 1, cam, settings):
+                    mask = mask | (wp.uint64(1) << wp.uint64(CONIC_BLOCK * (ty - by) + tx - bx))
+    return mask

@@ -5,7 +5,10 @@ in that pixel's tile list; the lists are sorted by depth (ties by index).
 
 The tile–ellipse test (``kernels/tile_overlap.py``): against a float64 brute force sampling each padded
 tile densely with the ray–ellipsoid condition, it never drops a touched tile and drops nearly all others;
-renders and gradients with and without it are bitwise equal; on the benchmark scene it cuts entries."""
+likewise for Gaussians crossing the near plane (general conics: hyperbolic, near-parabolic, elliptic;
+camera just outside the ellipsoid; camera inside: whole image kept); renders and gradients with and
+without it are bitwise equal (also with many near-plane-crossing Gaussians, and on the benchmark scene);
+on the benchmark scene it cuts entries by about half or more."""
 
 from __future__ import annotations
 
@@ -78,7 +81,7 @@ def _run_binning(cam, means, quats, scales, opac, use_ellipse=True, **cfg):
     values, start, end, count = bin_gaussians(rect, touched, depth, settings.tiles_x, settings.tiles_x * settings.tiles_y, *extra)
     lists = [values.numpy()[s:e] for s, e in zip(start.numpy(), end.numpy())]
     return dict(rect=rect.numpy(), radii=radii.numpy(), depth=depth.numpy(), lists=lists, count=count, settings=settings,
-                touched=touched.numpy())
+                touched=touched.numpy(), exact=ellipse.numpy()["exact"])
 
 
 def _binning_k(opac, alpha_min, k_max):
@@ -222,28 +225,29 @@ def _cull_scene(cam, n, seed):
 def _brute_force_tiles(cam, means, quats, scales, k, rect, ts, pad, samples=24):
     """``{(g, tile)}`` for the tiles of ``rect[g]`` with a sample point (a ``samples²`` grid over the tile's
     pixel-centre rectangle grown by ``pad``, edges included) whose ray meets ``{x : ‖P(x − μ)‖ ≤ k}``,
-    ``P = S⁻¹R_vᵀ``: the squared distance of the ray ``t d`` from the mean is ``‖Pμ × Pd‖² / ‖Pd‖²``.
-    R_v is formed in float32 as the kernel does (the flat Gaussians' outlines move with its rounding)."""
+    ``P = S⁻¹R_vᵀ``: the squared distance of the line ``t d`` from the mean is ``‖Pμ × Pd‖² / ‖Pd‖²`` (for
+    an ellipsoid crossing the near plane, the line condition: the ray's is stricter). R_v is formed in
+    float32 as the kernel does (the flat Gaussians' outlines move with its rounding)."""
     mu = (means @ cam.R.T + cam.t).astype(np.float32).astype(np.float64)
     Rv = (cam.R.astype(np.float32) @ _rotations(quats.astype(np.float32))).astype(np.float64)
+    tiles_x = (cam.width + ts - 1) // ts
     grid = np.linspace(0.0, 1.0, samples)
     touched = set()
     for g in range(len(means)):
         x0, y0, x1, y1 = rect[g]
         if x1 <= x0:
             continue
+        tx, ty = np.arange(x0, x1), np.arange(y0, y1)
+        u = tx[:, None] * ts + 0.5 - pad + grid * (np.minimum(tx * ts + ts, cam.width) - tx * ts - 1 + 2 * pad)[:, None]
+        v = ty[:, None] * ts + 0.5 - pad + grid * (np.minimum(ty * ts + ts, cam.height) - ty * ts - 1 + 2 * pad)[:, None]
+        uu = np.broadcast_to(u[None, None], (len(ty), samples, len(tx), samples))  # [tile row, v sample, tile column, u sample]
+        vv = np.broadcast_to(v[:, :, None, None], uu.shape)
+        d = np.stack([(uu - cam.cx) / cam.fx, (vv - cam.cy) / cam.fy, np.ones(uu.shape)], -1)
         P = Rv[g].T / scales[g][:, None]
-        Pmu = P @ mu[g]
-        for ty in range(y0, y1):
-            for tx in range(x0, x1):
-                u = tx * ts + 0.5 - pad + grid * (min(tx * ts + ts, cam.width) - tx * ts - 1 + 2 * pad)
-                v = ty * ts + 0.5 - pad + grid * (min(ty * ts + ts, cam.height) - ty * ts - 1 + 2 * pad)
-                uu, vv = np.meshgrid(u, v)
-                d = np.stack([(uu.ravel() - cam.cx) / cam.fx, (vv.ravel() - cam.cy) / cam.fy, np.ones(uu.size)], -1)
-                Pd = d @ P.T
-                d2 = (np.cross(Pmu, Pd) ** 2).sum(-1) / (Pd**2).sum(-1)
-                if (d2 <= k[g] ** 2).any():
-                    touched.add((g, ty * ((cam.width + ts - 1) // ts) + tx))
+        Pd = d @ P.T
+        d2 = (np.cross(P @ mu[g], Pd) ** 2).sum(-1) / (Pd**2).sum(-1)
+        for j, i in zip(*np.nonzero((d2 <= k[g] ** 2).any(axis=(1, 3)))):
+            touched.add((g, int((y0 + j) * tiles_x + x0 + i)))
     return touched
 
 
@@ -263,38 +267,140 @@ def test_tile_culling_is_conservative_and_tight(pad, ts):
     touched = _brute_force_tiles(cam, means, quats, scales, k, res["rect"], ts, pad)
     missed = touched - kept
     assert not missed, f"{len(missed)} touched (Gaussian, tile) pairs culled, e.g. {sorted(missed)[:5]}"
-    # Gaussians crossing the near plane keep their whole rectangle
+    # Gaussians crossing the near plane (whole-image rectangle) are culled by their general conic too
     mu = cam.to_camera(means)
     Sigma_zz = np.einsum("ni,ni->n", (cam.R @ _rotations(quats))[:, 2, :] ** 2, scales**2)
     front = mu[:, 2] - k * np.sqrt(Sigma_zz) - 0.2
-    crossing = np.nonzero((mu[:, 2] > 0.2) & (front < -1e-3))[0]
+    crossing = set(np.nonzero((mu[:, 2] > 0.2) & (front < -1e-3))[0].tolist())
     assert len(crossing) >= 5
-    for g in crossing:
-        assert {t for gg, t in rect_tiles if gg == g} == {t for gg, t in kept if gg == g}
-    # the others: the fraction of the rectangle's untouched tiles that is culled
+    # the fraction of the rectangle's untouched tiles that is culled
     exact = set(np.nonzero(front > 1e-3)[0].tolist())
-    untouched = {(g, t) for g, t in rect_tiles - touched if g in exact}
+    for name, group in (("in front of the near plane", exact), ("crossing it", crossing)):
+        untouched = {(g, t) for g, t in rect_tiles - touched if g in group}
+        culled = len(untouched - kept) / len(untouched)
+        print(f"pad {pad}, tile {ts}: rectangle {len(rect_tiles)} entries, kept {len(kept)}, brute-force touched {len(touched)}; "
+              f"culled {culled:.2%} of the {len(untouched)} untouched (of Gaussians {name})")
+        assert len(untouched) > 0.1 * len({(g, t) for g, t in rect_tiles if g in group})  # something to cull
+        assert culled > 0.97  # the rest are slivers between the 24² samples (and the float64 allowance)
+
+
+NEAR_KINDS = ("beside", "behind", "parabolic", "outside", "inside", "flat", "front")
+
+
+def _near_scene(cam, n, seed, near=0.2, kinds=NEAR_KINDS, opacity=(0.05, 1.0)):
+    """``n`` Gaussians whose k-ellipsoid crosses the near plane with the centre beyond it (float32-
+    representable; k from the opacity as the kernel's), kinds cycled: large ones beside the camera (mean
+    up to 3 half-fields of view off-axis), needles reaching behind the camera, ellipsoids nearly touching
+    the camera plane (near-parabolic conics), the camera just outside (Mahalanobis radius (1 + 10⁻³…10⁻¹)
+    the kernel's k) or inside the ellipsoid, flat discs, wide ones in front. Returns
+    ``means, quats, scales, opac, kind``. Hyperbolic, parabolic and elliptic conics all occur."""
+    rng = np.random.default_rng(seed)
+    f32 = lambda a: np.asarray(a, dtype=np.float32).astype(np.float64)  # noqa: E731
+    out = []
+    while len(out) < n:
+        kind = kinds[len(out) % len(kinds)]
+        q = rng.normal(size=4)
+        q = f32(q / np.linalg.norm(q))
+        Rv = cam.R.astype(np.float32).astype(np.float64) @ _rotations(q[None])[0]
+        op = f32(rng.uniform(*opacity))
+        k = min(K_MAX, math.sqrt(2 * math.log(op * 255.0)))
+        a = rng.uniform(-1.5, 1.5) * cam.width / cam.fx  # view direction (a, b, 1), in and far outside the image
+        b = rng.uniform(-1.5, 1.5) * cam.height / cam.fy
+        if kind == "beside":
+            z, s = rng.uniform(near + 0.01, 0.6), rng.uniform(0.03, 0.5, 3)
+        elif kind == "behind":
+            z, s = rng.uniform(near + 0.02, 1.0), np.array([rng.uniform(0.02, 0.15), rng.uniform(0.02, 0.15), rng.uniform(0.3, 2.0)])
+        elif kind == "flat":
+            z, s = rng.uniform(near + 0.01, 1.0), np.array([rng.uniform(0.1, 1.0), rng.uniform(0.1, 1.0), rng.uniform(0.002, 0.02)])
+        else:
+            z, s = rng.uniform(near + 0.05, 1.5), rng.uniform(0.05, 0.5, 3)
+            if rng.uniform() < 0.3:
+                s[rng.integers(3)] *= 0.02
+            if kind == "front":
+                a, b = rng.uniform(-0.5, 0.5) * cam.width / cam.fx, rng.uniform(-0.5, 0.5) * cam.height / cam.fy
+        mu = np.array([a * z, b * z, z])
+        Sigma = Rv @ np.diag(s**2) @ Rv.T
+        if kind == "parabolic":  # μz ≈ k √Σzz: the ellipsoid nearly touches the plane z = 0
+            s = s * mu[2] / (k * math.sqrt(Sigma[2, 2])) * (1.0 + rng.uniform(-0.03, 0.03))
+        elif kind == "outside":
+            s = s * math.sqrt(mu @ np.linalg.solve(Sigma, mu) / ((1.0 + 10.0 ** rng.uniform(-3, -1)) * (k * 1.0001) ** 2))
+        elif kind == "inside":
+            s = s * math.sqrt(mu @ np.linalg.solve(Sigma, mu) / (rng.uniform(0.1, 0.9) * k**2))
+        s = f32(s)
+        Sigma = Rv @ np.diag(s**2) @ Rv.T
+        means = f32((mu - cam.t) @ cam.R)
+        m = (means @ cam.R.T + cam.t).astype(np.float32).astype(np.float64)  # μ_v as the kernel has it (about)
+        m2 = m @ np.linalg.solve(Sigma, m)
+        if not (m[2] > near + 1e-3 and m[2] - 1.0001 * k * math.sqrt(Sigma[2, 2]) < near - 1e-3):
+            continue
+        if (kind == "inside" and not m2 < 0.95 * k**2) or (kind == "outside" and not m2 > 1.0005 * (1.0001 * k) ** 2):
+            continue
+        out.append((means, q, s, op, kinds.index(kind)))
+    return tuple(np.array(x) for x in zip(*out))
+
+
+def _conic_types(cam, means, quats, scales, k):
+    """Per Gaussian, from an independent float64 formula (the dual of the projected quadric ``k²Σ − μμᵀ``):
+    ``inside`` (camera inside the ellipsoid) or the type of the image conic of lines meeting it."""
+    mu = cam.to_camera(means)
+    Rv = cam.R @ _rotations(quats)
+    out = []
+    for g in range(len(means)):
+        S = Rv[g] @ np.diag(scales[g] ** 2) @ Rv[g].T
+        C = np.linalg.inv(k[g] ** 2 * S - np.outer(mu[g], mu[g]))  # the cone of lines: dᵀ C d ≥ 0 (up to sign)
+        if mu[g] @ np.linalg.solve(S, mu[g]) <= k[g] ** 2:
+            out.append("inside")
+            continue
+        A = C[:2, :2] / np.abs(C[:2, :2]).max()
+        det = np.linalg.det(A)
+        out.append("parabola" if abs(det) < 1e-2 else "ellipse" if det > 0 else "hyperbola")
+    return np.array(out)
+
+
+@pytest.mark.parametrize("pad, ts, samples", [(0.0, 16, 24), (0.5, 16, 24), (0.5, 4, 8)])
+def test_near_plane_tile_culling_is_conservative(pad, ts, samples):
+    """Gaussians crossing the near plane (whole-image rectangle): against the float64 brute force of the
+    line–ellipsoid condition on every tile of the image, no touched tile is culled, nearly all untouched
+    ones are, and a camera inside the ellipsoid keeps the whole image."""
+    cam = look_at((0.3, -2.0, 0.5), (0.0, 0.0, 0.0), **TILE_CAMERA)
+    means, quats, scales, opac, kind = _near_scene(cam, 210, seed=3)
+    k = _binning_k(opac, 1 / 255, K_MAX)
+    types = _conic_types(cam, means, quats, scales, k)
+    counts = {t: int((types == t).sum()) for t in ("inside", "ellipse", "parabola", "hyperbola")}
+    assert min(counts.values()) >= 10, counts
+    res = _run_binning(cam, means, quats, scales, opac, pixel_pad=pad, tile_size=ts)
+    full = _run_binning(cam, means, quats, scales, opac, pixel_pad=pad, tile_size=ts, tile_cull=False)
+    num_tiles = len(res["lists"])
+    assert (res["touched"] <= num_tiles).all() and (full["touched"] == num_tiles).all()  # whole-image rectangles
+    assert np.array_equal(res["rect"], full["rect"]) and np.array_equal(res["radii"], full["radii"])
+    assert (res["radii"] == max(cam.width, cam.height)).all()  # radii (densification statistics) unchanged
+    kept = {(int(g), t) for t, lst in enumerate(res["lists"]) for g in lst}
+    rect_tiles = {(int(g), t) for t, lst in enumerate(full["lists"]) for g in lst}
+    assert kept <= rect_tiles and res["count"] == len(kept) == res["touched"].sum()
+    touched = _brute_force_tiles(cam, means, quats, scales, k, res["rect"], ts, pad, samples)
+    missed = touched - kept
+    assert not missed, f"{len(missed)} touched (Gaussian, tile) pairs culled, e.g. {sorted(missed)[:5]}"
+    inside = np.nonzero(types == "inside")[0]
+    assert (res["exact"][inside] == 0).all() and (res["touched"][inside] == num_tiles).all()
+    assert (res["exact"][types != "inside"] == 2).all()
+    untouched = rect_tiles - touched
     culled = len(untouched - kept) / len(untouched)
-    print(f"pad {pad}, tile {ts}: rectangle {len(rect_tiles)} entries, kept {len(kept)}, brute-force touched {len(touched)}; "
-          f"culled {culled:.2%} of the {len(untouched)} untouched (of Gaussians in front of the near plane)")
-    assert len(untouched) > 0.1 * len(rect_tiles)  # the scene has something to cull
-    assert culled > 0.97  # the rest are slivers between the 24² samples (and the float64 allowance)
+    per_type = {t: (sum(res["touched"][types == t]), sum(full["touched"][types == t])) for t in counts}
+    print(f"pad {pad}, tile {ts}: {counts}; entries kept/rectangle per type {per_type}; "
+          f"culled {culled:.2%} of the {len(untouched)} untouched of {len(rect_tiles)}")
+    assert len(untouched) > 0.2 * len(rect_tiles)
+    assert culled > 0.97
+    for t in ("ellipse", "parabola", "hyperbola"):  # every conic type is culled
+        assert per_type[t][0] < 0.8 * per_type[t][1], (t, per_type[t])
 
 
-def test_tile_culling_renders_identically():
-    """Outputs and gradients with and without the tile test: bitwise equal (each tile's list keeps its
-    order; the dropped entries never passed the per-pixel test)."""
+def _assert_renders_identically(cam, scene):
+    """Outputs and gradients (two configurations, gradients accumulated) with and without the tile test:
+    bitwise equal."""
     import torch
 
     from gof_warp.render import RenderConfig, rasterize
 
-    from reference_render import make_camera, random_scene
-
-    cam = make_camera(width=97, height=71, fx=90.0, fy=80.0)
-    scene = random_scene(cam, 300, 2, seed=11, n_behind=3, n_near=8, spread=1.5)
-    g = torch.Generator().manual_seed(0)
-    flat = torch.rand(300, generator=g) < 0.5  # half of them flat (oblique discs)
-    scene["scales"][flat, 2] *= 0.02
     names = ("means", "quats", "scales", "opacities", "sh")
     results = []
     for cull in (True, False):
@@ -310,10 +416,75 @@ def test_tile_culling_renders_identically():
     for a, b in zip(results[:half], results[half:]):
         for key in a:
             assert torch.equal(a[key], b[key]), key
-    assert float(results[0]["alpha"].mean()) > 0.3  # the scene covers the image
+    return results[0]
 
 
-def test_tile_culling_reduces_benchmark_entries():
+def test_tile_culling_renders_identically():
+    """Outputs and gradients with and without the tile test: bitwise equal (each tile's list keeps its
+    order; the dropped entries never passed the per-pixel test)."""
+    import torch
+
+    from reference_render import make_camera, random_scene
+
+    cam = make_camera(width=97, height=71, fx=90.0, fy=80.0)
+    scene = random_scene(cam, 300, 2, seed=11, n_behind=3, n_near=8, spread=1.5)
+    g = torch.Generator().manual_seed(0)
+    flat = torch.rand(300, generator=g) < 0.5  # half of them flat (oblique discs)
+    scene["scales"][flat, 2] *= 0.02
+    out = _assert_renders_identically(cam, scene)
+    assert float(out["alpha"].mean()) > 0.3  # the scene covers the image
+
+
+def test_near_plane_tile_culling_renders_identically():
+    """As above with many Gaussians crossing the near plane (beside and behind the camera, near-parabolic,
+    camera just outside or inside), culled by their general conic."""
+    import torch
+
+    from reference_render import make_camera, random_scene
+
+    cam = make_camera(width=97, height=71, fx=90.0, fy=80.0)
+    base = random_scene(cam, 100, 2, seed=12, n_behind=2, n_near=4)
+    means, quats, scales, opac, kind = _near_scene(cam, 140, seed=5, opacity=(0.006, 0.08))  # faint: not saturated
+    near = dict(means=means, quats=quats, scales=scales, opacities=opac)
+    g = torch.Generator().manual_seed(2)
+    near = {k: torch.from_numpy(v) for k, v in near.items()}
+    near["sh"] = 0.4 * torch.randn(len(means), 9, 3, generator=g, dtype=torch.float64)
+    scene = {k: torch.cat([base[k], near[k]]) for k in base}
+    out = _assert_renders_identically(cam, scene)
+    alpha = out["alpha"]
+    print(f"alpha mean {float(alpha.mean()):.3f}, min {float(alpha.min()):.3f}")
+    assert float(alpha.mean()) > 0.3 and float(alpha.min()) < 0.99  # covered, not saturated everywhere
+    np_scene = [scene[k].float().double().numpy() for k in ("means", "quats", "scales", "opacities")]
+    np_scene[1] = np_scene[1] / np.linalg.norm(np_scene[1], axis=1, keepdims=True)  # render() normalises
+    culled = _run_binning(cam, *np_scene)
+    full = _run_binning(cam, *np_scene, tile_cull=False)
+    crossing = culled["exact"][100:] == 2
+    kept, rect = culled["touched"][100:][crossing].sum(), full["touched"][100:][crossing].sum()
+    print(f"near-plane scene: {culled['count']} entries ({full['count']} without culling); the {crossing.sum()} "
+          f"crossing Gaussians outside their ellipsoid keep {kept} of {rect}")
+    assert crossing.sum() > 100 and kept < 0.8 * rect
+
+
+def test_tile_culling_renders_benchmark_scene_identically():
+    """The benchmark scene (20k Gaussians, 320x240, SH degree 2; its ~100 near-plane-crossing Gaussians lose
+    all their entries): outputs and gradients bitwise equal with and without culling."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks" / "render"))
+    from bench_render import make_camera, make_scene
+
+    means, quats, scales, opac, sh = make_scene(20_000, device="cpu")
+    scene = dict(means=means.double(), quats=quats.double(), scales=scales.double(), opacities=opac.double(), sh=sh[:, :9].double())
+    out = _assert_renders_identically(make_camera(320, 240), scene)
+    assert float(out["alpha"].mean()) > 0.5
+
+
+@pytest.mark.parametrize("n, W, H, bound", [(20_000, 320, 240, 0.65), (50_000, 640, 360, 0.5)])
+def test_tile_culling_reduces_benchmark_entries(n, W, H, bound):
+    """The renderer benchmark's scene: the few Gaussians crossing the near plane (ground splats beside the
+    camera, background splats behind it) held most entries as whole-image rectangles; culled, they keep
+    only the tiles their lines reach (none here), and the total drops below ``bound`` × the rectangles'."""
     import sys
     from pathlib import Path
 
@@ -322,14 +493,17 @@ def test_tile_culling_reduces_benchmark_entries():
 
     from gof_warp.kernels.renderer import prepare_view
 
-    n, (W, H) = 20_000, (320, 240)
     params = [p.numpy() for p in make_scene(n, device="cpu")]
     cam = camera_params_from(make_camera(W, H))
     types = (wp.vec3, wp.vec4, wp.vec3, float, wp.vec3)
     arrays = [wp.array(p, dtype=t, device="cpu") for p, t in zip(params, types)]
-    counts = {}
+    counts, radii = {}, {}
     for cull in (False, True):
         settings = make_raster_settings(W, H, tile_cull=cull)
-        counts[cull] = prepare_view(*arrays, 3, cam, settings)[2]
-    print(f"bench scene {n} Gaussians {W}x{H}: {counts[False]} tile entries (rectangle), {counts[True]} (ellipse)")
-    assert counts[True] < counts[False]
+        splats, _, counts[cull] = prepare_view(*arrays, 3, cam, settings)
+        radii[cull] = splats.radius.numpy()
+    crossing = int((radii[True] == max(W, H)).sum())
+    print(f"bench scene {n} Gaussians {W}x{H}: {counts[False]} tile entries (rectangle), {counts[True]} (culled); "
+          f"{crossing} Gaussians crossing the near plane")
+    assert np.array_equal(radii[True], radii[False]) and crossing > 0
+    assert counts[True] < bound * counts[False]
