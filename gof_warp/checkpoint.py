@@ -188,3 +188,19 @@ def load_checkpoint(path_or_run, map_location="cpu") -> dict:
     if p.is_dir():
         return load_newest(p, map_location)[0]
     return read_checkpoint(p, map_location)
+
+
+def plain_rng_state(state):
+    """A NumPy bit generator's state as plain data: its arrays (MT19937's key) as tensors, its scalars as ints."""
+    if isinstance(state, dict):
+        return {k: plain_rng_state(v) for k, v in state.items()}
+    if isinstance(state, np.ndarray):
+        return torch.from_numpy(state.copy())
+    return state.item() if isinstance(state, np.generic) else state
+
+
+def numpy_rng_state(state):
+    """The inverse of :func:`_plain_rng_state` (PCG64, the default, holds Python ints only)."""
+    if isinstance(state, dict):
+        return {k: numpy_rng_state(v) for k, v in state.items()}
+    return state.numpy() if isinstance(state, torch.Tensor) else state

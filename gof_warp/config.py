@@ -8,12 +8,16 @@ composes them. Presets in ``configs/*.yaml`` are those dataclasses serialised: p
 from __future__ import annotations
 
 import dataclasses
+import re
 import typing
 from pathlib import Path
 
 import yaml
 
 from .errors import GofError
+
+_FLOAT_TEXT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")  # exponent notation without YAML's dot
+
 
 
 class ConfigError(GofError):
@@ -60,6 +64,8 @@ def _coerce(value, annotation, where):
         items = [_coerce(v, inner, where) for v in value]
         return tuple(items) if origin is tuple else items
     if annotation is float:
+        if isinstance(value, str) and _FLOAT_TEXT.fullmatch(value.strip()):
+            value = float(value)  # YAML 1.1 reads 1e-6 (no dot) as text; users mean the number
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"{where}: expected a number, got {value!r}")
         return float(value)

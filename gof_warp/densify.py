@@ -235,9 +235,11 @@ class Densifier:
         return gaussians.active_sh_degree
 
     @torch.no_grad()
-    def after_backward(self, stats, iteration: int) -> None:
+    def after_backward(self, stats, iteration: int, scale: float = 1.0) -> None:
         """Accumulate the renderer's ``DensifyStats`` (``grad2d [N, 2]``, ``grad2d_abs [N]``,
-        ``radii [N]``) of one view; a no-op from ``stop_iter`` on. Visible = radius > 0."""
+        ``radii [N]``) of one view; a no-op from ``stop_iter`` on. Visible = radius > 0. ``scale`` multiplies
+        the gradient terms: a view whose loss entered the step divided by k gives its own gradients back
+        with ``scale = k``, so the thresholds mean the same whatever the number of views per step."""
         if iteration >= self.config.stop_iter:
             return
         radii = stats.radii
@@ -252,10 +254,18 @@ class Densifier:
                            "the model changed outside Densifier.step (call reset_stats)")
         vis = radii > 0  # masked adds instead of boolean indexing: no host sync on GPU
         s = self.stats
-        s.grad += torch.where(vis, stats.grad2d.norm(dim=-1), 0.0).float()
-        s.grad_abs += torch.where(vis, stats.grad2d_abs, 0.0).float()
+        grad, grad_abs = stats.grad2d.norm(dim=-1), stats.grad2d_abs
+        if scale != 1.0:
+            grad, grad_abs = grad * scale, grad_abs * scale
+        s.grad += torch.where(vis, grad, 0.0).float()
+        s.grad_abs += torch.where(vis, grad_abs, 0.0).float()
         s.count += vis.to(torch.int32)
         s.max_radii = torch.maximum(s.max_radii, radii.to(torch.int32))  # invisible: radius 0
+
+    def densify_due(self, iteration: int) -> bool:
+        """Whether :meth:`step` densifies and prunes at ``iteration`` (it reads the statistics then)."""
+        cfg = self.config
+        return cfg.start_iter < iteration < cfg.stop_iter and iteration % cfg.interval == 0
 
     def reset_stats(self, n: int | None = None, device=None) -> None:
         """Forget the statistics (sized lazily at the next :meth:`after_backward` when ``n`` is None)."""
@@ -269,7 +279,7 @@ class Densifier:
         n0 = len(gaussians)
         report = DensifyReport(iteration=iteration, num_before=n0, num_after=n0)
         if iteration < cfg.stop_iter:
-            if iteration > cfg.start_iter and iteration % cfg.interval == 0:
+            if self.densify_due(iteration):
                 self._densify_and_prune(iteration, gaussians, optimizer, extent, report)
                 self.history.append((iteration, len(gaussians)))
             at_start = cfg.reset_opacity_at_start and iteration == cfg.start_iter

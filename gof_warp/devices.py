@@ -11,6 +11,8 @@ device. Memory figures and synchronisation take the device from here too, never 
 
 from __future__ import annotations
 
+import resource
+
 import torch
 
 from .errors import GofError
@@ -58,3 +60,16 @@ def warp_device(device) -> str:
 
 def is_cuda(device) -> bool:
     return torch.device(str(device)).type == "cuda"
+
+
+def peak_memory(device: torch.device) -> dict:
+    """Host peak RSS and, on a CUDA ``device``, its torch and Warp-pool peaks (MB)."""
+    out = {"host_peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
+    if device.type == "cuda":
+        import warp as wp
+
+        out["gpu_peak_allocated_mb"] = torch.cuda.max_memory_allocated(device) / 2**20
+        out["gpu_peak_reserved_mb"] = torch.cuda.max_memory_reserved(device) / 2**20
+        # the renderer's temporaries live in Warp's own memory pool, which torch does not see
+        out["gpu_peak_warp_pool_mb"] = wp.get_mempool_used_mem_high(warp_device(device)) / 2**20
+    return out

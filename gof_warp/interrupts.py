@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import signal
 import threading
+from pathlib import Path
 
 
 @contextlib.contextmanager
@@ -35,3 +36,18 @@ def deferred_interrupt():
         yield lambda: bool(pressed)
     finally:
         signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Ctrl-C stopped :meth:`Trainer.run` at the end of an iteration.
+
+    Attributes:
+        iteration: the last iteration completed.
+        total: the run's ``config.iterations``.
+        checkpoint: the checkpoint holding ``iteration`` (written at the interrupt), or the newest older
+            one when it could not be written; None when the run has none.
+    """
+
+    def __init__(self, iteration: int, total: int, checkpoint: Path | None):
+        super().__init__(f"training interrupted at iteration {iteration} of {total}")
+        self.iteration, self.total, self.checkpoint = iteration, total, checkpoint

@@ -138,6 +138,7 @@ def _snapshot_pictures(trainer, record: dict) -> None:
 
 def _run(a) -> int:
     from .data import load_scene
+    from .distributed import rank_device, ranks_from_environment
     from .io_utils import ensure_writable_dir
     from .trainer import Trainer, has_checkpoints
 
@@ -165,28 +166,34 @@ def _run(a) -> int:
         log.info("%s", choice.describe())
         preset = choice.preset
     cfg = resolve_config(preset, overrides, a.iterations)
-    device = pick_device(a.device)
+    ranks = ranks_from_environment()  # several processes under torchrun: data-parallel (gof_warp.distributed)
+    device = rank_device(pick_device(a.device), ranks)
     if builtin:
         from .synthetic import make_scene
 
         scene_dir = out / "scene"
-        if not (scene_dir / "transforms_train.json").is_file():
+        if ranks.is_main and not (scene_dir / "transforms_train.json").is_file():
             log.info("generating the built-in default scene into %s", scene_dir)
             make_scene("default", scene_dir, force=True)
+        ranks.barrier()
     else:
         scene_dir = Path(scenes[0])
     scene = load_scene(scene_dir, cfg.data)
     log.info("scene %s: %d train / %d test views, extent %.3f; device %s", scene_dir, len(scene.train), len(scene.test),
              scene.extent, device)
-    trainer = Trainer(scene, cfg, out, device, scene_path=scene_dir)
+    trainer = Trainer(scene, cfg, out, device, scene_path=scene_dir, ranks=ranks)
+    if ranks.active:
+        log.info("rank %d of %d on %s, %d views per step", ranks.rank, ranks.world, device, trainer.views_per_step)
     if a.resume and has_checkpoints(out):
         it = trainer.resume()
         log.info("resuming from iteration %d (%s)", it, trainer.resumed_from)
-    viewer = _start_viewer(a, trainer, out) if a.viewer else None
+    viewer = _start_viewer(a, trainer, out) if a.viewer and ranks.is_main else None
     try:
-        with TrainingProgress(cfg.iterations, start=trainer.iteration, quiet=a.quiet) as progress:
+        with TrainingProgress(cfg.iterations, start=trainer.iteration, quiet=a.quiet or not ranks.is_main) as progress:
             metrics = trainer.run(progress=_on_iteration(progress, viewer, a.viewer_every, trainer),
                                   on_snapshot=None if a.no_pictures else _snapshot_pictures)
+        if not ranks.is_main:
+            return 0
         if not a.no_pictures:
             from .curves import curves_or_warning
             from .pictures import pictures_or_warning
@@ -204,6 +211,7 @@ def _run(a) -> int:
     finally:
         if viewer is not None:
             viewer.stop()
+        ranks.close()
     return 0
 
 

@@ -24,7 +24,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
-import resource
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,15 +33,16 @@ import numpy as np
 import torch
 
 from .appearance import AppearanceModel
-from .checkpoint import list_checkpoints, load_newest, save_checkpoint
+from .checkpoint import list_checkpoints, load_newest, numpy_rng_state, plain_rng_state, save_checkpoint
 from .config import ConfigError, dump_yaml, from_dict, to_dict
 from .data import DataConfig
 from .densify import DensifyConfig, Densifier
-from .devices import warp_device
+from .distributed import Ranks
+from .devices import peak_memory
 from .errors import GofError
 from .filter3d import update_filter_3d
 from .init_points import initial_point_cloud
-from .interrupts import deferred_interrupt
+from .interrupts import TrainingInterrupted, deferred_interrupt  # noqa: F401 - TrainingInterrupted public here
 from .io_utils import ensure_writable_dir, write_json_atomic, write_text_atomic
 from .loss_monitor import LossSpikeMonitor
 from .losses import LossConfig, total_loss
@@ -61,21 +61,6 @@ _stage = torch.profiler.record_function  # names the step's parts in a torch.pro
 
 class TrainingError(GofError):
     """Training cannot go on (e.g. the loss became NaN); the last good checkpoint is kept."""
-
-
-class TrainingInterrupted(KeyboardInterrupt):
-    """Ctrl-C stopped :meth:`Trainer.run` at the end of an iteration.
-
-    Attributes:
-        iteration: the last iteration completed.
-        total: the run's ``config.iterations``.
-        checkpoint: the checkpoint holding ``iteration`` (written at the interrupt), or the newest older
-            one when it could not be written; None when the run has none.
-    """
-
-    def __init__(self, iteration: int, total: int, checkpoint: Path | None):
-        super().__init__(f"training interrupted at iteration {iteration} of {total}")
-        self.iteration, self.total, self.checkpoint = iteration, total, checkpoint
 
 
 INIT_MODES = ("auto", "sfm", "random")
@@ -119,6 +104,8 @@ class TrainConfig:
     checkpoint_keep: int = 2
     log_every: int = 100
     snapshot_iterations: list[int] = field(default_factory=list)  # save the model at these iterations (module doc)
+    views_per_step: int = 0  # views averaged in one step; 0: one per process (gof_warp.distributed)
+    checksum_every: int = 1000  # with several processes: compare the ranks' models this often
     data: DataConfig = field(default_factory=DataConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
     render: RenderConfig = field(default_factory=RenderConfig)
@@ -134,6 +121,10 @@ class TrainConfig:
         if not valid or snaps != sorted(set(snaps)):
             raise ConfigError(f"snapshot_iterations must be increasing, unique iterations in [1, iterations - 1] "
                               f"(iterations = {self.iterations}), got {snaps}")
+        for key in ("views_per_step", "checksum_every"):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+                raise ConfigError(f"{key} must be an integer >= 0, got {v!r}")
 
 
 def initial_gaussians(scene: Scene, cfg: ModelConfig, seed: int, device) -> tuple[Gaussians, dict]:
@@ -150,19 +141,6 @@ def _image_tensor(image: np.ndarray, device) -> torch.Tensor:
     return torch.from_numpy(image).to(device=device, dtype=torch.float32) / 255.0
 
 
-def _peak_memory(device: torch.device) -> dict:
-    """Host peak RSS and, on a CUDA ``device``, its torch and Warp-pool peaks (MB)."""
-    out = {"host_peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
-    if device.type == "cuda":
-        import warp as wp
-
-        out["gpu_peak_allocated_mb"] = torch.cuda.max_memory_allocated(device) / 2**20
-        out["gpu_peak_reserved_mb"] = torch.cuda.max_memory_reserved(device) / 2**20
-        # the renderer's temporaries live in Warp's own memory pool, which torch does not see
-        out["gpu_peak_warp_pool_mb"] = wp.get_mempool_used_mem_high(warp_device(device)) / 2**20
-    return out
-
-
 class Trainer:
     """One training run on one scene, writing into ``out_dir``.
 
@@ -173,8 +151,13 @@ class Trainer:
         device: torch device string.
     """
 
-    def __init__(self, scene: Scene, config: TrainConfig, out_dir, device: str, scene_path=None):
+    def __init__(self, scene: Scene, config: TrainConfig, out_dir, device: str, scene_path=None,
+                 ranks: Ranks | None = None):
         self.scene, self.config, self.device = scene, config, torch.device(device)
+        self.ranks = Ranks.single() if ranks is None else ranks
+        self.views_per_step = config.views_per_step or self.ranks.world
+        if self.views_per_step % self.ranks.world:
+            raise GofError(f"views_per_step = {self.views_per_step} does not divide among {self.ranks.world} processes")
         self.scene_path = None if scene_path is None else str(Path(scene_path).resolve())
         self.out_dir = ensure_writable_dir(out_dir)
         self.render_config = dataclasses.replace(config.render, background=tuple(float(c) for c in scene.background))
@@ -226,25 +209,19 @@ class Trainer:
         g = self.gaussians
         update_learning_rate(self.optimizer, it, cfg.optim, self.scene.extent)
         self.densifier.update_sh_degree(it, g)
-        idx = self._next_view()
-        cam, gt = self.cameras[idx], self.images[idx]
-        stats = DensifyStats(len(g), device=self.device) if it < cfg.densify.stop_iter else None
-        with _stage("train.render"):
-            out = render(g, cam, config=self.render_config, stats=stats)
-        with _stage("train.loss"):
-            l1_pair = None
-            if self.appearance is not None:
-                chw = out["rgb"].permute(2, 0, 1)
-                corrected = self.appearance.apply(chw, idx)
-                if corrected.numel():
-                    l1_pair = (corrected.permute(1, 2, 0), AppearanceModel.crop(gt.permute(2, 0, 1)).permute(1, 2, 0))
-            loss, terms = total_loss(out, gt, cam, cfg.loss, it, l1_pair=l1_pair)
-            terms["psnr"] = psnr(out["rgb"].detach(), gt)
-        with _stage("train.backward"):
-            loss.backward()
+        views = [self._next_view() for _ in range(self.views_per_step)]
+        terms: dict[str, torch.Tensor] = {}
+        for idx in self.ranks.my_views(views):
+            view_terms = self._render_view(it, idx)
+            for k, v in view_terms.items():  # this rank's mean over its views
+                terms[k] = v if k not in terms else terms[k] + v
+        share = len(self.ranks.my_views(views))
+        terms = terms if share == 1 else {k: v / share for k, v in terms.items()}
+        self.ranks.sum_gradients(self._trained_params())
+        cam = self.cameras[self.ranks.my_views(views)[0]]  # the view the spike monitor files the loss under
         with torch.no_grad(), _stage("train.densify"):
-            if stats is not None:
-                self.densifier.after_backward(stats, it)
+            if self.densifier.densify_due(it):
+                self.ranks.reduce_densify_stats(self.densifier.stats)
             report = self.densifier.step(it, g, self.optimizer, self.scene.extent)
             if len(g) == 0:
                 raise TrainingError(f"every Gaussian was pruned at iteration {it}: check the scene's near plane "
@@ -262,6 +239,34 @@ class Trainer:
         # measures: a new baseline for the spike monitor, not a spike
         restart = report.opacity_reset or it == cfg.loss.regularization_from_iter
         return IterationScalars(it, cam.name, len(g), restart, self.elapsed, {}), terms
+
+    def _render_view(self, it: int, idx: int) -> dict[str, torch.Tensor]:
+        """Render view ``idx``, back-propagate its loss (÷ ``views_per_step``) and gather its densification
+        statistics; its detached terms."""
+        cfg, g = self.config, self.gaussians
+        cam, gt = self.cameras[idx], self.images[idx]
+        stats = DensifyStats(len(g), device=self.device) if it < cfg.densify.stop_iter else None
+        with _stage("train.render"):
+            out = render(g, cam, config=self.render_config, stats=stats)
+        with _stage("train.loss"):
+            l1_pair = None
+            if self.appearance is not None:
+                chw = out["rgb"].permute(2, 0, 1)
+                corrected = self.appearance.apply(chw, idx)
+                if corrected.numel():
+                    l1_pair = (corrected.permute(1, 2, 0), AppearanceModel.crop(gt.permute(2, 0, 1)).permute(1, 2, 0))
+            loss, terms = total_loss(out, gt, cam, cfg.loss, it, l1_pair=l1_pair)
+            terms["psnr"] = psnr(out["rgb"].detach(), gt)
+        with _stage("train.backward"):
+            (loss if self.views_per_step == 1 else loss / self.views_per_step).backward()
+        if stats is not None:  # per-view gradients, whatever the number of views in the step
+            with torch.no_grad():
+                self.densifier.after_backward(stats, it, scale=float(self.views_per_step))
+        return terms
+
+    def _trained_params(self) -> list[torch.Tensor]:
+        params = list(self.gaussians.params.values())
+        return params if self.appearance is None else params + list(self.appearance.parameters())
 
     def _drain(self) -> dict:
         """Read the queued iterations' terms back (one copy), stop on a non-finite loss, feed the spike monitor
@@ -297,10 +302,13 @@ class Trainer:
         outputs (``point_cloud.ply``, ``metrics.json``) are not written. :meth:`resume` continues bit-for-bit.
         """
         cfg = self.config
-        self._write_static_files()
+        if self.ranks.is_main:
+            self._write_static_files()
         with deferred_interrupt() as interrupted:
             last = self._train_loop(progress, interrupted, on_snapshot)
         train_time = self.elapsed
+        if not self.ranks.is_main:  # rank 0 writes the run folder
+            return {"iterations": cfg.iterations, "train_time_s": round(train_time, 3), "rank": self.ranks.rank}
         self.save_checkpoint()
         self.gaussians.save_ply(self.out_dir / "point_cloud.ply")
         metrics = {
@@ -309,7 +317,9 @@ class Trainer:
             "its_per_s": round(cfg.iterations / train_time, 3) if train_time > 0 else None,
             "num_gaussians": len(self.gaussians),
             "device": str(self.device),
-            **{k: round(v, 1) for k, v in _peak_memory(self.device).items()},
+            "processes": self.ranks.world,
+            "views_per_step": self.views_per_step,
+            **{k: round(v, 1) for k, v in peak_memory(self.device).items()},
             "final_train_psnr": round(last.get("psnr", float("nan")), 3) if last else None,
             "test": self.evaluate(),
             "loss_spikes": self.spikes.report(),
@@ -339,7 +349,9 @@ class Trainer:
             if progress is not None:
                 progress(it, {**last, "num_gaussians": len(self.gaussians),
                               "its_per_s": it / self.elapsed if self.elapsed > 0 else math.nan})
-            if it in snapshot_at:  # before the checkpoint of the same iteration, which then records it
+            if self.ranks.active and cfg.checksum_every and it % cfg.checksum_every == 0:
+                self.ranks.check_identical(self.gaussians.params, it)
+            if it in snapshot_at and self.ranks.is_main:  # before the checkpoint of the same iteration, which records it
                 t_snap = time.perf_counter()
                 record = self.write_snapshot()
                 if on_snapshot is not None:
@@ -420,7 +432,7 @@ class Trainer:
             "densifier": self.densifier.state_dict(),
             "appearance": None if self.appearance is None else self.appearance.state_dict(),
             "appearance_optimizer": None if self.appearance_optimizer is None else self.appearance_optimizer.state_dict(),
-            "view_rng": _plain_rng_state(self._rng.bit_generator.state),
+            "view_rng": plain_rng_state(self._rng.bit_generator.state),
             "view_stack": list(self._stack),
             "torch_rng": torch.get_rng_state(),
             "cuda_rng": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None,
@@ -440,7 +452,7 @@ class Trainer:
         if self.appearance is not None and state["appearance"] is not None:
             self.appearance.load_state_dict(state["appearance"])
             self.appearance_optimizer.load_state_dict(state["appearance_optimizer"])
-        self._rng.bit_generator.state = _numpy_rng_state(state["view_rng"])
+        self._rng.bit_generator.state = numpy_rng_state(state["view_rng"])
         self._stack = list(state["view_stack"])
         torch.set_rng_state(state["torch_rng"].cpu())  # RNG states are CPU byte tensors, whatever map_location did
         if state["cuda_rng"] is not None and torch.cuda.is_available():
@@ -452,7 +464,10 @@ class Trainer:
         self.iteration = int(state["iteration"])
         self.elapsed = float(state["elapsed"])
 
-    def save_checkpoint(self) -> Path:
+    def save_checkpoint(self) -> Path | None:
+        """Write ``RUN/checkpoints/ckpt_<it>.pt`` (rank 0 only: other ranks return None)."""
+        if not self.ranks.is_main:
+            return None
         for name, t in self.gaussians.params.items():
             if not torch.isfinite(t).all():
                 raise TrainingError(f"parameter {name} has NaN/inf at iteration {self.iteration}; checkpoint not written "
@@ -466,7 +481,7 @@ class Trainer:
         ``<name>.corrupt`` and named in a warning with the one used instead
         (:func:`gof_warp.checkpoint.load_newest`); :attr:`resumed_from` is the file loaded.
         """
-        state, self.resumed_from = load_newest(self.out_dir, map_location=self.device, set_aside=True)
+        state, self.resumed_from = load_newest(self.out_dir, map_location=self.device, set_aside=self.ranks.is_main)
         saved = to_dict(from_dict(TrainConfig, state["config"], "checkpoint config"))
         now = to_dict(self.config)
         for key in ("iterations", "snapshot_iterations"):  # training may be extended on resume, and snapshots
@@ -478,22 +493,6 @@ class Trainer:
                            "resume with the same config (RUN/config.yaml) or start a new run")
         self.load_state_dict(state)
         return self.iteration
-
-
-def _plain_rng_state(state):
-    """A NumPy bit generator's state as plain data: its arrays (MT19937's key) as tensors, its scalars as ints."""
-    if isinstance(state, dict):
-        return {k: _plain_rng_state(v) for k, v in state.items()}
-    if isinstance(state, np.ndarray):
-        return torch.from_numpy(state.copy())
-    return state.item() if isinstance(state, np.generic) else state
-
-
-def _numpy_rng_state(state):
-    """The inverse of :func:`_plain_rng_state` (PCG64, the default, holds Python ints only)."""
-    if isinstance(state, dict):
-        return {k: _numpy_rng_state(v) for k, v in state.items()}
-    return state.numpy() if isinstance(state, torch.Tensor) else state
 
 
 def has_checkpoints(run_dir) -> bool:

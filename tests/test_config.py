@@ -65,3 +65,14 @@ def test_yaml_is_never_evaluated(tmp_path):
     p.write_text("name: !!python/object/apply:os.system ['echo pwned']\n")
     with pytest.raises(ConfigError, match="cannot be read"):
         load_yaml(p)
+
+
+def test_exponent_notation_without_a_dot_is_a_number():
+    """YAML 1.1 reads ``1e-6`` as text; a float field takes it as the number, and real text is still refused."""
+    from gof_warp.config import ConfigError, merge, parse_override
+    from gof_warp.trainer import TrainConfig
+
+    assert merge(TrainConfig(), parse_override("densify.grad_threshold=1e-6")).densify.grad_threshold == 1e-6
+    assert merge(TrainConfig(), parse_override("loss.lambda_normal=5E+1")).loss.lambda_normal == 50.0
+    with pytest.raises(ConfigError, match="expected a number"):
+        merge(TrainConfig(), parse_override("loss.lambda_normal=1e"))

@@ -1,0 +1,128 @@
+"""Data-parallel training over processes with ``torch.distributed`` (NCCL on GPUs, gloo on CPUs).
+
+Launched by ``torchrun --nproc_per_node N -m gof_warp.train ...``; every process (a *rank*) holds the whole
+model. One training step takes ``views_per_step`` views from the same shuffled view stack on every rank (the
+stack's seed is shared), and rank ``r`` renders views ``r, r + N, r + 2N, …`` of them. Each rank's loss is the
+mean over the step's views of its own share (``L_v / views_per_step``), so after the gradients are summed
+over the ranks (:meth:`Ranks.sum_gradients`, one all-reduce of one flat buffer) every rank holds the
+gradient of the mean loss over all the step's views — what one process rendering all of them computes, up to
+floating-point summation order. Densification statistics are summed (maximum for the screen radii) before
+each densification decision (:meth:`Ranks.reduce_densify_stats`), the densifier's sampler has the same seed
+everywhere, so every rank makes the same decisions and holds identical Gaussians; :meth:`Ranks.check_identical`
+compares a checksum of the parameters across ranks every ``checksum_every`` steps and stops on a mismatch.
+Rank 0 alone writes the run folder (checkpoints load on any number of ranks: they hold one model).
+
+A single process is the same code with ``Ranks.single()`` (every collective a no-op).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import torch
+
+from .devices import cuda_available
+from .errors import GofError
+
+
+@dataclass(frozen=True)
+class Ranks:
+    """Where this process stands: ``rank`` of ``world`` processes, ``local_rank`` on its host."""
+
+    rank: int = 0
+    world: int = 1
+    local_rank: int = 0
+
+    @classmethod
+    def single(cls) -> "Ranks":
+        return cls()
+
+    @property
+    def is_main(self) -> bool:
+        return self.rank == 0
+
+    @property
+    def active(self) -> bool:
+        return self.world > 1
+
+    def my_views(self, views: list[int]) -> list[int]:
+        """This rank's share of one step's views (every ``world``-th, from ``rank``)."""
+        return views[self.rank :: self.world]
+
+    def sum_gradients(self, params: list[torch.Tensor]) -> None:
+        """Sum ``.grad`` of ``params`` over the ranks, in place (parameters without a gradient, e.g. just
+        replaced by densification, are skipped — identically on every rank)."""
+        if not self.active:
+            return
+        grads = [p.grad for p in params if p.grad is not None]
+        if not grads:
+            return
+        flat = torch.cat([g.reshape(-1) for g in grads])
+        torch.distributed.all_reduce(flat, op=torch.distributed.ReduceOp.SUM)
+        at = 0
+        for g in grads:
+            g.copy_(flat[at : at + g.numel()].view_as(g))
+            at += g.numel()
+
+    def reduce_densify_stats(self, stats) -> None:
+        """Densification statistics (``grad``, ``grad_abs``, ``count`` summed; ``max_radii`` maximum) over the
+        ranks, in place; ``stats`` is the densifier's accumulator (None: nothing gathered)."""
+        if not self.active or stats is None:
+            return
+        flat = torch.cat([stats.grad, stats.grad_abs, stats.count.to(torch.float32)])
+        torch.distributed.all_reduce(flat, op=torch.distributed.ReduceOp.SUM)
+        n = stats.grad.shape[0]
+        stats.grad.copy_(flat[:n])
+        stats.grad_abs.copy_(flat[n : 2 * n])
+        stats.count.copy_(flat[2 * n :].round().to(torch.int32))
+        torch.distributed.all_reduce(stats.max_radii, op=torch.distributed.ReduceOp.MAX)
+
+    def check_identical(self, params: dict[str, torch.Tensor], iteration: int) -> None:
+        """Raise :class:`GofError` unless every rank holds the same parameters (float64 checksums compared)."""
+        if not self.active:
+            return
+        sums = torch.stack([torch.stack([p.detach().double().sum(), p.detach().double().abs().sum()])
+                            for p in params.values()]).reshape(-1)
+        every = [torch.empty_like(sums) for _ in range(self.world)]
+        torch.distributed.all_gather(every, sums)
+        for r, other in enumerate(every):
+            if not torch.equal(other, sums):
+                raise GofError(f"the model on rank {r} differs from rank {self.rank}'s at iteration {iteration} "
+                               "(data-parallel ranks must hold identical Gaussians): stopping")
+
+    def barrier(self) -> None:
+        if self.active:
+            torch.distributed.barrier()
+
+    def close(self) -> None:
+        """Leave the process group (at the end of the command)."""
+        if self.active and torch.distributed.is_initialized():
+            torch.distributed.destroy_process_group()
+
+
+def ranks_from_environment() -> Ranks:
+    """The process group ``torchrun`` describes in the environment (``WORLD_SIZE``, ``RANK``, ``LOCAL_RANK``),
+    initialised (NCCL when CUDA is available, else gloo); ``Ranks.single()`` when not launched that way."""
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world <= 1:
+        return Ranks.single()
+    try:
+        rank, local = int(os.environ["RANK"]), int(os.environ.get("LOCAL_RANK", os.environ["RANK"]))
+    except (KeyError, ValueError) as e:
+        raise GofError(f"WORLD_SIZE={world} but RANK/LOCAL_RANK are missing or not integers ({e}): launch with torchrun")
+    if not torch.distributed.is_available():
+        raise GofError("this torch build has no torch.distributed: train with one process")
+    if not torch.distributed.is_initialized():
+        backend = "nccl" if cuda_available() else "gloo"  # the project's one device rule (gof_warp.devices)
+        if backend == "nccl":
+            torch.cuda.set_device(local)
+        torch.distributed.init_process_group(backend=backend)
+    return Ranks(rank=rank, world=world, local_rank=local)
+
+
+def rank_device(device: str, ranks: Ranks) -> str:
+    """The device of this rank: ``cuda:<local_rank>`` when training on CUDA with several ranks, else ``device``."""
+    if ranks.active and device.startswith("cuda"):
+        return f"cuda:{ranks.local_rank}"
+    return device

@@ -1,0 +1,77 @@
+"""Data-parallel training over processes (gloo on the CPU): two processes give the one-process result, the
+ranks' checksum catches a model that drifted, and bad splits are refused."""
+
+import os
+import subprocess
+import sys
+import tempfile
+
+import pytest
+import torch
+import torch.multiprocessing as mp
+
+from gof_warp.distributed import Ranks
+from gof_warp.errors import GofError
+from gof_warp.model import Gaussians
+from gof_warp.synthetic import make_scene
+
+ARGS = ["--config", "quick", "--iterations", "40", "--device", "cpu", "--no-pictures", "--quiet", "views_per_step=2",
+        "log_every=10", "checksum_every=10", "checkpoint_every=20", "model.random_init_points=400",
+        "densify.start_iter=5", "densify.interval=10", "densify.grad_threshold=1e-6"]
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    return make_scene("default", tmp_path_factory.mktemp("scene") / "s", views=6, resolution=(32, 32), device="cpu")
+
+
+def _train(cmd, env_extra=None):
+    env = {**os.environ, "OMP_NUM_THREADS": "1", **(env_extra or {})}
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=600, env=env)
+    assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-4000:]
+
+
+def test_two_processes_train_the_one_process_model(scene, tmp_path):
+    one, two = tmp_path / "one", tmp_path / "two"
+    _train([sys.executable, "-m", "gof_warp.train", str(scene), "--out", str(one), *ARGS])
+    _train([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
+            "-m", "gof_warp.train", str(scene), "--out", str(two), *ARGS])
+    a, b = Gaussians.load_ply(one / "point_cloud.ply"), Gaussians.load_ply(two / "point_cloud.ply")
+    assert len(a) == len(b) and len(a) != 400, "densification should have changed the model, identically"
+    for name in a.params:  # two terms summed in the same order: identical, within float tolerance at worst
+        torch.testing.assert_close(a.params[name], b.params[name], rtol=1e-5, atol=1e-6)
+    import json
+
+    m = json.loads((two / "metrics.json").read_text())
+    assert m["processes"] == 2 and m["views_per_step"] == 2
+    assert sorted(p.name for p in (two / "checkpoints").iterdir()) == sorted(p.name for p in (one / "checkpoints").iterdir())
+
+
+def _drift(rank, world, init_file, result):
+    torch.distributed.init_process_group("gloo", init_method=f"file://{init_file}", rank=rank, world_size=world)
+    params = {"means": torch.zeros(4, 3) + (rank == 1) * 1e-7}
+    try:
+        Ranks(rank=rank, world=world).check_identical(params, 7)
+        result[rank] = "same"
+    except GofError as e:
+        result[rank] = str(e)
+    finally:
+        torch.distributed.destroy_process_group()
+
+
+def test_the_checksum_stops_ranks_that_drifted_apart():
+    with tempfile.TemporaryDirectory() as d, mp.Manager() as manager:
+        result = manager.dict()
+        mp.spawn(_drift, args=(2, os.path.join(d, "init"), result), nprocs=2, join=True)
+        assert all("differs" in result[r] and "iteration 7" in result[r] for r in (0, 1)), dict(result)
+
+
+def test_views_are_shared_out_and_bad_splits_refused(scene, tmp_path):
+    assert Ranks(rank=1, world=2).my_views([5, 3, 8, 1]) == [3, 1] and Ranks().my_views([5, 3]) == [5, 3]
+    from gof_warp.config import merge
+    from gof_warp.data import load_scene
+    from gof_warp.trainer import TrainConfig, Trainer
+
+    cfg = merge(TrainConfig(), {"views_per_step": 3, "model": {"init": "random", "random_init_points": 50}})
+    with pytest.raises(GofError, match="does not divide among 2 processes"):
+        Trainer(load_scene(scene), cfg, tmp_path / "r", "cpu", ranks=Ranks(rank=0, world=2))
