@@ -29,6 +29,18 @@ BOX_TOL_PX = 1e-3  # float32 camera/parameters vs float64: the box edges agree t
 CAMERA = dict(fx=38.0, fy=33.0, cx=21.3, cy=19.1, width=45, height=37)  # 3x3 tiles, partial border tiles
 
 
+def _world_gaussians(rng, cam, mu_v, scales):
+    """World-space test Gaussians from view-space centres ``mu_v [n, 3]`` and ``scales [n, 3]``: random
+    rotations and opacities, every value rounded to float32 (what the kernels read)."""
+    n = len(mu_v)
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    means = (mu_v - cam.t) @ cam.R
+    opac = rng.uniform(0.02, 1.0, n)
+    f32 = lambda a: a.astype(np.float32).astype(np.float64)  # noqa: E731
+    return f32(means), f32(q), f32(scales), f32(opac)
+
+
 def _rotations(q):
     w, x, y, z = q.T
     return np.stack([
@@ -54,12 +66,7 @@ def _scene(cam, n, seed, kind):
         scales[:, 1] *= 0.1
     if kind == "near_plane":
         scales = rng.uniform(0.05, 0.4, (n, 3))
-    q = rng.normal(size=(n, 4))
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    means = (mu_v - cam.t) @ cam.R
-    opac = rng.uniform(0.02, 1.0, n)
-    f32 = lambda a: a.astype(np.float32).astype(np.float64)  # noqa: E731
-    return f32(means), f32(q), f32(scales), f32(opac)
+    return _world_gaussians(rng, cam, mu_v, scales)
 
 
 def _run_binning(cam, means, quats, scales, opac, use_ellipse=True, **cfg):
@@ -214,12 +221,7 @@ def _cull_scene(cam, n, seed):
     ratio = np.where(kind[:, None] == 1, [1.0, 0.03, 0.03], ratio)
     ratio = np.where(kind[:, None] == 2, rng.uniform(0.1, 1.0, (n, 3)), ratio)
     scales = size[:, None] * ratio
-    q = rng.normal(size=(n, 4))
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    means = (mu_v - cam.t) @ cam.R
-    opac = rng.uniform(0.02, 1.0, n)
-    f32 = lambda a: a.astype(np.float32).astype(np.float64)  # noqa: E731
-    return f32(means), f32(q), f32(scales), f32(opac)
+    return _world_gaussians(rng, cam, mu_v, scales)
 
 
 def _brute_force_tiles(cam, means, quats, scales, k, rect, ts, pad, samples=24):

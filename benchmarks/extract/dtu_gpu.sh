@@ -3,15 +3,7 @@
 # the DTU scene in /tmp/gofdata for the cameras), on the GPU machine. Writes JSON and logs under $OUT.
 # Usage: bash benchmarks/extract/dtu_gpu.sh VARIANT... (band | full | faces)
 set -u
-EX=/tmp/ex; mkdir -p $EX
-if [ ! -f $EX/dtu.ply ]; then
-  python3 -c "
-import numpy as np, glob
-z = {}
-for f in sorted(glob.glob('/tmp/dtugeo/*.npz')): z.update(dict(np.load(f)))
-np.savez('$EX/dtu_geometry.npz', **z)"
-  python3 benchmarks/extract/pack_model.py unpack $EX/dtu_geometry.npz $EX/dtu.ply
-fi
+source benchmarks/extract/dtu_model.sh  # $EX/dtu.ply
 for v in "$@"; do
   case $v in
     band) args="--band" ;;

@@ -114,22 +114,6 @@ def machine_info(torch, gsplat):
                 gsplat=getattr(gsplat, "__version__", "?"))  # fmt: skip
 
 
-def _time(torch, fn, iters, warmup=2):
-    """Median and min milliseconds of ``iters`` calls after ``warmup``, CUDA events (as bench_render)."""
-    for _ in range(warmup):
-        fn()
-    torch.cuda.synchronize()
-    start, end = torch.cuda.Event(enable_timing=True), torch.cuda.Event(enable_timing=True)
-    times = []
-    for _ in range(iters):
-        start.record()
-        fn()
-        end.record()
-        torch.cuda.synchronize()
-        times.append(start.elapsed_time(end))
-    return float(np.median(times)), float(np.min(times))
-
-
 def bench_point(ctx, n, size, packed, iters, eps2d):
     torch, br, rasterization = ctx["torch"], ctx["br"], ctx["rasterization"]
     W, H = parse_size(size)
@@ -160,8 +144,8 @@ def bench_point(ctx, n, size, packed, iters, eps2d):
 
     res = dict(image=size, N=n, packed=packed, renderer="gsplat", render_mode="RGB+ED", eps2d=eps2d,
                near_plane=ctx["near"], **ctx["machine"])  # fmt: skip
-    res["fwd_ms"], res["fwd_ms_min"] = _time(torch, fwd, iters)
-    res["fwd_bwd_ms"], res["fwd_bwd_ms_min"] = _time(torch, fwd_bwd, iters)
+    res["fwd_ms"], res["fwd_ms_min"] = br._time(fwd, iters)
+    res["fwd_bwd_ms"], res["fwd_bwd_ms_min"] = br._time(fwd_bwd, iters)
     torch.cuda.synchronize()
     res["peak_torch_mb"] = torch.cuda.max_memory_allocated() / 2**20
     res["params_mb"] = sum(p.numel() * 4 for p in params) / 2**20

@@ -4,15 +4,7 @@
 # (gof_warp/, kernels/, configs/) in the working tree, e.g. .before (the commit before a change) and .after.
 # Usage: bash benchmarks/train/profile_gpu.sh TREE:START[:TRACE] ...   (writes $OUT/<tree>_<start>/)
 set -u
-EX=/tmp/ex; mkdir -p $EX
-if [ ! -f $EX/dtu.ply ]; then
-  python3 -c "
-import numpy as np, glob
-z = {}
-for f in sorted(glob.glob('/tmp/dtugeo/*.npz')): z.update(dict(np.load(f)))
-np.savez('$EX/dtu_geometry.npz', **z)"
-  python3 benchmarks/extract/pack_model.py unpack $EX/dtu_geometry.npz $EX/dtu.ply
-fi
+source benchmarks/extract/dtu_model.sh  # $EX/dtu.ply
 for spec in "$@"; do
   IFS=: read -r tree start trace <<< "$spec"
   ln -sfn ../kernels $tree/gof_warp/kernels

@@ -1,0 +1,11 @@
+# Source on the GPU machine: joins the packed halves of the trained DTU scan 24 model (/tmp/dtugeo/*.npz,
+# carried in .dtugeo_a/.dtugeo_b; see pack_model.py) into the PLY $EX/dtu.ply (once per warm machine).
+EX=${EX:-/tmp/ex}; mkdir -p $EX
+if [ ! -f $EX/dtu.ply ]; then
+  python3 -c "
+import numpy as np, glob
+z = {}
+for f in sorted(glob.glob('/tmp/dtugeo/*.npz')): z.update(dict(np.load(f)))
+np.savez('$EX/dtu_geometry.npz', **z)"
+  python3 benchmarks/extract/pack_model.py unpack $EX/dtu_geometry.npz $EX/dtu.ply
+fi
