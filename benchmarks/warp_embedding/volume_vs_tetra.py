@@ -46,12 +46,13 @@ def main(argv=None) -> dict:
     ap.add_argument("--nvdb", type=Path)
     ap.add_argument("--binary-steps", type=int, default=4)
     ap.add_argument("--save-mesh", type=Path)
+    ap.add_argument("--device", default="cpu", help="Warp device of the volume meshing (cpu, cuda:0)")
     a = ap.parse_args(argv)
     nvdb = a.nvdb or a.run / "opacity_volume.nvdb"
     tetra_path, gt_path = a.tetra or a.run / "mesh_full.ply", a.gt or a.run / "scene" / "gt_mesh.ply"
     info = json.loads(nvdb.with_suffix(".json").read_text())
     t0 = time.perf_counter()
-    vol = load_volume(nvdb, device="cpu")
+    vol = load_volume(nvdb, device=a.device)
     t_load = time.perf_counter() - t0
     t0 = time.perf_counter()
     verts, faces = volume_mesh(vol, info, binary_steps=a.binary_steps)
@@ -69,7 +70,7 @@ def main(argv=None) -> dict:
     cv, ct = ev_v["metrics"]["chamfer"], ev_t["metrics"]["chamfer"]
     result = {
         "run": str(a.run), "nvdb": str(nvdb), "tetra_mesh": str(tetra_path), "gt": str(gt_path),
-        "device": "cpu", "cpu_cores": __import__("os").cpu_count(), "platform": platform.platform(),
+        "device": a.device, "cpu_cores": __import__("os").cpu_count(), "platform": platform.platform(),
         "voxel_size": info["voxel_size"], "volume_bytes": info["bytes"], "active_voxels": info["active_voxels"],
         "bake_time_s": info["time_s"]["total"], "binary_steps": a.binary_steps,
         "eval_params": {k: p[k] for k in ("density", "max_dist", "tau", "gt_diagonal")},
