@@ -305,7 +305,8 @@ def _crossing_grid_edges(grid: np.ndarray, level: float) -> tuple[np.ndarray, np
 
 def marching_cubes(field: Field, bounds, resolution, *, level: float = 0.5, binary_steps: int = 0,
                    field_input: str = "numpy", chunk_size: int = DEFAULT_CHUNK_NODES,
-                   device=None, field_params=None) -> tuple[np.ndarray, np.ndarray]:
+                   device=None, field_params=None, search_field: Field | None = None,
+                   search_params=None) -> tuple[np.ndarray, np.ndarray]:
     """Marching cubes on a dense grid (Warp's ``IsoSurfaceMarchingCubes``), then binary search on each
     vertex's grid edge.
 
@@ -320,6 +321,10 @@ def marching_cubes(field: Field, bounds, resolution, *, level: float = 0.5, bina
         field_input: ``"numpy"`` (default), ``"torch"`` or ``"warp"``: what ``field`` receives.
         device: Warp device; default CUDA when available, else CPU.
         field_params: the ``params`` argument of a Warp field function that takes one.
+        search_field: the field the bisection refines on (same kinds as ``field``, same ``field_input``;
+            ``search_params`` its params); default ``field``. E.g. grid values from a cheap approximation
+            (a baked volume) and the search on the exact field: a crossing edge's ends carry the exact
+            values, so the exact field crosses the level on it and the search converges to that crossing.
 
     Returns:
         ``(vertices [V, 3] float32, faces [F, 3] int32)``, normals from high to low values.
@@ -331,11 +336,13 @@ def marching_cubes(field: Field, bounds, resolution, *, level: float = 0.5, bina
     steps = check_steps(binary_steps)
     level = check_levels([level])[0]
     call_field = make_field(field, field_params, field_input, device)
+    search = call_field if search_field is None else make_field(search_field, search_params, field_input, device)
     with torch_stream(device):
-        return _marching_cubes(call_field, lower, delta, res, level, steps, max(1, int(chunk_size)))
+        return _marching_cubes(call_field, lower, delta, res, level, steps, max(1, int(chunk_size)), search)
 
 
-def _marching_cubes(call_field: FieldCaller | WarpField, lower, delta, res, level: float, steps: int, chunk_nodes: int):
+def _marching_cubes(call_field: FieldCaller | WarpField, lower, delta, res, level: float, steps: int, chunk_nodes: int,
+                    search: FieldCaller | WarpField):
     device = call_field.device
     grid = _sample_grid(call_field, lower, delta, res, chunk_nodes)
     upper = lower + delta * (np.asarray(res, np.float32) - 1)
@@ -362,5 +369,5 @@ def _marching_cubes(call_field: FieldCaller | WarpField, lower, delta, res, leve
     off_edge = np.abs(linear - warp_verts).max() / float(delta.min())
     if off_edge > MC_EDGE_MATCH_TOL:  # guards our reading of Warp's vertex order
         raise RuntimeError(f"marching_cubes: Warp's vertices are {off_edge:.2g} cells off their grid edges")
-    vertices = _refine(br, call_field, steps) if steps else linear
+    vertices = _refine(br, search, steps) if steps else linear
     return vertices, faces

@@ -140,7 +140,7 @@ def lattice_of(volume: wp.Volume, info: dict, max_nodes: int = DEFAULT_MAX_NODES
 
 
 def volume_mesh(volume: wp.Volume, info: dict, *, level: float = 0.5, binary_steps: int = 4,
-                max_nodes: int = DEFAULT_MAX_NODES) -> tuple[np.ndarray, np.ndarray]:
+                max_nodes: int = DEFAULT_MAX_NODES, exact_field=None) -> tuple[np.ndarray, np.ndarray]:
     """Marching cubes of a baked opacity volume on its own voxel lattice (see the module docstring).
 
     Args:
@@ -151,6 +151,9 @@ def volume_mesh(volume: wp.Volume, info: dict, *, level: float = 0.5, binary_ste
         level: the level set, in (0, 1) (inside = ``value >= level``; GOF: 0.5).
         binary_steps: bisection steps per vertex on the trilinear field (0 = linear interpolation).
         max_nodes: the most lattice nodes (index box of the stored voxels) to allocate.
+        exact_field: optional callable, world points ``[M, 3]`` (numpy) → values ``[M]``, for the bisection
+            instead of the trilinear field (e.g. :func:`gof_warp.opacity_field.opacity_field` of the baked
+            Gaussians): the lattice's crossings, refined on the field the volume was baked from.
 
     Returns:
         ``(vertices [V, 3] float32 world units, faces [F, 3] int32)``, normals from high to low opacity
@@ -167,4 +170,5 @@ def volume_mesh(volume: wp.Volume, info: dict, *, level: float = 0.5, binary_ste
     h = float(info["voxel_size"])
     upper = lower + h * (np.asarray(res, np.float64) - 1)
     return marching_cubes(volume_lattice_field, np.stack([lower, upper]), res, level=float(level),
-                          binary_steps=int(binary_steps), device=str(volume.device), field_params=params)
+                          binary_steps=int(binary_steps), device=str(volume.device), field_params=params,
+                          search_field=exact_field)

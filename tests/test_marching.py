@@ -228,6 +228,19 @@ def test_marching_cubes_sphere(device):
     assert errors[2] < MC_TOL_6_STEPS and errors[2] < errors[1] < errors[0]
 
 
+def test_marching_cubes_search_on_another_field():
+    """Grid values from one field, the bisection on another whose level crosses the same edges: the vertices
+    land on the second field's level set (a baked volume's lattice refined on the exact field)."""
+    r_grid, r_exact = sphere_radius(0.5), sphere_radius(0.5, alpha=ALPHA * 1.01)
+    assert 0 < r_exact - r_grid < 0.2 * 1.6 / 16  # well inside one cell of the 17-node grid
+    exact = lambda x: gaussian_field(x, alpha=ALPHA * 1.01)  # noqa: E731
+    v, f = marching_cubes(gaussian_field, [[-0.8] * 3, [0.8] * 3], 17, binary_steps=12, device="cpu",
+                          search_field=exact)
+    v0, _ = marching_cubes(gaussian_field, [[-0.8] * 3, [0.8] * 3], 17, binary_steps=12, device="cpu")
+    assert_watertight_outward(v, f)
+    assert np.abs(np.linalg.norm(v, axis=1) - r_exact).max() < 1e-3 < np.abs(np.linalg.norm(v0, axis=1) - r_exact).max()
+
+
 def test_marching_cubes_empty_and_bad_input(caplog):
     with caplog.at_level(logging.WARNING):
         v, f = marching_cubes(gaussian_field, [[2.0] * 3, [3.0] * 3], 4, device="cpu")

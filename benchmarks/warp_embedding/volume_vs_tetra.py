@@ -47,6 +47,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--binary-steps", type=int, default=4)
     ap.add_argument("--save-mesh", type=Path)
     ap.add_argument("--device", default="cpu", help="Warp device of the volume meshing (cpu, cuda:0)")
+    ap.add_argument("--exact-search", action="store_true",
+                    help="bisect on the run's exact opacity field instead of the volume's trilinear field")
     a = ap.parse_args(argv)
     nvdb = a.nvdb or a.run / "opacity_volume.nvdb"
     tetra_path, gt_path = a.tetra or a.run / "mesh_full.ply", a.gt or a.run / "scene" / "gt_mesh.ply"
@@ -54,8 +56,15 @@ def main(argv=None) -> dict:
     t0 = time.perf_counter()
     vol = load_volume(nvdb, device=a.device)
     t_load = time.perf_counter() - t0
+    exact = None
+    if a.exact_search:
+        from gof_warp.opacity_field import opacity_field
+        from gof_warp.run_folder import load_run
+
+        g, cams, _, render_config = load_run(a.run, None, "cuda" if a.device.startswith("cuda") else "cpu")
+        exact = lambda x: opacity_field(g, cams, x, render_config=render_config).cpu().numpy()  # noqa: E731
     t0 = time.perf_counter()
-    verts, faces = volume_mesh(vol, info, binary_steps=a.binary_steps)
+    verts, faces = volume_mesh(vol, info, binary_steps=a.binary_steps, exact_field=exact)
     t_mesh = time.perf_counter() - t0
     vmesh = trimesh.Trimesh(verts, faces, process=False)
     if a.save_mesh:
@@ -72,7 +81,7 @@ def main(argv=None) -> dict:
         "run": str(a.run), "nvdb": str(nvdb), "tetra_mesh": str(tetra_path), "gt": str(gt_path),
         "device": a.device, "cpu_cores": __import__("os").cpu_count(), "platform": platform.platform(),
         "voxel_size": info["voxel_size"], "volume_bytes": info["bytes"], "active_voxels": info["active_voxels"],
-        "bake_time_s": info["time_s"]["total"], "binary_steps": a.binary_steps,
+        "bake_time_s": info["time_s"]["total"], "binary_steps": a.binary_steps, "exact_search": a.exact_search,
         "eval_params": {k: p[k] for k in ("density", "max_dist", "tau", "gt_diagonal")},
         "volume_mesh": _summary(ev_v) | {"time_s": t_mesh, "load_time_s": t_load},
         "tetra_mesh_vs_gt": _summary(ev_t),
