@@ -21,6 +21,7 @@ import logging
 from dataclasses import dataclass
 from typing import Sequence
 
+import numpy as np
 import torch
 import warp as wp
 
@@ -49,6 +50,10 @@ class OpacityFieldConfig:
     # per point and more list entries. Measured on the 2-core CPU (default scene, 9k Gaussians, 40 views 128²,
     # 20k points): 16 px 4.5-5.0 s, 8 px 2.9 s, 4 px 2.1-2.4 s, 2 px 1.9 s. Not measured on a GPU yet: unchanged there.
     tile_size: int | None = None
+    # On the CPU, where Warp runs a kernel on one core: points shared out to this many forked processes (0: one
+    # per core; 1: none), from cpu_split_min_points points on (fewer: the fork costs more than it saves).
+    cpu_processes: int = 0
+    cpu_split_min_points: int = 20_000
 
 
 CPU_TILE_SIZE = 4
@@ -112,16 +117,72 @@ def opacity_field(gaussians, cameras: Sequence[Camera], points, *, config: Opaci
     means, quats, scales, opacities = (wp.from_torch(p.detach().contiguous().float(), dtype=d)
                                        for p, d in zip(params, (wp.vec3, wp.vec4, wp.vec3, wp.float32)))
     no_colour = wp.zeros((len(gaussians), 1), dtype=wp.vec3, device=wdev)  # colours are not needed here
-    for start in range(0, m, config.chunk_size):
-        stop = min(m, start + config.chunk_size)
-        chunk = wp.from_torch(pts[start:stop].contiguous(), dtype=wp.vec3)
-        f_chunk = wp.from_torch(field[start:stop])
-        s_chunk = wp.from_torch(seen[start:stop])
-        for cam in cameras:
-            cp = camera_params_from(cam)
-            settings = raster_settings_for(cam, render_config, pixel_pad=POINT_PIXEL_PAD)
-            splats, lists, _ = prepare_view(means, quats, scales, opacities, no_colour, 0, cp, settings)
-            wp.launch(opacity_min_over_view, dim=stop - start, device=wdev,
-                      inputs=[chunk, lists, splats, cp, settings], outputs=[f_chunk, s_chunk])
+    views = [(camera_params_from(cam), raster_settings_for(cam, render_config, pixel_pad=POINT_PIXEL_PAD))
+             for cam in cameras]
+    arrays = (means, quats, scales, opacities, no_colour)
+    workers = _cpu_workers(config, m) if wdev == "cpu" else 1
+    if workers > 1:  # Warp runs a CPU kernel on one core: share the points out to forked processes
+        f_np, s_np = _in_forked_processes(arrays, views, pts.numpy(), workers, config.chunk_size)
+        field, seen = torch.from_numpy(f_np), torch.from_numpy(s_np)
+    else:
+        for start in range(0, m, config.chunk_size):
+            stop = min(m, start + config.chunk_size)
+            _min_over_views(arrays, views, wp.from_torch(pts[start:stop].contiguous(), dtype=wp.vec3),
+                            wp.from_torch(field[start:stop]), wp.from_torch(seen[start:stop]))
     field = torch.where(seen > 0, field, torch.full_like(field, config.unseen_value))
     return (field, seen) if return_seen else field
+
+
+def _min_over_views(arrays, views, points: wp.array, field: wp.array, seen: wp.array) -> None:
+    """Lower ``field`` to each view's opacity at ``points`` and count the views that see them (Warp only)."""
+    for cp, settings in views:
+        splats, lists, _ = prepare_view(*arrays, 0, cp, settings)
+        wp.launch(opacity_min_over_view, dim=points.shape[0], device=points.device,
+                  inputs=[points, lists, splats, cp, settings], outputs=[field, seen])
+
+
+def _cpu_workers(config: OpacityFieldConfig, m: int) -> int:
+    """Processes for ``m`` points on the CPU: ``config.cpu_processes`` (0: one per core) when there are at least
+    ``config.cpu_split_min_points`` of them; forking is Linux-only (elsewhere: 1)."""
+    import multiprocessing
+    import os
+
+    if m < config.cpu_split_min_points or "fork" not in multiprocessing.get_all_start_methods():
+        return 1
+    return max(1, min(config.cpu_processes or os.cpu_count() or 1, m))
+
+
+# Inputs of one opacity_field call's forked workers, keyed by a token of that call, set just before they fork
+# (they read them from their copy of the parent's memory: only the part number and the results are pickled).
+_FORKED: dict[int, tuple] = {}
+
+
+def _part_in_child(token: int, part: int):
+    arrays, views, pts, bounds, chunk_size = _FORKED[token]
+    lo, hi = bounds[part], bounds[part + 1]
+    field, seen = np.ones(hi - lo, np.float32), np.zeros(hi - lo, np.int32)
+    for start in range(lo, hi, chunk_size):
+        stop = min(hi, start + chunk_size)
+        f = wp.array(field[start - lo:stop - lo], dtype=wp.float32, device="cpu")
+        c = wp.array(seen[start - lo:stop - lo], dtype=wp.int32, device="cpu")
+        _min_over_views(arrays, views, wp.array(pts[start:stop], dtype=wp.vec3, device="cpu"), f, c)
+        field[start - lo:stop - lo], seen[start - lo:stop - lo] = f.numpy(), c.numpy()
+    return field, seen
+
+
+def _in_forked_processes(arrays, views, pts: np.ndarray, workers: int, chunk_size: int):
+    """``(field [M] float32, seen [M] int32)`` of ``pts`` computed by ``workers`` forked processes, each on a
+    contiguous part of the points (each point's result is the one-process result, bit for bit)."""
+    import multiprocessing
+    import time
+    from concurrent.futures import ProcessPoolExecutor
+
+    bounds = np.linspace(0, pts.shape[0], workers + 1).round().astype(np.int64)
+    token = id(pts) ^ time.perf_counter_ns()
+    _FORKED[token] = (arrays, views, np.ascontiguousarray(pts, np.float32), bounds, chunk_size)
+    try:
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as pool:
+            parts = list(pool.map(_part_in_child, [token] * workers, range(workers)))
+    finally:
+        del _FORKED[token]
+    return np.concatenate([f for f, _ in parts]), np.concatenate([c for _, c in parts])

@@ -159,3 +159,18 @@ def test_the_point_tile_size_changes_speed_not_values():
     for bad in (0, -4, 2.5):
         with pytest.raises(ValueError, match="tile_size"):
             opacity_field(g, cams, points, config=OpacityFieldConfig(tile_size=bad), render_config=cfg)
+
+
+def test_forked_processes_give_the_one_process_field():
+    """On the CPU the points are shared out to forked processes (Warp runs a CPU kernel on one core): the field
+    and the seen counts are the one-process ones bit for bit, for 1, 2 and 3 processes and several chunks."""
+    means, quats, scales, opac = _scene(seed=5)
+    g = Gaussians.from_activated(means, quats, scales, opac, device="cpu")
+    cams = _cameras()
+    points = np.random.default_rng(6).uniform(-0.8, 0.8, (301, 3))
+    one, seen_one = opacity_field(g, cams, points, config=OpacityFieldConfig(cpu_processes=1), return_seen=True)
+    for workers in (2, 3):
+        cfg = OpacityFieldConfig(cpu_processes=workers, cpu_split_min_points=1, chunk_size=64)
+        field, seen = opacity_field(g, cams, points, config=cfg, return_seen=True)
+        assert torch.equal(field, one) and torch.equal(seen, seen_one), workers
+    assert (seen_one > 0).any() and (one < 1).any()  # the scene is seen and not empty
