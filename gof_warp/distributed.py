@@ -96,7 +96,7 @@ class Ranks:
             torch.distributed.barrier()
 
     def close(self) -> None:
-        """Leave the process group (at the end of the command)."""
+        """Leave the process group (at the end of the command; after a :meth:`barrier` when it ends normally)."""
         if self.active and torch.distributed.is_initialized():
             torch.distributed.destroy_process_group()
 

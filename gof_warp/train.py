@@ -193,6 +193,7 @@ def _run(a) -> int:
             metrics = trainer.run(progress=_on_iteration(progress, viewer, a.viewer_every, trainer),
                                   on_snapshot=None if a.no_pictures else _snapshot_pictures)
         if not ranks.is_main:
+            ranks.barrier()  # wait for rank 0's evaluation and writes: leaving earlier can abort the whole job
             return 0
         if not a.no_pictures:
             from .curves import curves_or_warning
@@ -204,6 +205,7 @@ def _run(a) -> int:
         print(f"done: {metrics['iterations']} iterations in {metrics['train_time_s']:.1f} s, {metrics['num_gaussians']} "
               f"Gaussians, {t['split']} PSNR {t.get('psnr', float('nan')):.2f} dB SSIM {t.get('ssim', float('nan')):.4f}; "
               f"outputs in {out}")
+        ranks.barrier()  # the other ranks wait here for the run folder to be complete
         if viewer is not None:
             viewer.update(trainer.gaussians, trainer.iteration)
             print(f"training done; the viewer is still at {viewer.url} (Ctrl-C to stop)", flush=True)
