@@ -343,20 +343,10 @@ def _unmatched_faces(pieces: list[_Piece], p: np.ndarray, hull_vertices: np.ndar
     return faces[single]
 
 
-# Inputs of the chunk jobs of one delaunay_chunked(processes=True) call, keyed by a token of that call, set just
-# before its worker processes fork (they read it from their copy of the parent's memory: nothing is pickled
-# but the chunk number and the returned piece) and removed when the call ends.
-_FORKED: dict[int, tuple] = {}
-
-
 def _chunk(p, lo, hi, halo_lo, halo_hi, tree, rho, c: int) -> _Piece:
     """Chunk ``c``: Qhull on the points of its halo box, the tetrahedra its core keeps."""
     ids = np.flatnonzero(_in_box(p, halo_lo[c], halo_hi[c], closed=True))
     return _triangulate_piece(p, ids, lo[c], hi[c], halo_lo[c], halo_hi[c], tree, rho)
-
-
-def _chunk_in_child(token: int, c: int) -> _Piece:
-    return _chunk(*_FORKED[token], c)
 
 
 def delaunay_chunked(p: np.ndarray, chunks: int, workers: int, halo_fraction: float = HALO_FRACTION,
@@ -379,16 +369,9 @@ def delaunay_chunked(p: np.ndarray, chunks: int, workers: int, halo_fraction: fl
 
         inputs = (p, lo, hi, halo_lo, halo_hi, tree, rho)
         if processes:
-            import multiprocessing
-            from concurrent.futures import ProcessPoolExecutor
+            from .forked import map_forked
 
-            token = id(p) ^ time.perf_counter_ns()
-            _FORKED[token] = inputs
-            try:
-                with ProcessPoolExecutor(max(1, workers), mp_context=multiprocessing.get_context("fork")) as procs:
-                    pieces = list(procs.map(_chunk_in_child, [token] * lo.shape[0], range(lo.shape[0])))
-            finally:
-                del _FORKED[token]
+            pieces = map_forked(_chunk, inputs, lo.shape[0], workers)
         else:
             pieces = list(pool.map(lambda c: _chunk(*inputs, c), range(lo.shape[0])))
     t1 = time.perf_counter()

@@ -144,21 +144,18 @@ def _min_over_views(arrays, views, points: wp.array, field: wp.array, seen: wp.a
 def _cpu_workers(config: OpacityFieldConfig, m: int) -> int:
     """Processes for ``m`` points on the CPU: ``config.cpu_processes`` (0: one per core) when there are at least
     ``config.cpu_split_min_points`` of them; forking is Linux-only (elsewhere: 1)."""
-    import multiprocessing
     import os
 
-    if m < config.cpu_split_min_points or "fork" not in multiprocessing.get_all_start_methods():
+    from .forked import can_fork
+
+    if m < config.cpu_split_min_points or not can_fork():
         return 1
     return max(1, min(config.cpu_processes or os.cpu_count() or 1, m))
 
 
-# Inputs of one opacity_field call's forked workers, keyed by a token of that call, set just before they fork
-# (they read them from their copy of the parent's memory: only the part number and the results are pickled).
-_FORKED: dict[int, tuple] = {}
-
-
-def _part_in_child(token: int, part: int):
-    arrays, views, pts, bounds, chunk_size = _FORKED[token]
+def _part(arrays, views, pts, bounds, chunk_size, part: int):
+    """``(field, seen)`` numpy arrays of points ``bounds[part]:bounds[part + 1]`` (Warp and numpy only: it runs in
+    a forked child)."""
     lo, hi = bounds[part], bounds[part + 1]
     field, seen = np.ones(hi - lo, np.float32), np.zeros(hi - lo, np.int32)
     for start in range(lo, hi, chunk_size):
@@ -173,16 +170,9 @@ def _part_in_child(token: int, part: int):
 def _in_forked_processes(arrays, views, pts: np.ndarray, workers: int, chunk_size: int):
     """``(field [M] float32, seen [M] int32)`` of ``pts`` computed by ``workers`` forked processes, each on a
     contiguous part of the points (each point's result is the one-process result, bit for bit)."""
-    import multiprocessing
-    import time
-    from concurrent.futures import ProcessPoolExecutor
+    from .forked import map_forked
 
     bounds = np.linspace(0, pts.shape[0], workers + 1).round().astype(np.int64)
-    token = id(pts) ^ time.perf_counter_ns()
-    _FORKED[token] = (arrays, views, np.ascontiguousarray(pts, np.float32), bounds, chunk_size)
-    try:
-        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork")) as pool:
-            parts = list(pool.map(_part_in_child, [token] * workers, range(workers)))
-    finally:
-        del _FORKED[token]
+    inputs = (arrays, views, np.ascontiguousarray(pts, np.float32), bounds, chunk_size)
+    parts = map_forked(_part, inputs, workers, workers)
     return np.concatenate([f for f, _ in parts]), np.concatenate([c for _, c in parts])
