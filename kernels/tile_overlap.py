@@ -131,19 +131,27 @@ def rect_meets_ellipse(e: TileEllipse, a0: wp.float64, a1: wp.float64, b0: wp.fl
 
 
 @wp.func
-def tile_meets_ellipse(e: TileEllipse, tx: int, ty: int, cam: CameraParams, settings: RasterSettings) -> bool:
-    """Whether tile ``(tx, ty)`` — the centres of its in-image pixels, grown by ``pixel_pad`` — meets ``e``."""
+def tiles_rect(tx0: int, tx1: int, ty0: int, ty1: int, cam: CameraParams, settings: RasterSettings) -> wp.vec4d:
+    """``(a0, a1, b0, b1)``: the normalised-coordinate rectangle of the tiles ``[tx0, tx1) × [ty0, ty1)`` — from
+    the first tile's first in-image pixel centre to the last tile's last, grown by ``pixel_pad``."""
     ts = settings.tile_size
     half_pad = wp.float64(0.5) - wp.float64(wp.max(settings.pixel_pad, 0.0))  # centre 0.5, minus the pad
-    u0 = wp.float64(tx * ts) + half_pad
-    u1 = wp.float64(wp.min(tx * ts + ts, cam.width)) - half_pad
-    v0 = wp.float64(ty * ts) + half_pad
-    v1 = wp.float64(wp.min(ty * ts + ts, cam.height)) - half_pad
+    u0 = wp.float64(tx0 * ts) + half_pad
+    u1 = wp.float64(wp.min(tx1 * ts, cam.width)) - half_pad
+    v0 = wp.float64(ty0 * ts) + half_pad
+    v1 = wp.float64(wp.min(ty1 * ts, cam.height)) - half_pad
     fx = wp.float64(cam.fx)
     fy = wp.float64(cam.fy)
     cx = wp.float64(cam.cx)
     cy = wp.float64(cam.cy)
-    return rect_meets_ellipse(e, (u0 - cx) / fx, (u1 - cx) / fx, (v0 - cy) / fy, (v1 - cy) / fy)
+    return wp.vec4d((u0 - cx) / fx, (u1 - cx) / fx, (v0 - cy) / fy, (v1 - cy) / fy)
+
+
+@wp.func
+def tile_meets_ellipse(e: TileEllipse, tx: int, ty: int, cam: CameraParams, settings: RasterSettings) -> bool:
+    """Whether tile ``(tx, ty)`` — the centres of its in-image pixels, grown by ``pixel_pad`` — meets ``e``."""
+    r = tiles_rect(tx, tx + 1, ty, ty + 1, cam, settings)
+    return rect_meets_ellipse(e, r[0], r[1], r[2], r[3])
 
 
 @wp.func
@@ -191,19 +199,10 @@ def rect_meets_conic(c: vec6d, a0: wp.float64, a1: wp.float64, b0: wp.float64, b
 
 @wp.func
 def tiles_meet_conic(e: TileEllipse, tx0: int, tx1: int, ty0: int, ty1: int, cam: CameraParams, settings: RasterSettings) -> bool:
-    """Whether the hull of tiles ``[tx0, tx1) × [ty0, ty1)`` (from the first tile's padded pixel-centre
-    rectangle to the last's; for one tile the rectangle of :func:`tile_meets_ellipse`) meets ``{q ≤ 0}``."""
-    ts = settings.tile_size
-    half_pad = wp.float64(0.5) - wp.float64(wp.max(settings.pixel_pad, 0.0))
-    u0 = wp.float64(tx0 * ts) + half_pad
-    u1 = wp.float64(wp.min(tx1 * ts, cam.width)) - half_pad
-    v0 = wp.float64(ty0 * ts) + half_pad
-    v1 = wp.float64(wp.min(ty1 * ts, cam.height)) - half_pad
-    fx = wp.float64(cam.fx)
-    fy = wp.float64(cam.fy)
-    cx = wp.float64(cam.cx)
-    cy = wp.float64(cam.cy)
-    return rect_meets_conic(e.conic, (u0 - cx) / fx, (u1 - cx) / fx, (v0 - cy) / fy, (v1 - cy) / fy)
+    """Whether the hull of tiles ``[tx0, tx1) × [ty0, ty1)`` (:func:`tiles_rect`; for one tile the rectangle of
+    :func:`tile_meets_ellipse`) meets ``{q ≤ 0}``."""
+    r = tiles_rect(tx0, tx1, ty0, ty1, cam, settings)
+    return rect_meets_conic(e.conic, r[0], r[1], r[2], r[3])
 
 
 CONIC_BLOCK = wp.constant(8)  # tiles per side of the blocks of the general test (8 × 8 = 64 mask bits)
