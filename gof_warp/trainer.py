@@ -209,16 +209,14 @@ class Trainer:
         g = self.gaussians
         update_learning_rate(self.optimizer, it, cfg.optim, self.scene.extent)
         self.densifier.update_sh_degree(it, g)
-        views = [self._next_view() for _ in range(self.views_per_step)]
+        mine = self.ranks.my_views([self._next_view() for _ in range(self.views_per_step)])
         terms: dict[str, torch.Tensor] = {}
-        for idx in self.ranks.my_views(views):
-            view_terms = self._render_view(it, idx)
-            for k, v in view_terms.items():  # this rank's mean over its views
+        for idx in mine:
+            for k, v in self._render_view(it, idx).items():  # this rank's mean over its views
                 terms[k] = v if k not in terms else terms[k] + v
-        share = len(self.ranks.my_views(views))
-        terms = terms if share == 1 else {k: v / share for k, v in terms.items()}
+        terms = terms if len(mine) == 1 else {k: v / len(mine) for k, v in terms.items()}
         self.ranks.sum_gradients(self._trained_params())
-        cam = self.cameras[self.ranks.my_views(views)[0]]  # the view the spike monitor files the loss under
+        cam = self.cameras[mine[0]]  # the view the spike monitor files the loss under
         with torch.no_grad(), _stage("train.densify"):
             if self.densifier.densify_due(it):
                 self.ranks.reduce_densify_stats(self.densifier.stats)
