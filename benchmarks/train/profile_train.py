@@ -73,19 +73,43 @@ def _run_loop(trainer, n: int) -> float:
     return time.perf_counter() - t0
 
 
-def _device_time(evt) -> float:
-    """Device (CUDA) time of a key-averaged event in µs, across torch versions."""
-    for name in ("device_time_total", "cuda_time_total"):
-        if hasattr(evt, name):
-            return float(getattr(evt, name))
-    return 0.0
+def _union_ms(spans) -> float:
+    """Milliseconds covered by the union of ``(start_us, duration_us)`` spans."""
+    busy, end = 0.0, -1.0
+    for start, dur in sorted(spans):
+        if start > end:
+            busy, end = busy + dur, start + dur
+        elif start + dur > end:
+            busy, end = busy + start + dur - end, start + dur
+    return busy / 1e3
 
 
-def _self_device_time(evt) -> float:
-    for name in ("self_device_time_total", "self_cuda_time_total"):
-        if hasattr(evt, name):
-            return float(getattr(evt, name))
-    return 0.0
+def summarise_trace(events: list[dict], n: int) -> dict:
+    """Per-iteration figures from a chrome trace of ``n`` iterations: the GPU's busy time (union of kernel,
+    memcpy and memset spans), each named stage's host time (its ``record_function`` range) and device time
+    (the same range on the GPU timeline), host waits in synchronisations, and the costliest kernels."""
+    spans = [e for e in events if e.get("ph") == "X"]
+    gpu = [e for e in spans if e.get("cat") in ("kernel", "gpu_memcpy", "gpu_memset")]
+    stages = {}
+    for name in STAGES:
+        host = [e["dur"] for e in spans if e.get("cat") == "user_annotation" and e["name"] == name]
+        device = [e["dur"] for e in spans if e.get("cat") == "gpu_user_annotation" and e["name"] == name]
+        stages[name] = {"host_ms_per_it": round(sum(host) / 1e3 / n, 3), "device_ms_per_it": round(sum(device) / 1e3 / n, 3),
+                        "calls_per_it": round(len(host) / n, 2)}
+    syncs = [e for e in spans if e["name"] in ("cudaStreamSynchronize", "cudaDeviceSynchronize")]
+    by_name: dict[str, list] = {}
+    for e in gpu:
+        by_name.setdefault(e["name"][:120], []).append(e["dur"])
+    top = sorted(by_name.items(), key=lambda kv: -sum(kv[1]))[:25]
+    return {
+        "device_busy_ms_per_it": round(_union_ms((e["ts"], e["dur"]) for e in gpu) / n, 3),
+        "stages": stages,
+        "syncs_per_it": round(len(syncs) / n, 2),
+        "sync_wait_ms_per_it": round(sum(e["dur"] for e in syncs) / 1e3 / n, 3),
+        "kernel_launches_per_it": round(sum(1 for e in gpu if e.get("cat") == "kernel") / n, 1),
+        "top_kernels": [{"name": k, "ms_per_it": round(sum(d) / 1e3 / n, 3), "calls_per_it": round(len(d) / n, 2)}
+                        for k, d in top],
+    }
 
 
 def profile(trainer, n_trace: int, out_dir: Path) -> dict:
@@ -96,26 +120,13 @@ def profile(trainer, n_trace: int, out_dir: Path) -> dict:
         wall = _run_loop(trainer, n_trace)
     trace = out_dir / "trace.json"
     prof.export_chrome_trace(str(trace))
+    events = json.loads(trace.read_text())
+    events = events["traceEvents"] if isinstance(events, dict) else events
     with open(trace, "rb") as src, gzip.open(str(trace) + ".gz", "wb") as dst:
         shutil.copyfileobj(src, dst)
     trace.unlink()
-    events = prof.key_averages()
-    stages = {}
-    for e in events:
-        if e.key in STAGES:
-            stages[e.key] = {"host_ms_per_it": round(e.cpu_time_total / 1e3 / n_trace, 3),
-                             "device_ms_per_it": round(_device_time(e) / 1e3 / n_trace, 3), "calls": e.count}
-    kernels = sorted((e for e in events if _self_device_time(e) > 0), key=_self_device_time, reverse=True)
-    busy = sum(_self_device_time(e) for e in kernels) / 1e3 / n_trace
-    return {
-        "traced_iterations": n_trace,
-        "wall_ms_per_it_traced": round(wall * 1e3 / n_trace, 3),
-        "device_busy_ms_per_it": round(busy, 3),
-        "stages": stages,
-        "top_kernels": [{"name": e.key[:120], "ms_per_it": round(_self_device_time(e) / 1e3 / n_trace, 3),
-                         "calls_per_it": round(e.count / n_trace, 2)} for e in kernels[:25]],
-        "kernel_launches_per_it": round(sum(e.count for e in kernels) / n_trace, 1),
-    }
+    return {"traced_iterations": n_trace, "wall_ms_per_it_traced": round(wall * 1e3 / n_trace, 3),
+            **summarise_trace(events, n_trace)}
 
 
 def main(argv=None) -> int:
