@@ -4,7 +4,8 @@ Each call runs ``python3 benchmarks/real_captures/gpu_queue.py --budget 540`` on
 already done (a marker in ``--state``) are skipped, training resumes from its newest checkpoint, a step
 that would start with too little time left waits for the next call, and a training step still running
 at the budget is stopped (its checkpoints stay). Results land in ``--state/results`` and are packed into
-``$OUT/results.tar.gz`` at the end of every call.
+``$OUT/results.tar.gz`` at the end of every call. Several queues (one ``--state`` each) can share one GPU:
+``queue_parallel.sh``.
 
 Scenes: ``garden`` and ``background`` (synthetic, exact GT: train with the preset ``train`` picks, extract,
 score the seen region and a ground-and-objects crop, probe the ground of the field) and ``dtu`` (carried in
@@ -16,6 +17,7 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tarfile
@@ -27,9 +29,11 @@ HERE = Path(__file__).resolve().parent
 
 
 REAL = {"dtu": "dtu_scan24", "can": "colmap_can", "fox": "fox"}
+# the ground-and-objects crop of each synthetic scene (x0 y0 z0 x1 y1 z1): its ground under and around the objects
+CROPS = {"garden": (-2.5, -2.5, -0.5, 2.5, 2.5, 1.5), "background": (-2.0, -2.0, -1.1, 2.0, 2.0, 1.0)}
 
 
-def steps(state: Path, scenes: list[str], resolution: tuple[int, int], iterations: int):
+def steps(state: Path, scenes: list[str], resolution: tuple[int, int], iterations: int, views: int | None = None):
     """``[(name, command, min_seconds_left, is_training)]`` in order; a scene ``NAME:N`` trains N iterations."""
     out = []
     iters = {s.split(":")[0]: int(s.split(":")[1]) for s in scenes if ":" in s}
@@ -40,14 +44,15 @@ def steps(state: Path, scenes: list[str], resolution: tuple[int, int], iteration
         if s in ("garden", "background"):
             scene = state / s
             out.append((f"{s}:generate", [PY, "-m", "gof_warp.synthetic", "--preset", s, "--out", str(scene),
-                                          "--resolution", str(resolution[0]), str(resolution[1]), "--force"], 60, False))
+                                          "--resolution", str(resolution[0]), str(resolution[1]), "--force"]
+                        + (["--views", str(views)] if views else []), 60, False))
         else:  # a real scene carried in .data/ or .data2/ (the device call's 64 MiB limit splits them)
             scene = state / s
             src = REAL[s]
             out.append((f"{s}:copy", ["sh", "-c", f"cp -r $(ls -d .data/{src} .data2/{src} /tmp/gofdata/{src} 2>/dev/null "
                                                  f"| head -1) {scene}"], 10, False))
         out.append((f"{s}:train", [PY, "-m", "gof_warp.train", str(scene), "--out", str(run), "--iterations",
-                                   str(iters.get(s, iterations)), "checkpoint_every=2000", "--resume"], 120, True))
+                                   str(iters.get(s, iterations)), "checkpoint_every=1000", "--resume"], 120, True))
         if s == "dtu":  # the trained DTU geometry comes back for the extraction benchmarks (benchmarks/extract)
             out.append((f"{s}:pack", [PY, str(HERE.parent / "extract" / "pack_model.py"), "pack", str(run),
                                       str(state / "big" / f"{s}_geometry.npz")], 30, False))
@@ -58,7 +63,7 @@ def steps(state: Path, scenes: list[str], resolution: tuple[int, int], iteration
                                           str(res / "evaluate_seen.json")], 120, False))
             out.append((f"{s}:evaluate_crop", [PY, "-m", "gof_warp.evaluate", "--mesh", str(run / "mesh_tetra.ply"),
                                                "--gt", str(scene / "gt_mesh.ply"), "--scene", str(scene), "--crop",
-                                               "-2.5", "-2.5", "-0.5", "2.5", "2.5", "1.5", "--json",
+                                               *map(str, CROPS[s]), "--json",
                                                str(res / "evaluate_crop.json")], 120, False))
             out.append((f"{s}:gt_pictures", [PY, "-m", "gof_warp.pictures", str(run), "--mesh",
                                              str(scene / "gt_mesh.ply")], 60, False))
@@ -86,6 +91,7 @@ def main() -> int:
     ap.add_argument("--scenes", default="garden,dtu,background")
     ap.add_argument("--resolution", type=int, nargs=2, default=[256, 192])
     ap.add_argument("--iterations", type=int, default=30000)
+    ap.add_argument("--views", type=int, default=None, help="training views of the synthetic scenes (default: preset's)")
     a = ap.parse_args()
     t_end = time.time() + a.budget
     state = Path(a.state)
@@ -95,7 +101,7 @@ def main() -> int:
     names = [s.split(":")[0] for s in scenes]
     for s in names:
         (state / "results" / s).mkdir(parents=True, exist_ok=True)
-    for name, cmd, need, training in steps(state, scenes, tuple(a.resolution), a.iterations):
+    for name, cmd, need, training in steps(state, scenes, tuple(a.resolution), a.iterations, a.views):
         marker = state / "done" / name.replace(":", "_")
         if marker.exists():
             continue
@@ -112,8 +118,12 @@ def main() -> int:
             try:
                 rc = p.wait(timeout=max(1.0, t_end - time.time()))
             except subprocess.TimeoutExpired:
-                p.terminate()
-                p.wait()
+                p.send_signal(signal.SIGINT)  # a training checkpoints its current iteration and stops
+                try:
+                    p.wait(timeout=45)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+                    p.wait()
                 print(f"[queue] {name}: stopped at the budget after {time.time() - t0:.0f} s (resumes next call)",
                       flush=True)
                 break
