@@ -1,0 +1,22 @@
+#!/usr/bin/env bash
+# Several gpu_queue.py queues on one GPU at once, one state folder and one $OUT subfolder per queue:
+#   bash benchmarks/real_captures/queue_parallel.sh BUDGET "fox:30000" "can" "background --resolution 400 400 --views 100"
+# Each argument after BUDGET is one queue: its --scenes value, then any further gpu_queue.py options. The state of
+# queue "NAME..." is /tmp/rcp_NAME (resumable across calls); its results come back in $OUT/NAME/results.tar.gz.
+# Times measured this way are of runs that shared the GPU (and the host's cores) with the others.
+set -u
+budget=$1; shift
+pids=()
+for q in "$@"; do
+  read -r scenes opts <<<"$q"
+  name=${scenes%%:*}; name=${name%%,*}
+  mkdir -p "$OUT/$name"
+  OUT="$OUT/$name" python3 benchmarks/real_captures/gpu_queue.py --budget "$budget" --state "/tmp/rcp_$name" \
+    --scenes "$scenes" $opts > "$OUT/$name/queue.log" 2>&1 &
+  pids+=($!)
+done
+rc=0
+for p in "${pids[@]}"; do wait "$p" || rc=1; done
+for q in "$@"; do read -r scenes _ <<<"$q"; name=${scenes%%:*}; name=${name%%,*}; echo "== $name"; tail -5 "$OUT/$name/queue.log"; done
+nvidia-smi --query-gpu=memory.used --format=csv,noheader || true
+exit $rc
