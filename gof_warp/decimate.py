@@ -99,12 +99,46 @@ def _check(verts, faces, max_faces, max_error, error_samples) -> tuple[np.ndarra
     return v, f
 
 
+def _row_keys(rows: np.ndarray) -> np.ndarray | None:
+    """One int64 per row of a non-negative integer array ``[R, C]`` whose order is the rows' lexicographic
+    order (mixed radix ``max + 1``), or None when the radix does not fit 63 bits."""
+    base = int(rows.max()) + 1
+    if base ** rows.shape[1] > np.iinfo(np.int64).max:
+        return None
+    key = rows[:, 0].astype(np.int64)
+    for c in range(1, rows.shape[1]):
+        key = key * base + rows[:, c]
+    return key
+
+
+def _row_groups(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(inverse [R], counts [G])`` of the distinct rows of a non-negative integer array ``[R, C]``, groups in
+    lexicographic row order: what ``np.unique(rows, axis=0, return_inverse=True, return_counts=True)`` gives,
+    through one int64 key per row (``np.unique`` on whole rows sorts a byte view: ~5x slower here)."""
+    rows = np.asarray(rows, np.int64)
+    if rows.shape[0] == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    key = _row_keys(rows)
+    if key is not None:
+        _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+        return inverse.reshape(-1), counts
+    order = np.lexsort(rows.T[::-1])  # too many distinct values to pack: sort by the columns, first major
+    ordered = rows[order]
+    new = np.ones(len(rows), bool)
+    new[1:] = (ordered[1:] != ordered[:-1]).any(axis=1)
+    group = np.cumsum(new) - 1
+    inverse = np.empty(len(rows), np.int64)
+    inverse[order] = group
+    return inverse, np.bincount(group)
+
+
 def _edge_counts(faces: np.ndarray) -> np.ndarray:
     """How many faces use each distinct undirected edge."""
     if len(faces) == 0:
         return np.zeros(0, np.int64)
-    e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    return np.unique(e, axis=0, return_counts=True)[1]
+    e = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1).astype(np.int64)
+    key = _row_keys(e)
+    return _row_groups(e)[1] if key is None else np.unique(key, return_counts=True)[1]  # counts only: no argsort
 
 
 def is_closed(faces) -> bool:
@@ -119,8 +153,7 @@ def _clean(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray
     f = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
     degenerate = len(faces) - len(f)
     key = np.sort(f, axis=1)
-    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    inverse = inverse.reshape(-1)
+    inverse, counts = _row_groups(key)
     keep = counts[inverse] == 1
     # a triple that occurs an odd number of times (>1) keeps one face
     odd = np.where((counts > 1) & (counts % 2 == 1))[0]
@@ -166,8 +199,7 @@ def _split_pinches(verts: np.ndarray, faces: np.ndarray, turn: int = 0) -> tuple
     nf = len(faces)
     ends = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)  # edge k of face f: f[k] -> f[k+1]
     key = np.sort(ends, axis=1)
-    _, edge_id, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    edge_id = edge_id.reshape(-1)
+    edge_id, counts = _row_groups(key)
     bad = counts > 2
     if not bad.any():
         return verts, faces, 0

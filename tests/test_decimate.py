@@ -172,3 +172,20 @@ def test_budget_alone_can_skip_the_error_measurement():
     assert len(f) <= len(m.faces) // 2 and info["error_max"] is None and info["error_p95"] is None
     _, _, info = decimate(m.vertices, m.faces, max_faces=len(m.faces) // 2)
     assert info["error_max"] is not None and info["error_max"] > 0
+
+
+@pytest.mark.parametrize("shape, high", [((2000, 2), 60), ((3000, 3), 25), ((9, 3), 1), ((40, 3), 2 ** 40)])
+def test_row_groups_equal_numpy_unique_on_rows(shape, high):
+    """The packed-key grouping (and its lexsort fallback when the key would overflow: high = 2**40, three
+    columns) gives numpy's row-wise unique: same group order, inverse and counts."""
+    from gof_warp.decimate import _edge_counts, _row_groups
+
+    rows = np.random.default_rng(shape[0]).integers(0, high, size=shape)
+    rows[1::7] = rows[::7][: len(rows[1::7])]  # repeated rows
+    _, inverse, counts = np.unique(rows, axis=0, return_inverse=True, return_counts=True)
+    got_inverse, got_counts = _row_groups(rows)
+    np.testing.assert_array_equal(got_inverse, inverse.reshape(-1))
+    np.testing.assert_array_equal(got_counts, counts)
+    if shape[1] == 3:
+        edges = np.sort(rows[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+        np.testing.assert_array_equal(_edge_counts(rows), np.unique(edges, axis=0, return_counts=True)[1])
