@@ -78,6 +78,15 @@ class Ranks:
         stats.count.copy_(flat[2 * n :].round().to(torch.int32))
         torch.distributed.all_reduce(stats.max_radii, op=torch.distributed.ReduceOp.MAX)
 
+    def reduce_field(self, field: torch.Tensor, seen: torch.Tensor) -> None:
+        """The opacity field of views shared out among the ranks, in place: the minimum of ``field`` and the
+        sum of ``seen`` (view counts) over the ranks. The minimum does not depend on the order, so every rank
+        ends with exactly the one-process field of all the views."""
+        if not self.active:
+            return
+        torch.distributed.all_reduce(field, op=torch.distributed.ReduceOp.MIN)
+        torch.distributed.all_reduce(seen, op=torch.distributed.ReduceOp.SUM)
+
     def check_identical(self, params: dict[str, torch.Tensor], iteration: int) -> None:
         """Raise :class:`GofError` unless every rank holds the same parameters (float64 checksums compared)."""
         if not self.active:

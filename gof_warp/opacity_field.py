@@ -67,7 +67,7 @@ def _wp_device(t: torch.Tensor) -> str:
 
 @torch.no_grad()
 def opacity_field(gaussians, cameras: Sequence[Camera], points, *, config: OpacityFieldConfig | None = None,
-                  render_config: RenderConfig | None = None, return_seen: bool = False):
+                  render_config: RenderConfig | None = None, return_seen: bool = False, ranks=None):
     """Evaluate the opacity field at ``points``.
 
     Args:
@@ -77,6 +77,10 @@ def opacity_field(gaussians, cameras: Sequence[Camera], points, *, config: Opaci
         config, render_config: see :class:`OpacityFieldConfig` and :class:`~gof_warp.render.RenderConfig`
             (near plane, alpha thresholds, k_max — the same rules as rendering).
         return_seen: also return ``[M]`` int32, how many views see each point.
+        ranks: a :class:`~gof_warp.distributed.Ranks` of several processes (``torchrun``): each evaluates
+            every ``world``-th camera from its ``rank`` and the ranks reduce the minimum and the view counts
+            (:meth:`~gof_warp.distributed.Ranks.reduce_field`) before the unseen points get ``unseen_value``.
+            Every rank must call with the same points and cameras; each returns the one-process result.
 
     Returns:
         ``[M]`` float32 torch tensor on the Gaussians' device (and the seen counts when asked).
@@ -92,6 +96,8 @@ def opacity_field(gaussians, cameras: Sequence[Camera], points, *, config: Opaci
         raise GofError("points contain NaN/inf")
     if not cameras:
         raise GofError("the opacity field needs at least one camera")
+    if ranks is not None and ranks.active:
+        cameras = list(cameras)[ranks.rank :: ranks.world]  # this rank's views (may be none: it still reduces)
     m = pts.shape[0]
     field = torch.ones(m, dtype=torch.float32, device=device)  # running minimum (O <= 1); unseen set at the end
     seen = torch.zeros(m, dtype=torch.int32, device=device)
@@ -104,7 +110,13 @@ def opacity_field(gaussians, cameras: Sequence[Camera], points, *, config: Opaci
             uv = torch.as_tensor(uv, device=device)
             inside = (z > render_config.near) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] < cam.height)
             seen += inside.int()
+        if ranks is not None:
+            ranks.reduce_field(field, seen)
         field = torch.where(seen > 0, torch.zeros_like(field), field)
+        return (field, seen) if return_seen else field
+    if not cameras:  # a rank with no share of the views: the neutral field, then the reduction
+        ranks.reduce_field(field, seen)
+        field = torch.where(seen > 0, field, torch.full_like(field, config.unseen_value))
         return (field, seen) if return_seen else field
     wp.init()
     wdev = _wp_device(pts)
@@ -129,6 +141,8 @@ def opacity_field(gaussians, cameras: Sequence[Camera], points, *, config: Opaci
             stop = min(m, start + config.chunk_size)
             _min_over_views(arrays, views, wp.from_torch(pts[start:stop].contiguous(), dtype=wp.vec3),
                             wp.from_torch(field[start:stop]), wp.from_torch(seen[start:stop]))
+    if ranks is not None:
+        ranks.reduce_field(field, seen)
     field = torch.where(seen > 0, field, torch.full_like(field, config.unseen_value))
     return (field, seen) if return_seen else field
 

@@ -174,3 +174,44 @@ def test_forked_processes_give_the_one_process_field():
         field, seen = opacity_field(g, cams, points, config=cfg, return_seen=True)
         assert torch.equal(field, one) and torch.equal(seen, seen_one), workers
     assert (seen_one > 0).any() and (one < 1).any()  # the scene is seen and not empty
+
+
+def _views_split_rank(rank, world, init_file, cams_n, result):
+    import torch.distributed as dist
+
+    from gof_warp.distributed import Ranks
+
+    dist.init_process_group("gloo", init_method=f"file://{init_file}", rank=rank, world_size=world)
+    try:
+        means, quats, scales, opac = _scene(seed=8)
+        g = Gaussians.from_activated(means, quats, scales, opac, device="cpu")
+        points = np.random.default_rng(9).uniform(-0.8, 0.8, (203, 3))
+        field, seen = opacity_field(g, _cameras(cams_n), points, config=OpacityFieldConfig(cpu_processes=1),
+                                    return_seen=True, ranks=Ranks(rank=rank, world=world))
+        result[rank] = (field.numpy().tobytes(), seen.numpy().tobytes())
+    finally:
+        dist.destroy_process_group()
+
+
+@pytest.mark.parametrize("world, cams_n", [(2, 5), (3, 2)])
+def test_views_shared_out_among_ranks_give_the_one_process_field(tmp_path, world, cams_n):
+    """torch.distributed (gloo) ranks each evaluate every world-th view and reduce (minimum, summed view counts):
+    every rank ends with the one-process field and seen counts bit for bit, also when a rank has no view
+    (3 ranks, 2 cameras)."""
+    import torch.multiprocessing as mp
+
+    means, quats, scales, opac = _scene(seed=8)
+    g = Gaussians.from_activated(means, quats, scales, opac, device="cpu")
+    points = np.random.default_rng(9).uniform(-0.8, 0.8, (203, 3))
+    one, seen_one = opacity_field(g, _cameras(cams_n), points, config=OpacityFieldConfig(cpu_processes=1),
+                                  return_seen=True)
+    assert (seen_one > 1).any() and (one < 1).any()  # several views see points: the reduction has work to do
+    with mp.Manager() as manager:
+        result = manager.dict()
+        mp.spawn(_views_split_rank, args=(world, str(tmp_path / "init"), cams_n, result), nprocs=world, join=True)
+        got = dict(result)
+    for rank in range(world):
+        field = np.frombuffer(got[rank][0], np.float32)
+        seen = np.frombuffer(got[rank][1], np.int32)
+        np.testing.assert_array_equal(field, one.numpy())
+        np.testing.assert_array_equal(seen, seen_one.numpy())
