@@ -97,7 +97,7 @@ def opacity_field(gaussians, cameras: Sequence[Camera], points, *, config: Opaci
     if not cameras:
         raise GofError("the opacity field needs at least one camera")
     if ranks is not None and ranks.active:
-        cameras = list(cameras)[ranks.rank :: ranks.world]  # this rank's views (may be none: it still reduces)
+        cameras = list(cameras)[ranks.rank :: ranks.world]  # this rank's views (none: it still takes part below)
     m = pts.shape[0]
     field = torch.ones(m, dtype=torch.float32, device=device)  # running minimum (O <= 1); unseen set at the end
     seen = torch.zeros(m, dtype=torch.int32, device=device)
@@ -113,10 +113,6 @@ def opacity_field(gaussians, cameras: Sequence[Camera], points, *, config: Opaci
         if ranks is not None:
             ranks.reduce_field(field, seen)
         field = torch.where(seen > 0, torch.zeros_like(field), field)
-        return (field, seen) if return_seen else field
-    if not cameras:  # a rank with no share of the views: the neutral field, then the reduction
-        ranks.reduce_field(field, seen)
-        field = torch.where(seen > 0, field, torch.full_like(field, config.unseen_value))
         return (field, seen) if return_seen else field
     wp.init()
     wdev = _wp_device(pts)
