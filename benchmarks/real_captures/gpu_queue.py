@@ -29,6 +29,7 @@ HERE = Path(__file__).resolve().parent
 
 
 REAL = {"dtu": "dtu_scan24", "can": "colmap_can", "fox": "fox"}
+STOP_GRACE_S = 45.0  # a step still running this long before the budget is interrupted, so the call ends by then
 # the ground-and-objects crop of each synthetic scene (x0 y0 z0 x1 y1 z1): its ground under and around the objects
 CROPS = {"garden": (-2.5, -2.5, -0.5, 2.5, 2.5, 1.5), "background": (-2.0, -2.0, -1.1, 2.0, 2.0, 1.0)}
 
@@ -116,11 +117,11 @@ def main() -> int:
         with open(log, "a") as f:
             p = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"})
             try:
-                rc = p.wait(timeout=max(1.0, t_end - time.time()))
+                rc = p.wait(timeout=max(1.0, t_end - STOP_GRACE_S - time.time()))
             except subprocess.TimeoutExpired:
                 p.send_signal(signal.SIGINT)  # a training checkpoints its current iteration and stops
                 try:
-                    p.wait(timeout=45)
+                    p.wait(timeout=STOP_GRACE_S)
                 except subprocess.TimeoutExpired:
                     p.kill()
                     p.wait()
