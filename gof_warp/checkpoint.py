@@ -200,7 +200,7 @@ def plain_rng_state(state):
 
 
 def numpy_rng_state(state):
-    """The inverse of :func:`_plain_rng_state` (PCG64, the default, holds Python ints only)."""
+    """The inverse of :func:`plain_rng_state` (PCG64, the default, holds Python ints only)."""
     if isinstance(state, dict):
         return {k: numpy_rng_state(v) for k, v in state.items()}
     return state.numpy() if isinstance(state, torch.Tensor) else state

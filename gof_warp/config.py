@@ -19,7 +19,6 @@ from .errors import GofError
 _FLOAT_TEXT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")  # exponent notation without YAML's dot
 
 
-
 class ConfigError(GofError):
     """A config file or override that does not match the config dataclasses."""
 

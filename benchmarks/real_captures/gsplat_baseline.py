@@ -34,11 +34,9 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import inspect
-import json
 import math
 import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 from types import SimpleNamespace
@@ -58,12 +56,6 @@ NEAR_PLANE, FAR_PLANE = 0.01, 1e10
 def _fail(msg: str) -> None:
     print(f"gsplat_baseline: {msg}", file=sys.stderr)
     raise SystemExit(2)
-
-
-def extent_3dgs(cameras) -> float:
-    """3DGS's ``cameras_extent``: 1.1 x the largest distance of a camera centre from their mean."""
-    c = np.stack([cam.center for cam in cameras])
-    return 1.1 * float(np.linalg.norm(c - c.mean(axis=0), axis=1).max())
 
 
 def initial_params(points, colors, seed: int) -> dict:
@@ -112,14 +104,6 @@ def builtin_reset_works(strategy_cls) -> bool:
         return True
 
 
-def write_atomic(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    os.chmod(tmp, 0o644)  # mkstemp makes it 0600
-    with os.fdopen(fd, "wb") as f:
-        f.write(data)
-    os.replace(tmp, path)
-
-
 def save_views(path: Path, rows) -> None:
     """``rows``: [(photo, render)] uint8 [H, W, 3] pairs -> one PNG, a row per view (long side <= 960 px each)."""
     from PIL import Image
@@ -143,6 +127,7 @@ def save_views(path: Path, rows) -> None:
 def train(scene, args, gs, report: dict, out: Path) -> None:
     import torch
 
+    from gof_warp.io_utils import write_json_atomic
     from gof_warp.metrics import psnr, ssim
 
     dev = torch.device(args.device)
@@ -248,7 +233,7 @@ def train(scene, args, gs, report: dict, out: Path) -> None:
                           test_per_image_psnr={r["name"]: r["psnr"] for r in test["per_image"]})  # fmt: skip
             if cuda:
                 report["peak_memory_gb"] = torch.cuda.max_memory_allocated(dev) / 2**30
-            write_atomic(out / "metrics.json", json.dumps(report, indent=1).encode())
+            write_json_atomic(out / "metrics.json", report, indent=1)
             if kept:
                 save_views(out / "views.png", kept)
             print(f"eval @ {done}: test PSNR {test['psnr']:.2f} dB SSIM {test['ssim']:.4f} | train PSNR "
@@ -277,6 +262,7 @@ def main(argv=None, gs=None) -> None:
     if not args.dry_run and gs is None:
         gs = import_gsplat(args.device)  # before the scene: fail fast
 
+    from gof_warp.camera import camera_extent
     from gof_warp.data import DataConfig, load_scene
 
     t = time.perf_counter()
@@ -286,8 +272,8 @@ def main(argv=None, gs=None) -> None:
         _fail(f"{args.scene}: the scene has no SfM points (this baseline starts from them, as simple_trainer's sfm init)")
     if not scene.test:
         _fail(f"{args.scene}: the scene has no test views")
-    scale = extent_3dgs(scene.train_cameras)
-    scale_all = extent_3dgs([v.camera for v in scene.all_views])
+    scale = camera_extent(scene.train_cameras)  # 3DGS's cameras_extent
+    scale_all = camera_extent([v.camera for v in scene.all_views])
     cam = scene.train[0].camera
     print(f"scene {scene.source}: {len(scene.train)} train / {len(scene.test)} test views "
           f"(test: {[v.name for v in scene.test]}), {cam.width}x{cam.height}, {len(scene.points)} SfM points, "

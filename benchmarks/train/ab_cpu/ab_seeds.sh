@@ -4,7 +4,7 @@
 # base = the code as it is; fused = optim.fused=true (torch's fused Adam); prod = the 3D filter's opacity
 # compensation with torch.prod as before session 5 (run_variant.py patches it in). Appends to OUT/summary.txt.
 set -eu
-scene=${1:?scene folder}; out=${2:-/tmp/ab_cpu}; mkdir -p "$out"
+scene=$(realpath "${1:?scene folder}"); out=${2:-/tmp/ab_cpu}; mkdir -p "$out"; out=$(realpath "$out")
 cd "$(dirname "$0")/../../.."
 run() {  # variant seed mode extra
   python benchmarks/train/ab_cpu/run_variant.py "$3" "$scene" --config quick --out "$out/$1_s$2" --device cpu \
