@@ -12,6 +12,12 @@ types and refuses any other Python object, so a checkpoint from someone else can
 
 Crash-safe. It is written to a temporary file and renamed, so a crash while saving leaves the previous
 checkpoint intact; older checkpoints beyond ``keep`` are removed only after the new one is in place.
+
+Off the training's path. :class:`CheckpointWriter` copies the state to host memory (a copy that shares nothing
+with the training's tensors), checks it, and leaves serialising and writing to a background thread, so that
+training goes on while the file is written; one write at a time, and a failed write is raised at the next
+call. On DTU scan 24 (814k Gaussians, a 570 MB checkpoint) a synchronous save stalled training for ~1 s each
+time (H200, 29 checkpoints: ~25 s of a 615 s run).
 When the newest checkpoint of a run is unreadable anyway (a disk filled up, a file truncated by a copy),
 :func:`load_newest` falls back to the newest one that loads and names every file it skipped.
 """
@@ -23,6 +29,7 @@ import logging
 import os
 import pickle
 import re
+import threading
 import warnings
 from pathlib import Path
 
@@ -107,6 +114,69 @@ def save_checkpoint(run_dir, iteration: int, state: dict, keep: int = 2) -> Path
     for _, old in list_checkpoints(run_dir)[:-keep] if keep > 0 else []:
         old.unlink(missing_ok=True)
     return path
+
+
+def host_copy(obj):
+    """``obj`` with every tensor copied to host memory (a new tensor, also for CPU tensors: the caller may go on
+    changing the originals in place while the copy is written); other entries as they are."""
+    if isinstance(obj, torch.Tensor):
+        return obj.detach().to("cpu", copy=True)
+    if isinstance(obj, dict):
+        out = collections.OrderedDict() if isinstance(obj, collections.OrderedDict) else {}
+        for k, v in obj.items():
+            out[k] = host_copy(v)
+        if isinstance(out, collections.OrderedDict) and hasattr(obj, "_metadata"):
+            out._metadata = obj._metadata
+        return out
+    if isinstance(obj, (list, tuple)):
+        items = [host_copy(v) for v in obj]
+        return items if isinstance(obj, list) else tuple(items)
+    return obj
+
+
+class CheckpointWriter:
+    """Writes checkpoints in a background thread, one at a time (module docstring).
+
+    :meth:`submit` waits for the previous write, copies ``state`` to host memory and checks it
+    (:func:`plain_data`: a non-plain entry raises here, in the caller), then returns the path the checkpoint
+    will have while a thread writes it with :func:`save_checkpoint`. :meth:`wait` blocks until the write is done
+    and raises :class:`CheckpointError` if it failed (the previous checkpoints are then untouched). Call it
+    before reading the run's checkpoints and before the process ends (the thread is not a daemon, so an
+    interpreter exiting normally finishes the write first).
+    """
+
+    def __init__(self):
+        self._thread: threading.Thread | None = None
+        self._error: BaseException | None = None
+        self._path: Path | None = None
+
+    def submit(self, run_dir, iteration: int, state: dict, keep: int = 2) -> Path:
+        self.wait()
+        state = plain_data(host_copy(state))
+        self._path = checkpoint_dir(run_dir) / f"ckpt_{iteration:07d}.pt"
+
+        def write():
+            try:
+                save_checkpoint(run_dir, iteration, state, keep=keep)
+            except BaseException as e:  # raised in the training's thread by wait()
+                self._error = e
+
+        self._thread = threading.Thread(target=write, name=f"gof-checkpoint-{iteration}")
+        self._thread.start()
+        return self._path
+
+    @property
+    def busy(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def wait(self) -> None:
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+        if self._error is not None:
+            error, self._error = self._error, None
+            raise CheckpointError(f"writing the checkpoint {self._path} failed: {error} (the earlier checkpoints "
+                                  "are kept)") from error
 
 
 def _unsafe_reason(message: str) -> str:

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import torch
 
-from gof_warp.checkpoint import load_checkpoint, list_checkpoints, save_checkpoint
+from gof_warp.checkpoint import CheckpointError, CheckpointWriter, load_checkpoint, list_checkpoints, save_checkpoint
 from gof_warp.data import load_scene
 from gof_warp.errors import GofError
 from gof_warp.loss_monitor import LossSpikeMonitor
@@ -94,6 +94,31 @@ def test_save_converts_numpy_and_refuses_other_objects(tmp_path):
     with pytest.raises(TypeError, match=r"state\['bad'\]\[0\].*_Payload.*not plain data"):
         save_checkpoint(tmp_path, 2, {"iteration": 2, "bad": [_Payload(tmp_path / "x")]})
     assert [it for it, _ in list_checkpoints(tmp_path)] == [1]
+    assert not list((tmp_path / "checkpoints").glob(".*"))  # no temporary file left behind
+
+
+def test_background_writer_saves_a_snapshot_and_reports_a_failed_write(tmp_path, monkeypatch):
+    writer = CheckpointWriter()
+    moments = torch.arange(6, dtype=torch.float32)
+    path = writer.submit(tmp_path, 5, {"iteration": 5, "m": moments, "nested": [{"m": moments}]}, keep=2)
+    moments.mul_(-1.0)  # the training goes on changing its tensors in place while the file is written
+    writer.wait()
+    state = load_checkpoint(path)
+    assert torch.equal(state["m"], torch.arange(6, dtype=torch.float32))
+    assert torch.equal(state["nested"][0]["m"], torch.arange(6, dtype=torch.float32))
+    with pytest.raises(TypeError, match="not plain data"):  # checked in the caller's thread, nothing started
+        writer.submit(tmp_path, 6, {"bad": _Payload(tmp_path / "x")})
+    assert not writer.busy
+
+    def disk_full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(torch, "save", disk_full)
+    writer.submit(tmp_path, 7, {"iteration": 7})
+    with pytest.raises(CheckpointError, match="ckpt_0000007.pt failed.*No space left"):
+        writer.wait()
+    writer.wait()  # reported once
+    assert [it for it, _ in list_checkpoints(tmp_path)] == [5]
     assert not list((tmp_path / "checkpoints").glob(".*"))  # no temporary file left behind
 
 

@@ -186,3 +186,18 @@ def test_resume_keeps_snapshots(tiny_scene, tmp_path):
     after = second.run()["snapshots"]
     assert after[0] == before[0] and [s["iteration"] for s in after] == [4, 16]
     assert ply.read_bytes() == written and (tmp_path / "r" / after[1]["path"]).is_file()
+
+
+def test_warm_up_pass_changes_nothing_that_training_reads(tiny_scene, tmp_path, monkeypatch):
+    """The throw-away pass before the clock starts (Trainer._warm_up) leaves the run bitwise as without it."""
+    warm = Trainer(tiny_scene, _config(iterations=10, appearance=True, checkpoint_every=0), tmp_path / "w", "cpu")
+    metrics = warm.run()
+    assert metrics["warmup_s"] > 0
+    monkeypatch.setattr(Trainer, "_warm_up", lambda self: None)
+    cold = Trainer(tiny_scene, _config(iterations=10, appearance=True, checkpoint_every=0), tmp_path / "c", "cpu")
+    cold.run()
+    for name, value in warm.gaussians.params.items():
+        assert torch.equal(value, cold.gaussians.params[name]), name
+    for a, b in zip(warm.appearance.parameters(), cold.appearance.parameters()):
+        assert torch.equal(a, b)
+    assert warm._rng.bit_generator.state == cold._rng.bit_generator.state
