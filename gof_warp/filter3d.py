@@ -21,9 +21,14 @@ import math
 from collections.abc import Sequence
 
 import torch
+import warp as wp
 
 from .camera import Camera
+from .devices import warp_device
 from .errors import GofError
+from .kernels.filter3d import nearest_seen_depth
+from .kernels.render_types import CameraParams, camera_params_from
+from .marching_inputs import torch_stream
 from .model import Gaussians
 
 FILTER_VARIANCE = 0.2  # Mip-Splatting's 3D filter variance in pixels² (GOF: sqrt(0.2))
@@ -47,14 +52,21 @@ def compute_filter_3d(means: torch.Tensor, cameras: Sequence[Camera], *, near: f
                       chunk_elements: int = DEFAULT_CHUNK_ELEMENTS) -> torch.Tensor:
     """Per-Gaussian 3D filter standard deviation ``φ`` (GOF's ``filter_3D``).
 
+    float32 centres (what training holds) go through the Warp kernel
+    :func:`gof_warp.kernels.filter3d.nearest_seen_depth` (one thread per centre, on the centres' device and
+    torch's stream; ~50 ms of chunked torch work per update on an H200 at 800k Gaussians became one launch);
+    other dtypes (float64: the reference the tests hold the kernel to) through chunked torch operations.
+
     Args:
         means: ``[N, 3]`` Gaussian centres, world space (any float dtype/device; no gradient).
         cameras: the training cameras (world-to-camera ``R, t``, OpenCV axes, any principal point).
         near: depth below which a camera does not count (GOF: 0.2).
-        chunk_elements: bound on cameras × Gaussians processed at once; memory is
+        chunk_elements: bound on cameras × Gaussians processed at once by the torch path; memory is
             ``O(chunk_elements)`` plus ``O(N)`` for the result, whatever the number of cameras.
+
     Returns:
         ``[N]`` tensor ``φ = d / max_c fx_c · sqrt(0.2)`` on ``means``' device and dtype.
+
     Raises:
         GofError: bad shapes, no cameras, or no Gaussian seen by any camera (φ undefined).
     """
@@ -68,6 +80,37 @@ def compute_filter_3d(means: torch.Tensor, cameras: Sequence[Camera], *, near: f
     n = means.shape[0]
     if n == 0:
         return means.new_zeros(0)
+    if means.dtype == torch.float32:
+        d = _nearest_seen_depth_warp(means, cameras, near)
+    else:
+        d = nearest_seen_depth_torch(means, cameras, near, chunk_elements)
+    seen_any = torch.isfinite(d)
+    if not seen_any.any():
+        raise GofError(f"compute_filter_3d: none of the {n} Gaussians is seen by any of the {len(cameras)} cameras "
+                       f"(depth > {near} and inside the image); check the poses and the scene scale")
+    d = torch.where(seen_any, d, d.masked_fill(~seen_any, -math.inf).amax())
+    f_max = max(c.fx for c in cameras)
+    return d / f_max * math.sqrt(FILTER_VARIANCE)
+
+
+def _nearest_seen_depth_warp(means: torch.Tensor, cameras: Sequence[Camera], near: float) -> torch.Tensor:
+    """``[N]`` nearest seeing depth (``+inf`` if unseen) of float32 ``means`` by the Warp kernel."""
+    wp.init()
+    device = warp_device(means.device)
+    depth = torch.empty(means.shape[0], dtype=torch.float32, device=means.device)
+    cams = wp.array([camera_params_from(c) for c in cameras], dtype=CameraParams, device=device)
+    with torch_stream(device):
+        wp.launch(nearest_seen_depth, dim=means.shape[0], device=device,
+                  inputs=[wp.from_torch(means.detach().contiguous(), dtype=wp.vec3), cams, float(near),
+                          float(SCREEN_GUARD)], outputs=[wp.from_torch(depth)])
+    return depth
+
+
+def nearest_seen_depth_torch(means: torch.Tensor, cameras: Sequence[Camera], near: float = 0.2,
+                             chunk_elements: int = DEFAULT_CHUNK_ELEMENTS) -> torch.Tensor:
+    """``[N]`` nearest seeing depth (``+inf`` if unseen) in ``means``' dtype, by chunked torch operations (the
+    kernel's reference in float64)."""
+    n = means.shape[0]
     cam = _camera_tensors(cameras, means.dtype, means.device)
     d = torch.full((n,), math.inf, dtype=means.dtype, device=means.device)
     chunk = max(1, chunk_elements // n)
@@ -80,13 +123,7 @@ def compute_filter_3d(means: torch.Tensor, cameras: Sequence[Camera], *, near: f
         in_screen = ((uv >= -SCREEN_GUARD * wh) & (uv <= (1.0 + SCREEN_GUARD) * wh)).all(dim=-1)
         seen = (z > near) & in_screen
         d = torch.minimum(d, torch.where(seen, z, torch.full_like(z, math.inf)).amin(dim=0))
-    seen_any = torch.isfinite(d)
-    if not seen_any.any():
-        raise GofError(f"compute_filter_3d: none of the {n} Gaussians is seen by any of the {len(cameras)} cameras "
-                       f"(depth > {near} and inside the image); check the poses and the scene scale")
-    d = torch.where(seen_any, d, d[seen_any].max())
-    f_max = max(c.fx for c in cameras)
-    return d / f_max * math.sqrt(FILTER_VARIANCE)
+    return d
 
 
 def update_filter_3d(gaussians: Gaussians, cameras: Sequence[Camera], *, near: float = 0.2) -> torch.Tensor:

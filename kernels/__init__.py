@@ -30,6 +30,7 @@ Stable names (module, kind):
   ``write_triangle_edges``, ``write_slot_ids``, ``mark_run_starts``, ``scatter_vertex_ids``,
   ``init_edge_brackets``, ``bracket_midpoints``, ``update_brackets``, ``interpolate_in_brackets``,
   ``count_nonfinite`` and the funcs ``tet_case``, ``edge_key``; ``build_case_tables``.
+* 3D filter: ``nearest_seen_depth`` (kernel: the nearest depth at which any camera sees each centre).
 * TSDF: ``integrate_tsdf``, ``sample_grid_trilinear``; ray casting of meshes: ``cast_pinhole_rays``,
   ``shade_hits``, ``resolve_pixels``; lenses: ``distort_opencv``, ``undistort_remap``.
 """
@@ -51,6 +52,7 @@ _MODULES = {
                       "write_slot_ids", "mark_run_starts", "scatter_vertex_ids", "init_edge_brackets",
                       "bracket_midpoints", "update_brackets", "interpolate_in_brackets", "count_nonfinite",
                       "tet_case", "edge_key", "build_case_tables"),
+    "filter3d": ("nearest_seen_depth",),
     "tsdf": ("integrate_tsdf", "sample_grid_trilinear"),
     "raycast": ("cast_pinhole_rays", "shade_hits", "resolve_pixels"),
     "undistort": ("distort_opencv", "undistort_remap"),

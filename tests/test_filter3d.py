@@ -8,7 +8,7 @@ import torch
 
 from gof_warp.camera import Camera, look_at
 from gof_warp.errors import GofError
-from gof_warp.filter3d import compute_filter_3d, update_filter_3d
+from gof_warp.filter3d import compute_filter_3d, nearest_seen_depth_torch, update_filter_3d
 from gof_warp.model import Gaussians
 
 TOL64 = 1e-12  # float64 throughout: only rounding
@@ -81,3 +81,30 @@ def test_update_sets_model_buffer_and_errors():
         compute_filter_3d(torch.zeros(2, 3), [])
     with pytest.raises(GofError, match="means"):
         compute_filter_3d(torch.zeros(2, 2), [cam])
+
+
+def test_warp_kernel_matches_float64_reference():
+    """float32 centres take the Warp kernel; it agrees with the float64 torch path up to float32 rounding,
+    including which cameras see which centre (points placed away from the guard band's edges and the near
+    plane, where one rounding could flip the test)."""
+    rng = np.random.default_rng(1)
+    cams = [look_at(rng.normal(size=3) * 4, rng.normal(size=3) * 0.3, fx=float(rng.uniform(80, 200)),
+                    cx=float(rng.uniform(20, 44)), width=64, height=48) for _ in range(7)]
+    pts = (rng.normal(size=(2000, 3)) * 2.5).astype(np.float32)
+    p64 = torch.tensor(pts, dtype=torch.float64)
+    margin_ok = np.ones(len(pts), bool)  # centres at least 1e-3 px / 1e-4 depth away from every decision edge
+    for cam in cams:
+        x = p64.numpy() @ cam.R.T + cam.t
+        z = x[:, 2]
+        u, v = cam.fx * x[:, 0] / z + cam.cx, cam.fy * x[:, 1] / z + cam.cy
+        for val, lim in ((u, cam.width), (v, cam.height)):
+            margin_ok &= (np.abs(val + 0.15 * lim) > 1e-3) & (np.abs(val - 1.15 * lim) > 1e-3)
+        margin_ok &= np.abs(z - 0.2) > 1e-4
+    ref_depth = nearest_seen_depth_torch(p64, cams).numpy()
+    got_depth = compute_filter_3d(torch.tensor(pts), cams).numpy() * max(c.fx for c in cams) / SQRT02
+    seen = np.isfinite(ref_depth)
+    assert margin_ok.mean() > 0.99 and 0.2 < seen.mean() < 1.0  # seen and unseen centres both present
+    np.testing.assert_allclose(got_depth[margin_ok & seen], ref_depth[margin_ok & seen], rtol=TOL32)
+    fill = ref_depth[seen].max()  # unseen centres take the largest seen depth
+    np.testing.assert_allclose(got_depth[~seen & margin_ok], fill, rtol=TOL32)
+    assert compute_filter_3d(torch.tensor(pts), cams).dtype == torch.float32
