@@ -12,6 +12,13 @@ everywhere, so every rank makes the same decisions and holds identical Gaussians
 compares a checksum of the parameters across ranks every ``checksum_every`` steps and stops on a mismatch.
 Rank 0 alone writes the run folder (checkpoints load on any number of ranks: they hold one model).
 
+Extraction (``torchrun --nproc_per_node N -m gof_warp.extract RUN``) shares out the views of every opacity-field
+evaluation the same way (:meth:`Ranks.reduce_field`: the minimum over the ranks is exact, so every rank holds the
+one-process field bit for bit); rank 0 alone runs the Delaunay and broadcasts the tetrahedra
+(:meth:`Ranks.broadcast_rows`), every rank then marches the same grid in lockstep (each search step is one
+field evaluation, checked to be of the same points everywhere: :meth:`Ranks.check_same_points`) and rank 0
+writes the mesh.
+
 A single process is the same code with ``Ranks.single()`` (every collective a no-op).
 """
 
@@ -20,6 +27,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from .devices import cuda_available
@@ -99,6 +107,48 @@ class Ranks:
             if not torch.equal(other, sums):
                 raise GofError(f"the model on rank {r} differs from rank {self.rank}'s at iteration {iteration} "
                                "(data-parallel ranks must hold identical Gaussians): stopping")
+
+    def _collective_device(self) -> torch.device:
+        """Where tensors for a collective live: this rank's GPU under NCCL, else the host (gloo)."""
+        if torch.distributed.get_backend() == "nccl":
+            return torch.device("cuda", self.local_rank)
+        return torch.device("cpu")
+
+    def broadcast_rows(self, rows: np.ndarray | None) -> np.ndarray:
+        """Rank 0's 2-D integer array ``rows`` (``[R, C]``, e.g. tetrahedra) on every rank; the other ranks pass
+        None. Single process: ``rows`` itself."""
+        if not self.active:
+            return rows
+        dev = self._collective_device()
+        head = torch.zeros(3, dtype=torch.int64, device=dev)
+        if self.is_main:
+            if rows.ndim != 2 or rows.dtype.kind not in "iu":
+                raise GofError(f"broadcast_rows takes a 2-D integer array, got {rows.dtype} of shape {rows.shape}")
+            head[0], head[1], head[2] = rows.shape[0], rows.shape[1], rows.dtype.itemsize
+        torch.distributed.broadcast(head, src=0)
+        n, c, size = (int(v) for v in head.tolist())
+        dtype = torch.int32 if size <= 4 else torch.int64
+        buf = (torch.as_tensor(np.ascontiguousarray(rows)).to(dev, dtype) if self.is_main
+               else torch.empty((n, c), dtype=dtype, device=dev))
+        torch.distributed.broadcast(buf, src=0)
+        return rows if self.is_main else buf.cpu().numpy()
+
+    def check_same_points(self, points, what: str) -> None:
+        """Raise :class:`GofError` unless every rank passes the same ``points`` (``[M, 3]``, numpy or torch) to a
+        shared field evaluation: their count and float64 checksums are gathered and compared. Ranks that
+        evaluated different points would reduce values of different points into one another."""
+        if not self.active:
+            return
+        x = torch.as_tensor(points).detach().to(torch.float64)
+        w = torch.arange(1, x.shape[0] + 1, dtype=torch.float64, device=x.device)[:, None]
+        sums = torch.stack([torch.tensor(float(x.shape[0]), dtype=torch.float64, device=x.device), x.sum(),
+                            (x * w).sum()]).to(self._collective_device())
+        every = [torch.empty_like(sums) for _ in range(self.world)]
+        torch.distributed.all_gather(every, sums)
+        for r, other in enumerate(every):
+            if not torch.equal(other, sums):
+                raise GofError(f"{what}: rank {r} evaluates other points than rank {self.rank} (the ranks' grids "
+                               "differ): stopping")
 
     def barrier(self) -> None:
         if self.active:

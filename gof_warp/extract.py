@@ -1,6 +1,8 @@
 """``python -m gof_warp.extract RUN [--scene SCENE] [--out MESH.ply] [--method tetra|cubes|tsdf] ...``
 
-Mesh extraction from trained Gaussians (the library: :mod:`gof_warp.extraction`). ``RUN`` is a training output
+Mesh extraction from trained Gaussians (the library: :mod:`gof_warp.extraction`). Under
+``torchrun --nproc_per_node N -m gof_warp.extract RUN ...`` the field's views are shared out among the processes
+(one GPU each) and rank 0 triangulates and writes (:mod:`gof_warp.distributed`). ``RUN`` is a training output
 folder (``point_cloud.ply`` + ``cameras.json``) or any Gaussian PLY in the 3DGS layout together with ``--scene``
 for the cameras. Writes the mesh (PLY) and ``<mesh>.json`` with vertex/face counts and per-stage time and peak
 memory. An empty mesh is an error (exit 2) and writes nothing; Gaussians whose scales overflow (see
@@ -63,57 +65,72 @@ def main(argv=None) -> int:
 
     def body():
         from .devices import resolve_device as pick_device
+        from .distributed import rank_device, ranks_from_environment
 
-        device = pick_device(a.device)
-        run = Path(a.run)
-        if a.volume:
-            from .volume import bake_run
-
-            info = bake_run(run, scene=a.scene, out_path=a.out, voxel_size=a.voxel_size, band=a.volume_band,
-                            device=device)
-            print(f"wrote {info['nvdb']}: {info['active_voxels']} voxels of {info['voxel_size']:.4g}, "
-                  f"{info['bytes'] / 2**20:.1f} MiB, {info['time_s']['total']:.1f} s")
-            return
-        cfg = MeshConfig(method=a.method, levels=tuple(a.levels), binary_steps=a.binary_steps,
-                         min_component_faces=a.min_component_faces, max_faces=a.max_faces, max_error=a.max_error,
-                         tetra=TetraConfig(backend=a.delaunay, opacity_min=a.opacity_min,
-                                           corner_min_extent=a.corner_min_extent,
-                                           delaunay_workers=a.delaunay_workers, band=a.band,
-                                           delaunay_processes=a.delaunay_processes))
-        if a.resolution:
-            cfg.cubes_resolution = a.resolution
-            cfg.tsdf.resolution = a.resolution
-        cfg.validate()
-        gaussians, cameras, views, render_config = load_run(run, a.scene, device)
-        from .progress import Stages
-
-        timer = StageTimer(device, progress=Stages(quiet=a.quiet))
-        t0 = time.perf_counter()
-        meshes = extract_mesh(gaussians, cameras, cfg, render_config=render_config, views=views, timer=timer)
-        total = time.perf_counter() - t0
-        levels = cfg.levels if a.method != "tsdf" else (0.0,)
-        empty = [level for level, (_, f) in zip(levels, meshes) if len(f) == 0]
-        if empty:  # before anything is written: an existing mesh of that name stays as it is
-            raise GofError(empty_mesh_message(gaussians, a.method, empty, cfg))
-        base = Path(a.out) if a.out else (run if run.is_dir() else run.parent) / f"mesh_{a.method}.ply"
-        outputs = []
-        for level, (v, f) in zip(levels, meshes):
-            path = base if len(meshes) == 1 else base.with_name(f"{base.stem}_{level:g}{base.suffix}")
-            save_mesh(path, v, f)
-            outputs.append({"path": str(path), "level": level, "vertices": int(len(v)), "faces": int(len(f))})
-            print(f"wrote {path}: {len(v)} vertices, {len(f)} faces")
-        write_json_atomic(base.with_suffix(".json"), {
-            "method": a.method, "binary_steps": a.binary_steps, "num_gaussians": len(gaussians),
-            "num_views": len(cameras), "device": device, "total_time_s": round(total, 3),
-            "stages": timer.stages, "meshes": outputs})
-        if not a.no_pictures:  # a picture per mesh; a failure only warns: the mesh is already written
-            from .pictures import pictures_or_warning
-
-            for o in outputs:
-                for p in pictures_or_warning(run, mesh_path=o["path"], device=device, scene=a.scene):
-                    print(f"wrote {p}")
+        ranks = ranks_from_environment()  # several processes under torchrun: views shared out (gof_warp.distributed)
+        try:
+            extract_run(a, ranks, rank_device(pick_device(a.device), ranks))
+            ranks.barrier()
+        finally:
+            ranks.close()
 
     return run_command(body)
+
+
+def extract_run(a, ranks, device) -> None:
+    """The command's work for parsed arguments ``a`` on ``device``; rank 0 alone writes."""
+    run = Path(a.run)
+    if a.volume:
+        if ranks.active:
+            raise GofError("--volume runs in one process (launch without torchrun)")
+        from .volume import bake_run
+
+        info = bake_run(run, scene=a.scene, out_path=a.out, voxel_size=a.voxel_size, band=a.volume_band,
+                        device=device)
+        print(f"wrote {info['nvdb']}: {info['active_voxels']} voxels of {info['voxel_size']:.4g}, "
+              f"{info['bytes'] / 2**20:.1f} MiB, {info['time_s']['total']:.1f} s")
+        return
+    cfg = MeshConfig(method=a.method, levels=tuple(a.levels), binary_steps=a.binary_steps,
+                     min_component_faces=a.min_component_faces, max_faces=a.max_faces, max_error=a.max_error,
+                     tetra=TetraConfig(backend=a.delaunay, opacity_min=a.opacity_min,
+                                       corner_min_extent=a.corner_min_extent,
+                                       delaunay_workers=a.delaunay_workers, band=a.band,
+                                       delaunay_processes=a.delaunay_processes))
+    if a.resolution:
+        cfg.cubes_resolution = a.resolution
+        cfg.tsdf.resolution = a.resolution
+    cfg.validate()
+    gaussians, cameras, views, render_config = load_run(run, a.scene, device)
+    from .progress import Stages
+
+    timer = StageTimer(device, progress=Stages(quiet=a.quiet or not ranks.is_main))
+    t0 = time.perf_counter()
+    meshes = extract_mesh(gaussians, cameras, cfg, render_config=render_config, views=views, timer=timer,
+                          ranks=ranks)
+    total = time.perf_counter() - t0
+    if not ranks.is_main:
+        return
+    levels = cfg.levels if a.method != "tsdf" else (0.0,)
+    empty = [level for level, (_, f) in zip(levels, meshes) if len(f) == 0]
+    if empty:  # before anything is written: an existing mesh of that name stays as it is
+        raise GofError(empty_mesh_message(gaussians, a.method, empty, cfg))
+    base = Path(a.out) if a.out else (run if run.is_dir() else run.parent) / f"mesh_{a.method}.ply"
+    outputs = []
+    for level, (v, f) in zip(levels, meshes):
+        path = base if len(meshes) == 1 else base.with_name(f"{base.stem}_{level:g}{base.suffix}")
+        save_mesh(path, v, f)
+        outputs.append({"path": str(path), "level": level, "vertices": int(len(v)), "faces": int(len(f))})
+        print(f"wrote {path}: {len(v)} vertices, {len(f)} faces")
+    write_json_atomic(base.with_suffix(".json"), {
+        "method": a.method, "binary_steps": a.binary_steps, "num_gaussians": len(gaussians),
+        "num_views": len(cameras), "device": device, "processes": ranks.world, "total_time_s": round(total, 3),
+        "stages": timer.stages, "meshes": outputs})
+    if not a.no_pictures:  # a picture per mesh; a failure only warns: the mesh is already written
+        from .pictures import pictures_or_warning
+
+        for o in outputs:
+            for p in pictures_or_warning(run, mesh_path=o["path"], device=device, scene=a.scene):
+                print(f"wrote {p}")
 
 
 if __name__ == "__main__":

@@ -155,10 +155,11 @@ def empty_mesh_message(gaussians, method: str, levels, config: MeshConfig | None
             f"({stats}){removed}; nothing was written")
 
 
-def _tetra_grid(gaussians, cameras, config: MeshConfig, tc: TetraConfig, field_fn, timer: StageTimer):
+def _tetra_grid(gaussians, cameras, config: MeshConfig, tc: TetraConfig, field_fn, timer: StageTimer, ranks=None):
     """The tetra path's grid: points → the field at them → (band) → Delaunay + cell filter. Returns
     ``(points [P, 3] float32, values [P] (the field, on the model's device), tets [T, 4] int32 or None when fewer
-    than 4 points are left, counts)``; each stage is timed on ``timer``."""
+    than 4 points are left, counts)``; each stage is timed on ``timer``. With several ``ranks`` the Delaunay
+    runs on rank 0 only and its tetrahedra are broadcast (every rank has the same points)."""
     with timer("tetra_points"):
         points, owner, scale = grid_points(gaussians.means.detach(), gaussians.rotations.detach(),
                                            gaussians.scales.detach(), gaussians.opacities.detach(), cameras, tc)
@@ -176,7 +177,11 @@ def _tetra_grid(gaussians, cameras, config: MeshConfig, tc: TetraConfig, field_f
         return points, values, None, counts
     substages: dict = {}
     with timer("delaunay+filter"):
-        tets = tetrahedralize(points, owner, scale, tc, stats=substages)
+        main = ranks is None or ranks.is_main
+        tets = tetrahedralize(points, owner, scale, tc, stats=substages) if main else None
+        if ranks is not None and ranks.active:
+            tets = ranks.broadcast_rows(tets)
+            substages.setdefault("computed_on_rank", 0)
     timer.stages["delaunay+filter"]["substages"] = substages
     log.info("%d points, %d tetrahedra", len(points), len(tets))
     counts["tetrahedra"] = int(len(tets))
@@ -185,7 +190,7 @@ def _tetra_grid(gaussians, cameras, config: MeshConfig, tc: TetraConfig, field_f
 
 def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = None, *,
                  render_config: RenderConfig | None = None, views=None, timer: StageTimer | None = None,
-                 grid_cache: dict | None = None):
+                 grid_cache: dict | None = None, ranks=None):
     """Extract one mesh per level from trained Gaussians.
 
     Args:
@@ -197,6 +202,11 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
             grid settings (tetra config, field config, and the levels when the band is on) reuses it, so extractions
             that differ only in search steps, levels or decimation build it once. ``timer.stages["grid_shared"]``
             says so, with the seconds the grid took when it was built.
+        ranks: a :class:`~gof_warp.distributed.Ranks` of several processes (``torchrun``; every rank calls this
+            with the same model and cameras): each field evaluation is shared out by views among them, the
+            tetra path's Delaunay runs on rank 0 and is broadcast, and the post-processing (crop, components,
+            decimation) runs on rank 0 only; the other ranks return the raw marched meshes. TSDF fusion is not
+            shared out (every rank fuses every view).
     Returns:
         list of ``(vertices [V, 3] float32, faces [F, 3] int32)``, one per ``config.levels``.
     """
@@ -212,7 +222,10 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
     gaussians = meshable(gaussians)
 
     def field_fn(points, field_config=config.field):
-        return opacity_field(gaussians, cameras, points, config=field_config, render_config=render_config)
+        if ranks is not None and ranks.active:
+            ranks.check_same_points(points, "opacity field")
+        return opacity_field(gaussians, cameras, points, config=field_config, render_config=render_config,
+                             ranks=ranks)
 
     meshes = []
     if config.method == "tetra":
@@ -224,7 +237,7 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
             timer.stages["grid_shared"] = {"built_s": cached["built_s"]}
         else:
             t_grid = time.perf_counter()
-            points, values, tets, counts = _tetra_grid(gaussians, cameras, config, tc, field_fn, timer)
+            points, values, tets, counts = _tetra_grid(gaussians, cameras, config, tc, field_fn, timer, ranks)
             if grid_cache is not None:
                 grid_cache[key] = {"points": points, "values": values, "tets": tets, "counts": counts,
                                    "built_s": round(time.perf_counter() - t_grid, 4)}
@@ -259,6 +272,8 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
         with timer("tsdf_marching_cubes"):
             v, f, _ = extract_tsdf_mesh(volume, binary_steps=config.binary_steps)
         meshes = [(v, f)]
+    if ranks is not None and not ranks.is_main:  # rank 0 post-processes and writes
+        return meshes
     meshes = [_postprocess(np.asarray(v, np.float32), np.asarray(f, np.int64), config) for v, f in meshes]
     if config.max_faces is not None or config.max_error is not None:
         from .decimate import decimate

@@ -6,6 +6,7 @@ import subprocess
 import sys
 import tempfile
 
+import numpy as np
 import pytest
 import torch
 import torch.multiprocessing as mp
@@ -75,3 +76,46 @@ def test_views_are_shared_out_and_bad_splits_refused(scene, tmp_path):
     cfg = merge(TrainConfig(), {"views_per_step": 3, "model": {"init": "random", "random_init_points": 50}})
     with pytest.raises(GofError, match="does not divide among 2 processes"):
         Trainer(load_scene(scene), cfg, tmp_path / "r", "cpu", ranks=Ranks(rank=0, world=2))
+
+
+def test_two_processes_extract_the_one_process_mesh(scene, tmp_path):
+    """torchrun extraction: views shared out for every field evaluation, rank 0's Delaunay broadcast, rank 0 writes;
+    the mesh is the one-process mesh exactly (the field's minimum over ranks is exact)."""
+    import json
+
+    import trimesh
+
+    run = tmp_path / "run"
+    _train([sys.executable, "-m", "gof_warp.train", str(scene), "--out", str(run), *ARGS])
+    common = [str(run), "--binary-steps", "3", "--device", "cpu", "--no-pictures", "--quiet"]
+    _train([sys.executable, "-m", "gof_warp.extract", *common, "--out", str(tmp_path / "one.ply")])
+    _train([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
+            "-m", "gof_warp.extract", *common, "--out", str(tmp_path / "two.ply")])
+    one = trimesh.load(tmp_path / "one.ply", process=False)
+    two = trimesh.load(tmp_path / "two.ply", process=False)
+    assert len(one.faces) > 100
+    assert np.array_equal(one.vertices, two.vertices) and np.array_equal(one.faces, two.faces)
+    info = json.loads((tmp_path / "two.json").read_text())
+    assert info["processes"] == 2 and info["stages"]["delaunay+filter"]["substages"]["computed_on_rank"] == 0
+
+
+def _other_points(rank, world, init_file, result):
+    torch.distributed.init_process_group("gloo", init_method=f"file://{init_file}", rank=rank, world_size=world)
+    ranks = Ranks(rank=rank, world=world)
+    try:
+        tets = ranks.broadcast_rows(np.arange(12, dtype=np.int32).reshape(3, 4) if rank == 0 else None)
+        result[f"tets{rank}"] = tets.tolist()
+        ranks.check_same_points(np.zeros((5, 3), np.float32) + (rank == 1) * 1e-3, "opacity field")
+        result[rank] = "same"
+    except GofError as e:
+        result[rank] = str(e)
+    finally:
+        torch.distributed.destroy_process_group()
+
+
+def test_rank_zero_rows_reach_every_rank_and_different_points_are_refused():
+    with tempfile.TemporaryDirectory() as d, mp.Manager() as manager:
+        result = manager.dict()
+        mp.spawn(_other_points, args=(2, os.path.join(d, "init"), result), nprocs=2, join=True)
+        assert result["tets1"] == result["tets0"] == np.arange(12).reshape(3, 4).tolist()
+        assert all("evaluates other points" in result[r] for r in (0, 1)), dict(result)
