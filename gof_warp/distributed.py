@@ -101,12 +101,16 @@ class Ranks:
             return
         sums = torch.stack([torch.stack([p.detach().double().sum(), p.detach().double().abs().sum()])
                             for p in params.values()]).reshape(-1)
+        r = self._first_rank_differing(sums)
+        if r is not None:
+            raise GofError(f"the model on rank {r} differs from rank {self.rank}'s at iteration {iteration} "
+                           "(data-parallel ranks must hold identical Gaussians): stopping")
+
+    def _first_rank_differing(self, sums: torch.Tensor) -> int | None:
+        """Gather every rank's ``sums`` (checksums); the first rank whose differ from this rank's, None if none."""
         every = [torch.empty_like(sums) for _ in range(self.world)]
         torch.distributed.all_gather(every, sums)
-        for r, other in enumerate(every):
-            if not torch.equal(other, sums):
-                raise GofError(f"the model on rank {r} differs from rank {self.rank}'s at iteration {iteration} "
-                               "(data-parallel ranks must hold identical Gaussians): stopping")
+        return next((r for r, other in enumerate(every) if not torch.equal(other, sums)), None)
 
     def _collective_device(self) -> torch.device:
         """Where tensors for a collective live: this rank's GPU under NCCL, else the host (gloo)."""
@@ -143,12 +147,10 @@ class Ranks:
         w = torch.arange(1, x.shape[0] + 1, dtype=torch.float64, device=x.device)[:, None]
         sums = torch.stack([torch.tensor(float(x.shape[0]), dtype=torch.float64, device=x.device), x.sum(),
                             (x * w).sum()]).to(self._collective_device())
-        every = [torch.empty_like(sums) for _ in range(self.world)]
-        torch.distributed.all_gather(every, sums)
-        for r, other in enumerate(every):
-            if not torch.equal(other, sums):
-                raise GofError(f"{what}: rank {r} evaluates other points than rank {self.rank} (the ranks' grids "
-                               "differ): stopping")
+        r = self._first_rank_differing(sums)
+        if r is not None:
+            raise GofError(f"{what}: rank {r} evaluates other points than rank {self.rank} (the ranks' grids "
+                           "differ): stopping")
 
     def barrier(self) -> None:
         if self.active:

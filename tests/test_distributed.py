@@ -48,11 +48,11 @@ def test_two_processes_train_the_one_process_model(scene, tmp_path):
     assert sorted(p.name for p in (two / "checkpoints").iterdir()) == sorted(p.name for p in (one / "checkpoints").iterdir())
 
 
-def _drift(rank, world, init_file, result):
+def _in_gloo_group(rank, world, init_file, result, body):
+    """Spawned: ``body(Ranks, result)`` in a gloo group; its GofError's message lands in ``result[rank]``."""
     torch.distributed.init_process_group("gloo", init_method=f"file://{init_file}", rank=rank, world_size=world)
-    params = {"means": torch.zeros(4, 3) + (rank == 1) * 1e-7}
     try:
-        Ranks(rank=rank, world=world).check_identical(params, 7)
+        body(Ranks(rank=rank, world=world), result)
         result[rank] = "same"
     except GofError as e:
         result[rank] = str(e)
@@ -60,11 +60,20 @@ def _drift(rank, world, init_file, result):
         torch.distributed.destroy_process_group()
 
 
-def test_the_checksum_stops_ranks_that_drifted_apart():
+def _spawn_two(body) -> dict:
     with tempfile.TemporaryDirectory() as d, mp.Manager() as manager:
         result = manager.dict()
-        mp.spawn(_drift, args=(2, os.path.join(d, "init"), result), nprocs=2, join=True)
-        assert all("differs" in result[r] and "iteration 7" in result[r] for r in (0, 1)), dict(result)
+        mp.spawn(_in_gloo_group, args=(2, os.path.join(d, "init"), result, body), nprocs=2, join=True)
+        return dict(result)
+
+
+def _drift(ranks, result):
+    ranks.check_identical({"means": torch.zeros(4, 3) + (ranks.rank == 1) * 1e-7}, 7)
+
+
+def test_the_checksum_stops_ranks_that_drifted_apart():
+    result = _spawn_two(_drift)
+    assert all("differs" in result[r] and "iteration 7" in result[r] for r in (0, 1)), result
 
 
 def test_views_are_shared_out_and_bad_splits_refused(scene, tmp_path):
@@ -99,23 +108,13 @@ def test_two_processes_extract_the_one_process_mesh(scene, tmp_path):
     assert info["processes"] == 2 and info["stages"]["delaunay+filter"]["substages"]["computed_on_rank"] == 0
 
 
-def _other_points(rank, world, init_file, result):
-    torch.distributed.init_process_group("gloo", init_method=f"file://{init_file}", rank=rank, world_size=world)
-    ranks = Ranks(rank=rank, world=world)
-    try:
-        tets = ranks.broadcast_rows(np.arange(12, dtype=np.int32).reshape(3, 4) if rank == 0 else None)
-        result[f"tets{rank}"] = tets.tolist()
-        ranks.check_same_points(np.zeros((5, 3), np.float32) + (rank == 1) * 1e-3, "opacity field")
-        result[rank] = "same"
-    except GofError as e:
-        result[rank] = str(e)
-    finally:
-        torch.distributed.destroy_process_group()
+def _other_points(ranks, result):
+    rows = np.arange(12, dtype=np.int32).reshape(3, 4) if ranks.is_main else None
+    result[f"tets{ranks.rank}"] = ranks.broadcast_rows(rows).tolist()
+    ranks.check_same_points(np.zeros((5, 3), np.float32) + (ranks.rank == 1) * 1e-3, "opacity field")
 
 
 def test_rank_zero_rows_reach_every_rank_and_different_points_are_refused():
-    with tempfile.TemporaryDirectory() as d, mp.Manager() as manager:
-        result = manager.dict()
-        mp.spawn(_other_points, args=(2, os.path.join(d, "init"), result), nprocs=2, join=True)
-        assert result["tets1"] == result["tets0"] == np.arange(12).reshape(3, 4).tolist()
-        assert all("evaluates other points" in result[r] for r in (0, 1)), dict(result)
+    result = _spawn_two(_other_points)
+    assert result["tets1"] == result["tets0"] == np.arange(12).reshape(3, 4).tolist()
+    assert all("evaluates other points" in result[r] for r in (0, 1)), result
