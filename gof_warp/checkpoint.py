@@ -128,7 +128,10 @@ def host_copy(obj, pinned: bool = True):
         if isinstance(obj, torch.Tensor):
             t = obj.detach()
             if pinned and t.is_cuda:
-                host = torch.empty(t.shape, dtype=t.dtype, device="cpu", pin_memory=True)
+                try:
+                    host = torch.empty(t.shape, dtype=t.dtype, device="cpu", pin_memory=True)
+                except RuntimeError:  # page-locked memory refused (a limit of the host): the pageable copy
+                    return t.to("cpu", copy=True)
                 host.copy_(t, non_blocking=True)
                 streams.add(torch.cuda.current_stream(t.device))
                 return host
