@@ -63,7 +63,7 @@ PARALLEL_MIN_POINTS = 200_000  # below this one Qhull call is as fast as the chu
 CHUNK_POINTS = 25_000  # target points per chunk core (auto chunk count); ~1 s of Qhull on one core. Memory in flight
 # is ∝ workers × chunk size; 150k (up to session 6) held 1.1 GB per chunk in flight, 17.6 GB of DTU's 18.4 GB host
 # peak at 16 workers. Measured on the 2-core CPU (benchmarks/extract/README.md, session 7): 150k / 50k / 25k →
-# 3M points in 103 / 104 / 105 s, 2.17 / 1.28 / 1.20 GB above the start.
+# 3M points in 96 / 88 / 75 s, 2.33 / 1.36 / 1.21 GB above the start.
 DUPLICATES_SEEN = 8  # the exact merge maps a point to the lowest index among this many exact copies
 MAX_FILLS = 3  # passes of the exact merge (one suffices in general position; more only guard against rounding)
 HALO_FRACTION = 0.5  # a chunk triangulates its core's points and this fraction more around it
@@ -195,6 +195,12 @@ def _canonical_vertices(tri, p: np.ndarray, ids: np.ndarray) -> np.ndarray:
 def kd_boxes(p: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """Split the points into ``k`` cells by median cuts along each cell's widest axis. Returns cores
     ``(lo [k, 3], hi [k, 3])`` (a point x is in a core when lo <= x < hi; outer sides are ±inf)."""
+    lo, hi, _ = _kd_cells(p, k)
+    return lo, hi
+
+
+def _kd_cells(p: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    """:func:`kd_boxes` and the (ascending) indices of each cell's points."""
     cells = [(np.arange(p.shape[0]), np.full(3, -np.inf), np.full(3, np.inf))]
     while len(cells) < k:
         cells.sort(key=lambda c: -c[0].shape[0])
@@ -209,7 +215,27 @@ def kd_boxes(p: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
         hi_a, lo_b = hi.copy(), lo.copy()
         hi_a[axis] = lo_b[axis] = cut
         cells += [(idx[below], lo, hi_a), (idx[~below], lo_b, hi)]
-    return np.array([c[1] for c in cells]), np.array([c[2] for c in cells])
+    return np.array([c[1] for c in cells]), np.array([c[2] for c in cells]), [c[0] for c in cells]
+
+
+class _CellIndex:
+    """The kd cells' points and tight bounding boxes, to visit only the cells near a box (the halo steps below
+    would otherwise scan every point once per chunk: O(chunks × points), ~150 s at DTU's 7.2M points in 287
+    chunks)."""
+
+    def __init__(self, p: np.ndarray, members: list[np.ndarray]):
+        self.p, self.members = p, members
+        self.bmin = np.array([p[m].min(axis=0) if m.size else np.full(3, np.inf) for m in members])
+        self.bmax = np.array([p[m].max(axis=0) if m.size else np.full(3, -np.inf) for m in members])
+
+    def near(self, lo: np.ndarray, hi: np.ndarray, ordered: bool = True) -> np.ndarray:
+        """Indices (ascending when ``ordered``) of the points of every cell whose points' bounding box meets the
+        closed box ``[lo, hi]``: a superset of the points in that box."""
+        hit = np.flatnonzero(np.all((self.bmax >= lo) & (self.bmin <= hi), axis=1))
+        if hit.size == 0:
+            return np.zeros(0, np.int64)
+        ids = np.concatenate([self.members[c] for c in hit])
+        return np.sort(ids) if ordered else ids
 
 
 def _halo_width(p: np.ndarray, lo: np.ndarray, hi: np.ndarray, fraction: float) -> float:
@@ -219,6 +245,35 @@ def _halo_width(p: np.ndarray, lo: np.ndarray, hi: np.ndarray, fraction: float) 
     dist = outside[outside >= 0]
     k = min(max(1, round(fraction * core)), dist.size) - 1
     return float(np.partition(dist, k)[k]) if dist.size else 0.0
+
+
+def _halo_width_near(cells: _CellIndex, c: int, lo: np.ndarray, hi: np.ndarray, fraction: float) -> float:
+    """:func:`_halo_width` of core ``c`` (the same number) from the points of the cells near it: the points
+    within a trial width ``w`` of the core all lie in cells whose bounding boxes meet the core grown by ``w``,
+    so once ``k + 1`` of them are found within ``w`` the ``k``-th smallest distance is the global one; else ``w``
+    doubles (and at the points' bounding box the scan is the whole set)."""
+    p, own = cells.p, cells.p[cells.members[c]]
+    core = int(np.sum(np.max(np.maximum(lo - own, own - hi), axis=1) < 0))  # strictly inside: only c's points
+    n_out = p.shape[0] - core
+    if n_out == 0:
+        return 0.0
+    k = min(max(1, round(fraction * core)), n_out) - 1
+    span = float(np.max(cells.bmax.max(axis=0) - cells.bmin.min(axis=0)))
+    box = own.max(axis=0) - own.min(axis=0) if own.size else np.zeros(3)
+    # first trial: the shell that holds `fraction` more points at the core's own density (a cube: (1 + 2w/L)³ =
+    # 1 + fraction), doubled; clustered points may need more, and the loop doubles it
+    w = max(float(np.min(box)) * ((1.0 + fraction) ** (1.0 / 3.0) - 1.0), span * 1e-6, 1e-12)
+    lo_f, hi_f = np.maximum(lo, cells.bmin.min(axis=0)), np.minimum(hi, cells.bmax.max(axis=0))  # finite core
+    while True:
+        ids = cells.near(lo_f - w, hi_f + w, ordered=False)
+        q = p[ids]
+        outside = np.max(np.maximum(lo - q, q - hi), axis=1)
+        dist = outside[outside >= 0]
+        if np.sum(dist <= w) > k or w > 2.0 * span:
+            if dist.size <= k:  # fewer points outside than asked: the largest distance (as the global rule)
+                return _halo_width(p, lo, hi, fraction)
+            return float(np.partition(dist, k)[k])
+        w *= 2.0
 
 
 def _in_box(x: np.ndarray, lo: np.ndarray, hi: np.ndarray, closed: bool) -> np.ndarray:
@@ -349,9 +404,10 @@ def _unmatched_faces(pieces: list[_Piece], p: np.ndarray, hull_vertices: np.ndar
     return faces[single]
 
 
-def _chunk(p, lo, hi, halo_lo, halo_hi, tree, rho, c: int) -> _Piece:
-    """Chunk ``c``: Qhull on the points of its halo box, the tetrahedra its core keeps."""
-    ids = np.flatnonzero(_in_box(p, halo_lo[c], halo_hi[c], closed=True))
+def _chunk(p, lo, hi, halo_lo, halo_hi, tree, rho, cells: _CellIndex, c: int) -> _Piece:
+    """Chunk ``c``: Qhull on the points of its halo box (ascending indices), the tetrahedra its core keeps."""
+    near = cells.near(halo_lo[c], halo_hi[c])
+    ids = near[_in_box(p[near], halo_lo[c], halo_hi[c], closed=True)]
     return _triangulate_piece(p, ids, lo[c], hi[c], halo_lo[c], halo_hi[c], tree, rho)
 
 
@@ -367,13 +423,15 @@ def delaunay_chunked(p: np.ndarray, chunks: int, workers: int, halo_fraction: fl
     t0 = time.perf_counter()
     with ThreadPoolExecutor(max(1, workers)) as pool:
         tree_job = pool.submit(cKDTree, p, balanced_tree=False, compact_nodes=False)
-        lo, hi = kd_boxes(p, chunks)
-        halo = np.array([_halo_width(p, lo[c], hi[c], halo_fraction) for c in range(lo.shape[0])])
+        lo, hi, members = _kd_cells(p, chunks)
+        cells = _CellIndex(p, members)
+        halo = np.array(list(pool.map(lambda c: _halo_width_near(cells, c, lo[c], hi[c], halo_fraction),
+                                      range(lo.shape[0]))))
         rho = float(halo.min())  # tetrahedra with circumradius <= rho are owned by their circumcentre
         halo_lo, halo_hi = lo - halo[:, None], hi + halo[:, None]
         tree = tree_job.result()
 
-        inputs = (p, lo, hi, halo_lo, halo_hi, tree, rho)
+        inputs = (p, lo, hi, halo_lo, halo_hi, tree, rho, cells)
         if processes:
             from .forked import map_forked
 

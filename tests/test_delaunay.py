@@ -131,6 +131,29 @@ def test_kd_boxes_partition_the_points():
     assert inside.sum(axis=0).min() >= 1000 // 16  # median cuts: balanced within 2x
 
 
+@pytest.mark.parametrize("seed, n, k", [(0, 20_000, 24), (1, 5_000, 7), (2, 30_000, 60), (3, 2_000, 3)])
+def test_halo_steps_from_nearby_cells_equal_the_full_scans(seed, n, k):
+    """The chunk halos are found from the points of the cells near each box (`_CellIndex`): the same widths and
+    the same ascending halo points as scanning every point, on clustered points, with ties on cut planes."""
+    from gof_warp.delaunay import HALO_FRACTION, _CellIndex, _halo_width, _halo_width_near, _in_box, _kd_cells
+
+    rng = np.random.default_rng(seed)
+    c = rng.normal(size=(n // 9, 3)) * 2
+    p = (c[:, None, :] + rng.normal(size=(len(c), 9, 3)) * 0.03).reshape(-1, 3)
+    p[: n // 20, 2] = 0.5  # many equal values: points on the median cuts
+    lo, hi, members = _kd_cells(p, k)
+    cells = _CellIndex(p, members)
+    full = np.array([_halo_width(p, lo[i], hi[i], HALO_FRACTION) for i in range(len(lo))])
+    near = np.array([_halo_width_near(cells, i, lo[i], hi[i], HALO_FRACTION) for i in range(len(lo))])
+    np.testing.assert_array_equal(near, full)
+    assert (full > 0).all()
+    for i in range(len(lo)):
+        halo_lo, halo_hi = lo[i] - full[i], hi[i] + full[i]
+        cand = cells.near(halo_lo, halo_hi)
+        np.testing.assert_array_equal(cand[_in_box(p[cand], halo_lo, halo_hi, closed=True)],
+                                      np.flatnonzero(_in_box(p, halo_lo, halo_hi, closed=True)))
+
+
 def test_bad_arguments():
     p = np.random.default_rng(5).random((50, 3))
     with pytest.raises(GofError, match="workers and chunks"):
