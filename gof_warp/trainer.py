@@ -243,26 +243,36 @@ class Trainer:
     def _render_view(self, it: int, idx: int) -> dict[str, torch.Tensor]:
         """Render view ``idx``, back-propagate its loss (÷ ``views_per_step``) and gather its densification
         statistics; its detached terms."""
-        cfg, g = self.config, self.gaussians
-        cam, gt = self.cameras[idx], self.images[idx]
-        stats = DensifyStats(len(g), device=self.device) if it < cfg.densify.stop_iter else None
-        with _stage("train.render"):
-            out = render(g, cam, config=self.render_config, stats=stats)
-        with _stage("train.loss"):
-            l1_pair = None
-            if self.appearance is not None:
-                chw = out["rgb"].permute(2, 0, 1)
-                corrected = self.appearance.apply(chw, idx)
-                if corrected.numel():
-                    l1_pair = (corrected.permute(1, 2, 0), AppearanceModel.crop(gt.permute(2, 0, 1)).permute(1, 2, 0))
-            loss, terms = total_loss(out, gt, cam, cfg.loss, it, l1_pair=l1_pair)
-            terms["psnr"] = psnr(out["rgb"].detach(), gt)
+        stats = self._new_stats(it)
+        loss, terms = self._view_loss(idx, it, stats)
         with _stage("train.backward"):
             (loss if self.views_per_step == 1 else loss / self.views_per_step).backward()
         if stats is not None:  # per-view gradients, whatever the number of views in the step
             with torch.no_grad():
                 self.densifier.after_backward(stats, it, scale=float(self.views_per_step))
         return terms
+
+    def _new_stats(self, it: int) -> DensifyStats | None:
+        """Densification statistics for one view of iteration ``it`` (None once they are no longer gathered)."""
+        if it >= self.config.densify.stop_iter:
+            return None
+        return DensifyStats(len(self.gaussians), device=self.device)
+
+    def _view_loss(self, idx: int, loss_it: int, stats: DensifyStats | None):
+        """Render view ``idx`` (filling ``stats``) and its loss as at iteration ``loss_it`` (appearance-corrected
+        L1 when the model has one): ``(loss, terms)``, the terms detached, with the render's PSNR."""
+        cam, gt = self.cameras[idx], self.images[idx]
+        with _stage("train.render"):
+            out = render(self.gaussians, cam, config=self.render_config, stats=stats)
+        with _stage("train.loss"):
+            l1_pair = None
+            if self.appearance is not None:
+                corrected = self.appearance.apply(out["rgb"].permute(2, 0, 1), idx)
+                if corrected.numel():
+                    l1_pair = (corrected.permute(1, 2, 0), AppearanceModel.crop(gt.permute(2, 0, 1)).permute(1, 2, 0))
+            loss, terms = total_loss(out, gt, cam, self.config.loss, loss_it, l1_pair=l1_pair)
+            terms["psnr"] = psnr(out["rgb"].detach(), gt)
+        return loss, terms
 
     def _trained_params(self) -> list[torch.Tensor]:
         params = list(self.gaussians.params.values())
@@ -340,17 +350,9 @@ class Trainer:
         nothing that training reads: no optimiser step, no densification statistics kept, no random numbers
         drawn, and the gradients it leaves are cleared, so a run with it is bitwise the run without it."""
         t = time.perf_counter()
-        cfg, g = self.config, self.gaussians
-        stats = DensifyStats(len(g), device=self.device) if self.iteration < cfg.densify.stop_iter else None
-        out = render(g, self.cameras[0], config=self.render_config, stats=stats)
-        l1_pair = None
-        if self.appearance is not None:
-            corrected = self.appearance.apply(out["rgb"].permute(2, 0, 1), 0)
-            if corrected.numel():
-                gt = AppearanceModel.crop(self.images[0].permute(2, 0, 1)).permute(1, 2, 0)
-                l1_pair = (corrected.permute(1, 2, 0), gt)
-        regularised = max(self.iteration + 1, cfg.loss.regularization_from_iter)  # the regularisers' kernels too
-        loss, _ = total_loss(out, self.images[0], self.cameras[0], cfg.loss, regularised, l1_pair=l1_pair)
+        it = self.iteration + 1
+        regularised = max(it, self.config.loss.regularization_from_iter)  # the regularisers' kernels too
+        loss, _ = self._view_loss(0, regularised, self._new_stats(it))
         loss.backward()
         self.optimizer.zero_grad(set_to_none=True)
         if self.appearance_optimizer is not None:
