@@ -17,7 +17,7 @@ Off the training's path. :class:`CheckpointWriter` copies the state to host memo
 with the training's tensors), checks it, and leaves serialising and writing to a background thread, so that
 training goes on while the file is written; one write at a time, and a failed write is raised at the next
 call. On DTU scan 24 (814k Gaussians, a 570 MB checkpoint) a synchronous save stalled training for ~1 s each
-time (H200, 29 checkpoints: ~25 s of a 615 s run).
+time (H200, 29 checkpoints: ~28 s of a 615 s run).
 When the newest checkpoint of a run is unreadable anyway (a disk filled up, a file truncated by a copy),
 :func:`load_newest` falls back to the newest one that loads and names every file it skipped.
 """
@@ -67,16 +67,18 @@ def list_checkpoints(run_dir) -> list[tuple[int, Path]]:
     return sorted(found)
 
 
-def plain_data(obj, where: str = "state"):
+def plain_data(obj, where: str = "state", tensor=None):
     """``obj`` as the plain data a checkpoint may hold (``torch.load(weights_only=True)`` rebuilds exactly these).
 
     Tensors (``nn.Parameter`` detached to a tensor), ``bool``/``int``/``float``/``str``/``None``, and
     lists, tuples and dicts (``OrderedDict`` kept, as ``nn.Module.state_dict`` returns) of them pass;
     NumPy scalars become Python numbers and NumPy arrays become tensors (the owner converts them back
     on load). Anything else is a programming error: ``TypeError`` naming ``where`` — the entry's path.
+    ``tensor``: applied to every (detached) tensor, e.g. a copy to host memory (:func:`host_copy`).
     """
     if isinstance(obj, torch.Tensor):
-        return obj.detach() if type(obj) is not torch.Tensor else obj
+        t = obj.detach() if type(obj) is not torch.Tensor else obj
+        return t if tensor is None else tensor(t)
     if type(obj) in _SCALARS:
         return obj
     if isinstance(obj, np.generic):
@@ -91,13 +93,13 @@ def plain_data(obj, where: str = "state"):
         for k, v in obj.items():
             if not isinstance(k, (*_SCALARS, np.generic)):
                 raise TypeError(f"checkpoint {where}: key {k!r} of type {type(k).__name__} is not plain data")
-            out[plain_data(k, where)] = plain_data(v, f"{where}[{k!r}]")
+            out[plain_data(k, where)] = plain_data(v, f"{where}[{k!r}]", tensor)
         meta = getattr(obj, "_metadata", None)  # nn.Module.state_dict's version record
         if isinstance(out, collections.OrderedDict) and meta is not None:
             out._metadata = plain_data(meta, f"{where}._metadata")
         return out
     if isinstance(obj, (list, tuple)):
-        items = [plain_data(v, f"{where}[{i}]") for i, v in enumerate(obj)]
+        items = [plain_data(v, f"{where}[{i}]", tensor) for i, v in enumerate(obj)]
         return items if isinstance(obj, list) else tuple(items)
     raise TypeError(f"checkpoint {where}: a {type(obj).__module__}.{type(obj).__qualname__} is not plain data "
                     "(checkpoints hold only tensors, numbers, strings, None, lists, tuples and dicts, so that "
@@ -117,38 +119,25 @@ def save_checkpoint(run_dir, iteration: int, state: dict, keep: int = 2) -> Path
 
 
 def host_copy(obj, pinned: bool = True):
-    """``obj`` with every tensor copied to host memory (a new tensor, also for CPU tensors: the caller may go on
-    changing the originals in place while the copy is written); other entries as they are.
+    """:func:`plain_data` of ``obj`` with every tensor copied to host memory (a new tensor, also for CPU tensors:
+    the caller may go on changing the originals in place while the copy is written).
 
     CUDA tensors are copied into page-locked memory without blocking, then the streams they were copied on are
-    synchronised once (``pinned=False``: one blocking copy into pageable memory per tensor)."""
+    synchronised once (``pinned=False``, or page-locked memory refused: one blocking copy into pageable memory)."""
     streams = set()
 
-    def copy(obj):
-        if isinstance(obj, torch.Tensor):
-            t = obj.detach()
-            if pinned and t.is_cuda:
-                try:
-                    host = torch.empty(t.shape, dtype=t.dtype, device="cpu", pin_memory=True)
-                except RuntimeError:  # page-locked memory refused (a limit of the host): the pageable copy
-                    return t.to("cpu", copy=True)
-                host.copy_(t, non_blocking=True)
-                streams.add(torch.cuda.current_stream(t.device))
-                return host
-            return t.to("cpu", copy=True)
-        if isinstance(obj, dict):
-            out = collections.OrderedDict() if isinstance(obj, collections.OrderedDict) else {}
-            for k, v in obj.items():
-                out[k] = copy(v)
-            if isinstance(out, collections.OrderedDict) and hasattr(obj, "_metadata"):
-                out._metadata = obj._metadata
-            return out
-        if isinstance(obj, (list, tuple)):
-            items = [copy(v) for v in obj]
-            return items if isinstance(obj, list) else tuple(items)
-        return obj
+    def copy(t: torch.Tensor) -> torch.Tensor:
+        if pinned and t.is_cuda:
+            try:
+                host = torch.empty(t.shape, dtype=t.dtype, device="cpu", pin_memory=True)
+            except RuntimeError:  # page-locked memory refused (a limit of the host): the pageable copy
+                return t.to("cpu", copy=True)
+            host.copy_(t, non_blocking=True)
+            streams.add(torch.cuda.current_stream(t.device))
+            return host
+        return t.to("cpu", copy=True)
 
-    out = copy(obj)
+    out = plain_data(obj, tensor=copy)
     for stream in streams:
         stream.synchronize()
     return out
@@ -173,7 +162,7 @@ class CheckpointWriter:
 
     def submit(self, run_dir, iteration: int, state: dict, keep: int = 2) -> Path:
         self.wait()
-        state = plain_data(host_copy(state, pinned=self.pinned))
+        state = host_copy(state, pinned=self.pinned)
         self._path = checkpoint_dir(run_dir) / f"ckpt_{iteration:07d}.pt"
 
         def write():
