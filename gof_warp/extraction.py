@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from .camera import Camera
+from .distributed import Ranks
 from .errors import GofError, ModelError
 from .io_utils import atomic_path
 from .marching import compact_mesh
@@ -155,7 +156,7 @@ def empty_mesh_message(gaussians, method: str, levels, config: MeshConfig | None
             f"({stats}){removed}; nothing was written")
 
 
-def _tetra_grid(gaussians, cameras, config: MeshConfig, tc: TetraConfig, field_fn, timer: StageTimer, ranks=None):
+def _tetra_grid(gaussians, cameras, config: MeshConfig, tc: TetraConfig, field_fn, timer: StageTimer, ranks: Ranks):
     """The tetra path's grid: points → the field at them → (band) → Delaunay + cell filter. Returns
     ``(points [P, 3] float32, values [P] (the field, on the model's device), tets [T, 4] int32 or None when fewer
     than 4 points are left, counts)``; each stage is timed on ``timer``. With several ``ranks`` the Delaunay
@@ -177,10 +178,8 @@ def _tetra_grid(gaussians, cameras, config: MeshConfig, tc: TetraConfig, field_f
         return points, values, None, counts
     substages: dict = {}
     with timer("delaunay+filter"):
-        main = ranks is None or ranks.is_main
-        tets = tetrahedralize(points, owner, scale, tc, stats=substages) if main else None
-        if ranks is not None and ranks.active:
-            tets = ranks.broadcast_rows(tets)
+        tets = ranks.broadcast_rows(tetrahedralize(points, owner, scale, tc, stats=substages) if ranks.is_main else None)
+        if ranks.active:
             substages.setdefault("computed_on_rank", 0)
     timer.stages["delaunay+filter"]["substages"] = substages
     log.info("%d points, %d tetrahedra", len(points), len(tets))
@@ -215,6 +214,7 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
 
     config = config or MeshConfig()
     config.validate()
+    ranks = Ranks.single() if ranks is None else ranks
     render_config = render_config or RenderConfig()
     timer = timer or StageTimer(gaussians.device)
     if len(gaussians) == 0:
@@ -222,8 +222,7 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
     gaussians = meshable(gaussians)
 
     def field_fn(points, field_config=config.field):
-        if ranks is not None and ranks.active:
-            ranks.check_same_points(points, "opacity field")
+        ranks.check_same_points(points, "opacity field")
         return opacity_field(gaussians, cameras, points, config=field_config, render_config=render_config,
                              ranks=ranks)
 
@@ -272,7 +271,7 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
         with timer("tsdf_marching_cubes"):
             v, f, _ = extract_tsdf_mesh(volume, binary_steps=config.binary_steps)
         meshes = [(v, f)]
-    if ranks is not None and not ranks.is_main:  # rank 0 post-processes and writes
+    if not ranks.is_main:  # rank 0 post-processes and writes
         return meshes
     meshes = [_postprocess(np.asarray(v, np.float32), np.asarray(f, np.int64), config) for v, f in meshes]
     if config.max_faces is not None or config.max_error is not None:
