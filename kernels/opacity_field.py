@@ -10,7 +10,9 @@ the field equals that pixel's rendered alpha. Compositing stops once ``T < trans
 remaining contribution is below that bound; GOF composites to the end).
 
 The field of a point over several views is the minimum over the views in whose image it projects (in
-front of the near plane): :func:`opacity_min_over_view` lowers a running minimum, one launch per view.
+front of the near plane): :func:`opacity_min_over_view` lowers a running minimum, one launch per view. The
+running minimum bounds each walk (:func:`opacity_along_ray_bounded`): a view stops compositing once its opacity
+reaches the minimum of the views before it, which cannot change the result.
 """
 
 from __future__ import annotations
@@ -21,10 +23,16 @@ from .render_types import CameraParams, RasterSettings, Splats, TileLists
 
 
 @wp.func
-def opacity_along_ray(lists: TileLists, splats: Splats, tile: int, r: wp.vec3, z: float, settings: RasterSettings) -> float:
-    """Composited opacity at depth ``z`` on the camera-space ray ``t · r`` (``r.z = 1``) of ``tile``."""
+def opacity_along_ray_bounded(lists: TileLists, splats: Splats, tile: int, r: wp.vec3, z: float, settings: RasterSettings,
+                              bound: float) -> float:
+    """``min(bound, O)`` where ``O`` is the composited opacity at depth ``z`` on the camera-space ray ``t · r``
+    (``r.z = 1``) of ``tile``: ``O`` never decreases along the walk, so it stops as soon as ``O ≥ bound`` (and
+    returns that partial ``O``, itself ``≥ bound``). The caller's ``min(bound, ·)`` is then exactly what the full
+    walk gives, bit for bit. With ``bound > 1`` it is the full walk."""
     T = float(1.0)
     O = float(0.0)
+    if O >= bound:
+        return O
     k_max2 = settings.k_max * settings.k_max
     for e in range(lists.range_start[tile], lists.range_end[tile]):
         k = lists.values[e]
@@ -45,9 +53,15 @@ def opacity_along_ray(lists: TileLists, splats: Splats, tile: int, r: wp.vec3, z
             continue
         O += alpha * T
         T *= 1.0 - alpha
-        if T < settings.transmittance_min:
+        if T < settings.transmittance_min or O >= bound:
             break
     return O
+
+
+@wp.func
+def opacity_along_ray(lists: TileLists, splats: Splats, tile: int, r: wp.vec3, z: float, settings: RasterSettings) -> float:
+    """Composited opacity at depth ``z`` on the camera-space ray ``t · r`` (``r.z = 1``) of ``tile`` (the whole walk)."""
+    return opacity_along_ray_bounded(lists, splats, tile, r, z, settings, 2.0)
 
 
 @wp.kernel
@@ -75,6 +89,7 @@ def opacity_min_over_view(
     if u < 0.0 or v < 0.0 or u >= float(cam.width) or v >= float(cam.height):
         return
     tile = (int(v) // settings.tile_size) * settings.tiles_x + int(u) // settings.tile_size
-    O = opacity_along_ray(lists, splats, tile, x_v / z, z, settings)
+    # the running minimum bounds the walk: once this view's opacity reaches it, it cannot lower it
+    O = opacity_along_ray_bounded(lists, splats, tile, x_v / z, z, settings, field[i])
     field[i] = wp.min(field[i], O)
     seen[i] = seen[i] + 1
