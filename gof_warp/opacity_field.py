@@ -120,14 +120,7 @@ def opacity_field(gaussians, cameras: Sequence[Camera], points, *, config: Opaci
         CPU_TILE_SIZE if wdev == "cpu" else render_config.tile_size)
     if isinstance(tile, bool) or not isinstance(tile, int) or tile < 1:
         raise GofError(f"opacity field tile_size must be a positive integer (pixels), got {config.tile_size!r}")
-    render_config = dataclasses.replace(render_config, tile_size=tile)
-    params = [gaussians.means, gaussians.rotations, gaussians.scales, gaussians.opacities]
-    means, quats, scales, opacities = (wp.from_torch(p.detach().contiguous().float(), dtype=d)
-                                       for p, d in zip(params, (wp.vec3, wp.vec4, wp.vec3, wp.float32)))
-    no_colour = wp.zeros((len(gaussians), 1), dtype=wp.vec3, device=wdev)  # colours are not needed here
-    views = [(camera_params_from(cam), raster_settings_for(cam, render_config, pixel_pad=POINT_PIXEL_PAD))
-             for cam in cameras]
-    arrays = (means, quats, scales, opacities, no_colour)
+    arrays, views = _view_inputs(gaussians, cameras, dataclasses.replace(render_config, tile_size=tile))
     workers = _cpu_workers(config, m) if wdev == "cpu" else 1
     if workers > 1:  # Warp runs a CPU kernel on one core: share the points out to forked processes
         f_np, s_np = _in_forked_processes(arrays, views, pts.numpy(), workers, config.chunk_size)
@@ -143,11 +136,25 @@ def opacity_field(gaussians, cameras: Sequence[Camera], points, *, config: Opaci
     return (field, seen) if return_seen else field
 
 
-def _min_over_views(arrays, views, points: wp.array, field: wp.array, seen: wp.array) -> None:
-    """Lower ``field`` to each view's opacity at ``points`` and count the views that see them (Warp only)."""
+def _view_inputs(gaussians, cameras: Sequence[Camera], render_config: RenderConfig):
+    """``(arrays, views)`` for :func:`_min_over_views`: the Gaussians as Warp arrays (no colours: the field does not
+    need them) and each camera's parameters and raster settings (rays through points: half a pixel of padding)."""
+    params = [gaussians.means, gaussians.rotations, gaussians.scales, gaussians.opacities]
+    arrays = [wp.from_torch(p.detach().contiguous().float(), dtype=d)
+              for p, d in zip(params, (wp.vec3, wp.vec4, wp.vec3, wp.float32))]
+    arrays.append(wp.zeros((len(gaussians), 1), dtype=wp.vec3, device=arrays[0].device))
+    views = [(camera_params_from(cam), raster_settings_for(cam, render_config, pixel_pad=POINT_PIXEL_PAD))
+             for cam in cameras]
+    return tuple(arrays), views
+
+
+def _min_over_views(arrays, views, points: wp.array, field: wp.array, seen: wp.array,
+                    kernel=opacity_min_over_view) -> None:
+    """Lower ``field`` to each view's opacity at ``points`` and count the views that see them (Warp only;
+    ``kernel``: the bounded walk, or its whole-walk reference for tests and benchmarks)."""
     for cp, settings in views:
         splats, lists, _ = prepare_view(*arrays, 0, cp, settings)
-        wp.launch(opacity_min_over_view, dim=points.shape[0], device=points.device,
+        wp.launch(kernel, dim=points.shape[0], device=points.device,
                   inputs=[points, lists, splats, cp, settings], outputs=[field, seen])
 
 

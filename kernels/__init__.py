@@ -25,8 +25,8 @@ Stable names (module, kind):
   their shared-memory twins in ``rasterize_tiled``) need the launchers' tile lists and state: use them
   through the launchers. (A kernel named like its module could not be re-exported here anyway: the
   submodule import would shadow it.)
-* opacity field: ``opacity_along_ray``, ``opacity_along_ray_bounded`` (``@wp.func``), ``opacity_min_over_view``
-  (kernel).
+* opacity field: ``opacity_along_ray``, ``opacity_along_ray_bounded``, ``point_view_tile`` (``@wp.func``),
+  ``opacity_min_over_view`` and its whole-walk reference ``opacity_min_over_view_whole`` (kernels).
 * marching tetrahedra: ``make_field_kernel``, ``field_params_type``, the kernels ``count_triangles``,
   ``write_triangle_edges``, ``write_slot_ids``, ``mark_run_starts``, ``scatter_vertex_ids``,
   ``init_edge_brackets``, ``bracket_midpoints``, ``update_brackets``, ``interpolate_in_brackets``,
@@ -48,7 +48,8 @@ _MODULES = {
     "binning": ("bin_gaussians",),
     "renderer": ("render_gaussians", "render_forward", "render_backward", "prepare_view", "RenderOutputs",
                  "RenderState"),
-    "opacity_field": ("opacity_along_ray", "opacity_along_ray_bounded", "opacity_min_over_view"),
+    "opacity_field": ("opacity_along_ray", "opacity_along_ray_bounded", "point_view_tile", "opacity_min_over_view",
+                      "opacity_min_over_view_whole"),
     "marching_tets": ("make_field_kernel", "field_params_type", "count_triangles", "write_triangle_edges",
                       "write_slot_ids", "mark_run_starts", "scatter_vertex_ids", "init_edge_brackets",
                       "bracket_midpoints", "update_brackets", "interpolate_in_brackets", "count_nonfinite",

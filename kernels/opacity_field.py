@@ -64,6 +64,20 @@ def opacity_along_ray(lists: TileLists, splats: Splats, tile: int, r: wp.vec3, z
     return opacity_along_ray_bounded(lists, splats, tile, r, z, settings, 2.0)
 
 
+@wp.func
+def point_view_tile(x_v: wp.vec3, cam: CameraParams, settings: RasterSettings) -> int:
+    """The tile of camera-space point ``x_v``'s projection, or −1 when the view does not see it (behind the near
+    plane or outside the image)."""
+    z = x_v[2]
+    if z <= settings.near:
+        return -1
+    u = cam.fx * x_v[0] / z + cam.cx
+    v = cam.fy * x_v[1] / z + cam.cy
+    if u < 0.0 or v < 0.0 or u >= float(cam.width) or v >= float(cam.height):
+        return -1
+    return (int(v) // settings.tile_size) * settings.tiles_x + int(u) // settings.tile_size
+
+
 @wp.kernel
 def opacity_min_over_view(
     points: wp.array(dtype=wp.vec3),
@@ -77,19 +91,34 @@ def opacity_min_over_view(
     """``field[i] ← min(field[i], O_view(points[i]))`` for points this view sees; ``seen[i] += 1`` then.
 
     Inputs: ``points [M] vec3`` world space, the view's tile lists and splats (from the renderer's
-    preprocessing and binning, with ``settings.pixel_pad ≥ 0.5`` so off-centre rays are covered).
+    preprocessing and binning, with ``settings.pixel_pad ≥ 0.5`` so off-centre rays are covered). The running
+    minimum bounds the walk: once this view's opacity reaches it, the view cannot lower it.
     """
     i = wp.tid()
     x_v = cam.R * points[i] + cam.t
-    z = x_v[2]
-    if z <= settings.near:
+    tile = point_view_tile(x_v, cam, settings)
+    if tile < 0:
         return
-    u = cam.fx * x_v[0] / z + cam.cx
-    v = cam.fy * x_v[1] / z + cam.cy
-    if u < 0.0 or v < 0.0 or u >= float(cam.width) or v >= float(cam.height):
+    field[i] = wp.min(field[i], opacity_along_ray_bounded(lists, splats, tile, x_v / x_v[2], x_v[2], settings, field[i]))
+    seen[i] = seen[i] + 1
+
+
+@wp.kernel
+def opacity_min_over_view_whole(
+    points: wp.array(dtype=wp.vec3),
+    lists: TileLists,
+    splats: Splats,
+    cam: CameraParams,
+    settings: RasterSettings,
+    field: wp.array(dtype=float),
+    seen: wp.array(dtype=wp.int32),
+):
+    """:func:`opacity_min_over_view` with every view walking its whole list: the reference the bounded kernel
+    equals bit for bit, and the baseline of its benchmark (``benchmarks/extract/field_bound.py``)."""
+    i = wp.tid()
+    x_v = cam.R * points[i] + cam.t
+    tile = point_view_tile(x_v, cam, settings)
+    if tile < 0:
         return
-    tile = (int(v) // settings.tile_size) * settings.tiles_x + int(u) // settings.tile_size
-    # the running minimum bounds the walk: once this view's opacity reaches it, it cannot lower it
-    O = opacity_along_ray_bounded(lists, splats, tile, x_v / z, z, settings, field[i])
-    field[i] = wp.min(field[i], O)
+    field[i] = wp.min(field[i], opacity_along_ray(lists, splats, tile, x_v / x_v[2], x_v[2], settings))
     seen[i] = seen[i] + 1

@@ -10,8 +10,8 @@ import warp as wp
 from gof_warp.camera import look_at
 from gof_warp.model import Gaussians
 from gof_warp import kernels as K
-from gof_warp.opacity_field import POINT_PIXEL_PAD, OpacityFieldConfig, opacity_field
-from gof_warp.render import RenderConfig, raster_settings_for, render
+from gof_warp.opacity_field import OpacityFieldConfig, _min_over_views, _view_inputs, opacity_field
+from gof_warp.render import RenderConfig, render
 
 # float32 kernel vs float64 reference: sums of ≤ 30 terms of O(1) → ~1e-6; decisions near the alpha_min
 # threshold can flip a ≤ 1/255 contribution, which the scenes below avoid by construction (see _scene).
@@ -163,23 +163,6 @@ def test_the_point_tile_size_changes_speed_not_values():
             opacity_field(g, cams, points, config=OpacityFieldConfig(tile_size=bad), render_config=cfg)
 
 
-@wp.kernel
-def _full_walk_min_over_view(points: wp.array(dtype=wp.vec3), lists: K.TileLists, splats: K.Splats,
-                             cam: K.CameraParams, settings: K.RasterSettings, field: wp.array(dtype=float)):
-    """The field's kernel as it was before the running minimum bounded the walk: every view walks its whole list."""
-    i = wp.tid()
-    x_v = cam.R * points[i] + cam.t
-    z = x_v[2]
-    if z <= settings.near:
-        return
-    u = cam.fx * x_v[0] / z + cam.cx
-    v = cam.fy * x_v[1] / z + cam.cy
-    if u < 0.0 or v < 0.0 or u >= float(cam.width) or v >= float(cam.height):
-        return
-    tile = (int(v) // settings.tile_size) * settings.tiles_x + int(u) // settings.tile_size
-    field[i] = wp.min(field[i], K.opacity_along_ray(lists, splats, tile, x_v / z, z, settings))
-
-
 def test_bounding_the_walk_by_the_running_minimum_changes_no_value():
     """A view stops compositing once its opacity reaches the minimum of the views before it; the opacity never
     falls along the walk, so the field is bit for bit the one of whole walks (dense scene: many walks do stop)."""
@@ -189,17 +172,13 @@ def test_bounding_the_walk_by_the_running_minimum_changes_no_value():
     rng = np.random.default_rng(8)
     points = np.concatenate([rng.uniform(-0.8, 0.8, (400, 3)), means + 0.1 * rng.normal(size=means.shape)])
     cfg = RenderConfig()
-    got = opacity_field(g, cams, points, render_config=cfg, config=OpacityFieldConfig(cpu_processes=1))
-    params = [wp.from_torch(p.contiguous().float(), dtype=d) for p, d in
-              zip((g.means, g.rotations, g.scales, g.opacities), (wp.vec3, wp.vec4, wp.vec3, wp.float32))]
-    arrays = (*params, wp.zeros((len(g), 1), dtype=wp.vec3, device="cpu"))
-    full = wp.ones(len(points), dtype=float, device="cpu")
-    pts = wp.array(points.astype(np.float32), dtype=wp.vec3, device="cpu")
-    for cam in cams:
-        cp, settings = K.camera_params_from(cam), raster_settings_for(cam, cfg, pixel_pad=POINT_PIXEL_PAD)
-        splats, lists, _ = K.prepare_view(*arrays, 0, cp, settings)
-        wp.launch(_full_walk_min_over_view, dim=len(points), inputs=[pts, lists, splats, cp, settings], outputs=[full],
-                  device="cpu")
+    got, got_seen = opacity_field(g, cams, points, render_config=cfg, config=OpacityFieldConfig(cpu_processes=1),
+                                  return_seen=True)
+    arrays, views = _view_inputs(g, cams, cfg)
+    full, seen = wp.ones(len(points), dtype=float, device="cpu"), wp.zeros(len(points), dtype=wp.int32, device="cpu")
+    _min_over_views(arrays, views, wp.array(points.astype(np.float32), dtype=wp.vec3, device="cpu"), full, seen,
+                    kernel=K.opacity_min_over_view_whole)
+    np.testing.assert_array_equal(got_seen.numpy(), seen.numpy())
     np.testing.assert_array_equal(got.numpy(), full.numpy())
     assert ((got.numpy() > 0.05) & (got.numpy() < 0.95)).sum() > 100, "the scene must exercise partial opacities"
 
