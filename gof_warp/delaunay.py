@@ -48,6 +48,7 @@ import numpy as np
 
 from .delaunay_cgal import delaunay_cgal as _delaunay_cgal
 from .errors import GofError
+from .forked import can_fork
 
 log = logging.getLogger(__name__)
 
@@ -414,8 +415,8 @@ def _chunk(p, lo, hi, halo_lo, halo_hi, tree, rho, cells: _CellIndex, c: int) ->
 def delaunay_chunked(p: np.ndarray, chunks: int, workers: int, halo_fraction: float = HALO_FRACTION,
                      stats: dict | None = None, processes: bool = False) -> np.ndarray:
     """The exact global Delaunay tetrahedralisation of float64 ``p [P, 3]`` from ``chunks`` pieces on ``workers``
-    threads, or forked processes with ``processes`` (Linux; Qhull holds the GIL for part of its work, and the
-    pieces' numpy post-processing too) — see the module docstring. Returns positively oriented non-flat
+    threads, or forked processes with ``processes`` where the OS can fork (Linux; elsewhere threads: Qhull holds
+    the GIL for part of its work, and the pieces' numpy post-processing too) — see the module docstring. Returns positively oriented non-flat
     ``tets [T, 4] int32``."""
     from scipy.spatial import ConvexHull, cKDTree
 
@@ -432,6 +433,7 @@ def delaunay_chunked(p: np.ndarray, chunks: int, workers: int, halo_fraction: fl
         tree = tree_job.result()
 
         inputs = (p, lo, hi, halo_lo, halo_hi, tree, rho, cells)
+        processes = processes and can_fork()
         if processes:
             from .forked import map_forked
 

@@ -37,8 +37,10 @@ def main(argv=None) -> int:
     ap.add_argument("--delaunay", default="scipy", choices=("scipy", "cgal", "auto"))
     ap.add_argument("--delaunay-workers", type=int, default=TetraConfig.delaunay_workers,
                     help="threads for scipy's Delaunay in chunks (0, the default: every CPU; 1: one Qhull call)")
-    ap.add_argument("--delaunay-processes", action="store_true",
-                    help="run the Delaunay chunks in forked processes instead of threads (Linux)")
+    ap.add_argument("--delaunay-processes", action=argparse.BooleanOptionalAction,
+                    default=TetraConfig.delaunay_processes,
+                    help="run the Delaunay chunks in forked processes (default, where the OS can fork: Linux) or, "
+                         "with --no-delaunay-processes, in threads")
     ap.add_argument("--band", action="store_true",
                     help="tetra: triangulate only the points near a level crossing (faster, not the same mesh: "
                          "benchmarks/extract/README.md)")

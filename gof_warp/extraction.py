@@ -90,6 +90,9 @@ class StageTimer:
                 torch.cuda.synchronize(self.device)
         entry = {"time_s": round(time.perf_counter() - t0, 4),
                  "host_peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)}
+        children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
+        if children > 0:  # forked workers (Delaunay chunks, CPU field) that have ended: the largest one's peak
+            entry["host_child_peak_rss_mb"] = round(children, 1)
         if cuda:
             import warp as wp
 

@@ -12,10 +12,13 @@ subset, or copies jittered by one σ beyond 54k; synthetic opacities uniform in 
 
 A reduction is ``none`` or comma-separated ``key=value`` with keys ``opacity_min``,
 ``corner_min_extent`` (world units), ``corner_frac`` (``corner_min_extent`` as a fraction of the
-diagonal of the Gaussians' robust box) and ``workers`` (``TetraConfig.delaunay_workers``: Delaunay in
-chunks on that many threads, 0 = every CPU; not a reduction, but set per run the same way). Reductions apply to ``tetra`` only; ``cubes``/``tsdf`` run once.
+diagonal of the Gaussians' robust box), ``workers`` (``TetraConfig.delaunay_workers``: Delaunay in
+chunks on that many workers, 0 = every CPU) and ``processes`` (1: the chunks in forked processes, the default;
+0: in threads) — the last two are not reductions, but set per run the same way. Reductions apply to ``tetra``
+only; ``cubes``/``tsdf`` run once.
 Memory per stage: ``host_peak_rss_mb`` (process maximum so far, from ``extract.StageTimer``),
-``peak_rss_above_start_mb`` (sampled every 5 ms), ``gpu_peak_allocated_mb`` (torch), and
+``peak_rss_above_start_mb`` (sampled every 5 ms), ``peak_tree_pss_mb`` (PSS of the process and its forked
+workers, sampled every 50 ms: the memory the stage really holds), ``gpu_peak_allocated_mb`` (torch), and
 ``warp_mempool_high_mb`` (Warp's CUDA mempool high-water mark so far; Warp has no reset).
 """
 
@@ -42,24 +45,24 @@ from gof_warp.model import Gaussians
 from gof_warp.tetra import TetraConfig
 from gof_warp.tsdf import gaussian_bounds
 
-REDUCTION_KEYS = ("opacity_min", "corner_min_extent", "corner_frac", "workers")
+REDUCTION_KEYS = ("opacity_min", "corner_min_extent", "corner_frac", "workers", "processes")
 
 
 class BenchTimer(StageTimer):
-    """``StageTimer`` plus the sampled RSS peak above the stage's start and Warp's mempool high-water."""
+    """``StageTimer`` (time, host and GPU peaks) plus the sampled RSS peak above each stage's start and the peak PSS
+    of the process tree (the Delaunay's forked workers included)."""
 
     def __init__(self, device: str):
-        super().__init__()
-        self.device = device
+        super().__init__(device)
+        self.device_name = device
 
     @contextmanager
     def __call__(self, name: str):
         extra: dict = {}
-        with Stage(extra, name, self.device), super().__call__(name):
+        with Stage(extra, name, self.device_name), super().__call__(name):
             yield
-        self.stages[name]["peak_rss_above_start_mb"] = extra[name]["peak_rss_above_start_mb"]
-        if self.device.startswith("cuda"):
-            self.stages[name]["warp_mempool_high_mb"] = round(wp.get_mempool_used_mem_high(self.device) / 2**20, 1)
+        for key in ("peak_rss_above_start_mb", "peak_tree_pss_mb"):
+            self.stages[name][key] = extra[name][key]
 
 
 def parse_reduction(spec: str, diagonal: float) -> TetraConfig:
@@ -73,8 +76,10 @@ def parse_reduction(spec: str, diagonal: float) -> TetraConfig:
             raise SystemExit(f"bad reduction {spec!r}: use none or key=value with keys {REDUCTION_KEYS}")
         if key == "corner_frac":
             cfg.corner_min_extent = float(value) * diagonal
-        elif key == "workers":  # Delaunay threads (0: every CPU)
+        elif key == "workers":  # Delaunay workers (0: every CPU)
             cfg.delaunay_workers = int(value)
+        elif key == "processes":  # 1: the chunks in forked processes (default), 0: in threads
+            cfg.delaunay_processes = bool(int(value))
         else:
             setattr(cfg, key, float(value))
     return cfg

@@ -54,21 +54,57 @@ def _rss_bytes() -> int:
         return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
 
 
+def _descendants(pid: int) -> list[int]:
+    """Process ids of ``pid``'s children, their children, ... (Linux ``/proc``)."""
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        for task in Path(f"/proc/{p}/task").glob("*"):
+            try:
+                kids = [int(c) for c in (task / "children").read_text().split()]
+            except OSError:
+                continue
+            out += kids
+            todo += kids
+    return out
+
+
+def _tree_pss_bytes() -> int:
+    """Proportional set size of this process and its descendants (forked workers share the parent's pages: PSS
+    counts each shared page once over the tree, where summing RSS would count it in every process)."""
+    total = 0
+    for pid in [os.getpid(), *_descendants(os.getpid())]:
+        try:
+            for line in Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines():
+                if line.startswith("Pss:"):
+                    total += int(line.split()[1]) * 1024
+                    break
+        except OSError:  # the worker ended between the listing and the read
+            continue
+    return total
+
+
 class Stage:
-    """Context manager timing one stage and sampling its peak RSS (and CUDA memory)."""
+    """Context manager timing one stage and sampling its peak RSS, the peak PSS of the process tree (forked
+    workers included) and CUDA memory."""
 
     def __init__(self, results: dict, name: str, device: str):
         self.results, self.name, self.device = results, name, device
 
     def _sample(self):
+        k = 0
         while not self._stop.is_set():
             self.peak = max(self.peak, _rss_bytes())
+            if k % 10 == 0:  # every 50 ms: reading smaps_rollup of a large tree costs ~ms
+                self.tree_peak = max(self.tree_peak, _tree_pss_bytes())
+            k += 1
             time.sleep(0.005)
 
     def __enter__(self):
         gc.collect()
         _release_freed_memory()
         self.start_rss = self.peak = _rss_bytes()
+        self.tree_peak = _tree_pss_bytes()
         if self.device.startswith("cuda"):
             torch.cuda.reset_peak_memory_stats()
         self._stop = threading.Event()
@@ -84,7 +120,7 @@ class Stage:
         self._stop.set()
         self._thread.join()
         rec = {"time_s": round(dt, 4), "peak_rss_above_start_mb": round((self.peak - self.start_rss) / 2**20, 1),
-               "peak_rss_mb": round(self.peak / 2**20, 1)}
+               "peak_rss_mb": round(self.peak / 2**20, 1), "peak_tree_pss_mb": round(self.tree_peak / 2**20, 1)}
         if self.device.startswith("cuda"):
             rec["cuda_torch_peak_mb"] = round(torch.cuda.max_memory_allocated() / 2**20, 1)
             rec["cuda_warp_mempool_high_mb"] = round(wp.get_mempool_used_mem_high(self.device) / 2**20, 1)
