@@ -16,6 +16,7 @@ import warp as wp
 
 from .camera import Camera
 from .kernels.render_types import camera_params_from, make_raster_settings
+from .kernels.binning import TileListSizer
 from .kernels.renderer import RenderOutputs, render_backward, render_forward
 
 
@@ -141,7 +142,7 @@ def _wp(t: torch.Tensor, dtype=None):
 
 class _RasterizeFunction(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, means, quats, scales, opacities, sh, cam, settings, sh_degree, stats):
+    def forward(ctx, means, quats, scales, opacities, sh, cam, settings, sh_degree, stats, sizer):
         device = means.device
         H, W = cam.height, cam.width
         f32 = dict(dtype=torch.float32, device=device)
@@ -151,7 +152,7 @@ class _RasterizeFunction(torch.autograd.Function):
         with _stream_scope(device):
             args = [_wp(x.detach(), t) for x, t in zip((means, quats, scales, opacities, sh), _PARAM_TYPES)]
             out = RenderOutputs(*[_wp(o, t) for o, t in zip(outs, types)])
-            _, state = render_forward(*args, sh_degree, cam, settings, out=out)
+            _, state = render_forward(*args, sh_degree, cam, settings, out=out, sizer=sizer)
             radii = wp.to_torch(state.radii)
             if stats is not None:
                 stats._record_radii(radii)
@@ -180,7 +181,7 @@ class _RasterizeFunction(torch.autograd.Function):
                 g2d, g2abs = _wp(stats.grad2d, wp.vec2), _wp(stats.grad2d_abs)
             render_backward(state, grad_out, wp_in, g2d, g2abs)
         ctx.state = None  # free the forward state
-        return (*grad_in, None, None, None, None)
+        return (*grad_in, None, None, None, None, None)
 
 
 def _check_params(means, quats, scales, opacities, sh, check_values: bool = True):
@@ -205,7 +206,7 @@ def _check_params(means, quats, scales, opacities, sh, check_values: bool = True
 
 
 def rasterize(means, quats, scales, opacities, sh, camera: Camera, *, sh_degree=None, config=None, stats=None,
-              check_values: bool = True) -> dict:
+              check_values: bool = True, tile_lists: TileListSizer | None = None) -> dict:
     """Render activated Gaussian parameters from ``camera`` (differentiable w.r.t. all five tensors).
 
     Args:
@@ -218,6 +219,9 @@ def rasterize(means, quats, scales, opacities, sh, camera: Camera, *, sh_degree=
         stats: optional :class:`DensifyStats` filled by this render's forward and backward.
         check_values: check that the scales are positive (one device-to-host read; :func:`render` skips it: a
             model's activated scales are positive by construction).
+        tile_lists: a :class:`~gof_warp.kernels.binning.TileListSizer` kept across renders (a training loop's):
+            the tile lists are sized from earlier renders' counts instead of reading this one's back, so the host
+            need not wait for the GPU. ``None``: exact sizing (one device-to-host read per render).
 
     Returns:
         dict of ``[H, W]``/``[H, W, 3]`` float32 tensors: ``rgb``, ``alpha`` (1 − T), ``depth`` (expected
@@ -243,24 +247,27 @@ def rasterize(means, quats, scales, opacities, sh, camera: Camera, *, sh_degree=
             raise ValueError(f"rasterize: stats holds {len(stats)} Gaussians on {stats.grad2d.device}, need {means.shape[0]} on {means.device}")
     cam = camera_params_from(camera)
     settings = raster_settings_for(camera, config)
+    if tile_lists is not None and not isinstance(tile_lists, TileListSizer):
+        raise TypeError(f"rasterize: tile_lists must be a TileListSizer, got {type(tile_lists).__name__}")
     rgb, alpha, accum, median, normal, dist, radii = _RasterizeFunction.apply(
-        means, quats, scales, opacities, sh, cam, settings, sh_degree, stats
+        means, quats, scales, opacities, sh, cam, settings, sh_degree, stats, tile_lists
     )
     depth = torch.where(alpha > 0, accum / torch.where(alpha > 0, alpha, torch.ones_like(alpha)), torch.zeros_like(alpha))
     return dict(rgb=rgb, alpha=alpha, depth=depth, accum_depth=accum, median_depth=median, normal=normal, distortion=dist, radii=radii)
 
 
-def render(gaussians, camera: Camera, *, config=None, stats=None, sh_degree=None) -> dict:
+def render(gaussians, camera: Camera, *, config=None, stats=None, sh_degree=None, tile_lists=None) -> dict:
     """Render a Gaussian model (any object with activated ``means``, ``rotations`` (unit wxyz),
     ``scales``, ``opacities``, ``sh`` and ``active_sh_degree``, e.g. ``gof_warp.model.Gaussians``).
 
     The activations are torch ops on the raw parameters, so gradients reach the raw parameters
     (log-scales, opacity logits, unnormalised quaternions) by torch's chain rule. ``sh_degree``
-    overrides ``gaussians.active_sh_degree``. See :func:`rasterize` for the outputs.
+    overrides ``gaussians.active_sh_degree``; ``tile_lists``: see :func:`rasterize`. See :func:`rasterize` for the
+    outputs.
     """
     for attr in ("means", "rotations", "scales", "opacities", "sh", "active_sh_degree"):
         if not hasattr(gaussians, attr):
             raise TypeError(f"render: gaussians has no attribute {attr!r} (expected a gof_warp.model.Gaussians)")
     degree = gaussians.active_sh_degree if sh_degree is None else sh_degree
     return rasterize(gaussians.means, gaussians.rotations, gaussians.scales, gaussians.opacities, gaussians.sh, camera,
-                     sh_degree=degree, config=config, stats=stats, check_values=False)  # fmt: skip
+                     sh_degree=degree, config=config, stats=stats, check_values=False, tile_lists=tile_lists)  # fmt: skip

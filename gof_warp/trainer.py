@@ -44,6 +44,7 @@ from .filter3d import update_filter_3d
 from .init_points import initial_point_cloud
 from .interrupts import TrainingInterrupted, deferred_interrupt  # noqa: F401 - TrainingInterrupted public here
 from .io_utils import ensure_writable_dir, write_json_atomic, write_text_atomic
+from .kernels.binning import TileListSizer
 from .loss_monitor import LossSpikeMonitor
 from .losses import LossConfig, total_loss
 from .metrics import image_metrics, psnr
@@ -106,6 +107,9 @@ class TrainConfig:
     snapshot_iterations: list[int] = field(default_factory=list)  # save the model at these iterations (module doc)
     views_per_step: int = 0  # views averaged in one step; 0: one per process (gof_warp.distributed)
     checksum_every: int = 1000  # with several processes: compare the ranks' models this often
+    # on CUDA, size the tile lists at this margin over earlier renders' counts instead of waiting for each render's
+    # count (kernels.binning.TileListSizer: no host–device synchronisation per iteration); 0: exact sizing
+    tile_list_margin: float = 1.25
     data: DataConfig = field(default_factory=DataConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
     render: RenderConfig = field(default_factory=RenderConfig)
@@ -125,6 +129,9 @@ class TrainConfig:
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
                 raise ConfigError(f"{key} must be an integer >= 0, got {v!r}")
+        m = self.tile_list_margin
+        if isinstance(m, bool) or not isinstance(m, (int, float)) or not (m == 0 or m >= 1):
+            raise ConfigError(f"tile_list_margin must be 0 (exact sizing) or a number >= 1, got {m!r}")
 
 
 def initial_gaussians(scene: Scene, cfg: ModelConfig, seed: int, device) -> tuple[Gaussians, dict]:
@@ -172,6 +179,9 @@ class Trainer:
         self.warmup_s: float | None = None  # the last _warm_up's time (not training time)
         self.resumed_from: Path | None = None  # the checkpoint resume() loaded
         self.spikes = LossSpikeMonitor()
+        # tile lists sized without waiting for the GPU each iteration (on the CPU there is nothing to overlap)
+        self.tile_lists = (TileListSizer(config.tile_list_margin)
+                           if self.device.type == "cuda" and config.tile_list_margin else None)
         self._rng = np.random.default_rng(config.seed)
         self._stack: list[int] = []
         self._pending = PendingScalars()  # iterations whose loss terms are still on the device
@@ -263,7 +273,7 @@ class Trainer:
         L1 when the model has one): ``(loss, terms)``, the terms detached, with the render's PSNR."""
         cam, gt = self.cameras[idx], self.images[idx]
         with _stage("train.render"):
-            out = render(self.gaussians, cam, config=self.render_config, stats=stats)
+            out = render(self.gaussians, cam, config=self.render_config, stats=stats, tile_lists=self.tile_lists)
         with _stage("train.loss"):
             l1_pair = None
             if self.appearance is not None:
@@ -336,6 +346,8 @@ class Trainer:
             "final_train_psnr": round(last.get("psnr", float("nan")), 3) if last else None,
             "test": self.evaluate(),
             "loss_spikes": self.spikes.report(),
+            # calls, exact measurements, overflows (renders that dropped entries: see kernels.binning.TileListSizer)
+            "tile_lists": None if self.tile_lists is None else self.tile_lists.stats(),
             "init": self.init_info,
             "snapshots": self.snapshots,
             "history": self.history,

@@ -18,7 +18,8 @@ Stable names (module, kind):
   ``make_camera_params``, ``camera_params_from``, ``make_raster_settings``, ``make_struct``.
 * Gaussian math (``@wp.func``): ``quat_to_rotation``, ``sh_to_color``, ``pixel_ray``, ``ray_gaussian``,
   ``normal_direction``.
-* projection and binning: kernels ``preprocess_gaussians``, ``screen_bounds``; host ``bin_gaussians``.
+* projection and binning: kernels ``preprocess_gaussians``, ``screen_bounds``; host ``bin_gaussians`` and its
+  ``TileListSizer`` (tile lists sized without a host–device synchronisation per render).
 * rendering on ``wp.array``s (host launchers, ``wp.Tape``-aware): ``render_gaussians``,
   ``render_forward``, ``render_backward``, ``prepare_view``, ``RenderOutputs``, ``RenderState``. The
   per-pixel kernels behind them (``rasterize.rasterize_forward``, ``rasterize_backward.rasterize_backward``,
@@ -45,7 +46,7 @@ _MODULES = {
                      "make_camera_params", "camera_params_from", "make_raster_settings", "make_struct"),
     "gaussian_math": ("RayHit", "quat_to_rotation", "sh_to_color", "pixel_ray", "ray_gaussian", "normal_direction"),
     "project": ("preprocess_gaussians", "screen_bounds"),
-    "binning": ("bin_gaussians",),
+    "binning": ("bin_gaussians", "TileListSizer"),
     "renderer": ("render_gaussians", "render_forward", "render_backward", "prepare_view", "RenderOutputs",
                  "RenderState"),
     "opacity_field": ("opacity_along_ray", "opacity_along_ray_bounded", "point_view_tile", "opacity_min_over_view",

@@ -16,6 +16,8 @@ tile's run starts and ends by comparing neighbouring keys.
 
 from __future__ import annotations
 
+import math
+
 import warp as wp
 
 from .render_types import CameraParams, RasterSettings
@@ -63,15 +65,17 @@ def write_tile_keys(
     depth_bits: wp.array(dtype=wp.int32),
     cam: CameraParams,
     settings: RasterSettings,
+    limit: int,
     keys: wp.array(dtype=wp.int64),
     values: wp.array(dtype=wp.int32),
 ):
     """``offsets`` = inclusive scan of ``tiles_touched`` (``[N]`` each, from :func:`count_tile_keys`); writes
-    the keys of the same tiles to ``keys/values[offsets[k] − tiles_touched[k] : offsets[k]]`` (never more)."""
+    the keys of the same tiles to ``keys/values[offsets[k] − tiles_touched[k] : offsets[k]]`` (never more), and
+    none at or past ``limit`` (the entries allocated)."""
     k = wp.tid()
     r = rect[k]
     e = ellipse[k]
-    end = offsets[k]
+    end = wp.min(offsets[k], limit)
     idx = end - tiles_touched[k]
     d = wp.int64(depth_bits[k])
     if e.exact == 2:
@@ -98,17 +102,22 @@ def write_tile_keys(
 
 @wp.kernel
 def tile_ranges(keys: wp.array(dtype=wp.int64), count: int, range_start: wp.array(dtype=wp.int32), range_end: wp.array(dtype=wp.int32)):
-    """For sorted ``keys[:count]``: ``[range_start[t], range_end[t])`` = entries of tile ``t`` (zeroed before)."""
+    """For sorted ``keys[:count]``: ``[range_start[t], range_end[t])`` = entries of tile ``t`` (zeroed before);
+    keys of tile ``num_tiles`` (padding) are skipped."""
     i = wp.tid()
-    tile = int(keys[i] >> wp.int64(32))
+    num_tiles = range_start.shape[0]
+    tile = int(keys[i] >> wp.int64(32))  # padding entries (tile = num_tiles) sort last and own no range
     if i == 0:
-        range_start[tile] = 0
+        if tile < num_tiles:
+            range_start[tile] = 0
     else:
         prev = int(keys[i - 1] >> wp.int64(32))
         if prev != tile:
-            range_end[prev] = i
-            range_start[tile] = i
-    if i == count - 1:
+            if prev < num_tiles:
+                range_end[prev] = i
+            if tile < num_tiles:
+                range_start[tile] = i
+    if i == count - 1 and tile < num_tiles:
         range_end[tile] = count
 
 
@@ -117,8 +126,95 @@ def float_bits_view(a: wp.array) -> wp.array:
     return wp.array(ptr=a.ptr, dtype=wp.int32, shape=a.shape, device=a.device, copy=False)
 
 
+class TileListSizer:
+    """Sizes the tile lists of successive renders without a host–device synchronisation per render.
+
+    Without a sizer, :func:`bin_gaussians` reads the number of (Gaussian, tile) entries back to the host to
+    allocate the lists: the host waits until the GPU has finished all work queued before it, so it cannot queue the
+    next kernels while the GPU runs the previous ones. With a sizer it allocates ``size`` entries planned on the
+    host instead, pads the unused ones with keys that sort after every tile and own no range, and copies the true
+    count into pinned host memory without waiting; later calls read those counts once they have arrived.
+
+    - The first call for a number of Gaussians measures exactly (one synchronisation); ``size`` is then
+      ``margin ×`` the largest count seen since the Gaussians last changed in number.
+    - A count over the size it was given is an **overflow**: that render dropped the entries past the size (the
+      highest-index Gaussians' in some tiles). It is counted in ``overflows`` (found a call or two later) and the
+      size grows. Renders without an overflow are bit-identical to exact sizing (stable sort, padding last).
+
+    Warp only (no torch); on the CPU the count is read at once (nothing to overlap there).
+    """
+
+    PENDING = 8  # counts in flight before the oldest is waited for
+
+    def __init__(self, margin: float = 1.25):
+        if not margin >= 1.0:
+            raise ValueError(f"TileListSizer: margin must be >= 1, got {margin}")
+        self.margin = float(margin)
+        self.size = 0  # entries for the next call (0: measure exactly)
+        self.num_gaussians = -1
+        self.largest = 0  # largest count seen for the current number of Gaussians
+        self.calls = 0
+        self.measured = 0  # calls that synchronised to measure
+        self.overflows = 0
+        self._pending: list = []  # (slot, entries allocated, number of Gaussians, event or None)
+        self._host = None  # pinned int32[PENDING] landing slots (CUDA)
+        self._next_slot = 0
+
+    def stats(self) -> dict:
+        return {"calls": self.calls, "measured": self.measured, "overflows": self.overflows, "size": self.size}
+
+    def plan(self, n: int) -> int:
+        """Entries to allocate for a call with ``n`` Gaussians (0: measure exactly)."""
+        self._settle()
+        self.calls += 1
+        if n != self.num_gaussians:
+            self.num_gaussians, self.size, self.largest = n, 0, 0
+        return self.size
+
+    def observe(self, count: int, n: int) -> None:
+        """A true count for ``n`` Gaussians: grows ``size`` to ``margin ×`` the largest one."""
+        if n == self.num_gaussians and count > self.largest:
+            self.largest = count
+            self.size = max(self.size, int(math.ceil(count * self.margin)), 1)
+
+    def record(self, offsets: wp.array, n: int, allocated: int) -> None:
+        """Queue the read-back of the true count ``offsets[n − 1]`` of a call given ``allocated`` entries."""
+        if offsets.device.is_cpu:
+            count = int(offsets[n - 1 : n].numpy()[0])
+            self._pending.append((count, allocated, n, None))  # without an event the first field is the count
+            self._settle()
+            return
+        if self._host is None:
+            self._host = wp.empty(self.PENDING, dtype=wp.int32, device="cpu", pinned=True)
+        if len(self._pending) >= self.PENDING:
+            self._settle(wait_oldest=True)
+        slot = self._next_slot
+        self._next_slot = (slot + 1) % self.PENDING
+        wp.copy(self._host, offsets, dest_offset=slot, src_offset=n - 1, count=1)
+        self._pending.append((slot, allocated, n, wp.record_event()))
+
+    def _settle(self, wait_oldest: bool = False) -> None:
+        """Take the counts that have arrived, in order (waiting for the oldest one if asked)."""
+        while self._pending:
+            slot, allocated, n, event = self._pending[0]
+            if event is not None:
+                if wait_oldest:
+                    wp.synchronize_event(event)
+                    wait_oldest = False
+                elif not event.is_complete:
+                    return
+                count = int(self._host.numpy()[slot])
+            else:
+                count = slot
+            self._pending.pop(0)
+            if count > allocated:
+                self.overflows += 1
+            self.observe(count, n)
+
+
 def bin_gaussians(rect: wp.array, tiles_touched: wp.array, depth: wp.array, tiles_x: int, num_tiles: int,
-                  ellipse: wp.array | None = None, cam: CameraParams | None = None, settings: RasterSettings | None = None):  # fmt: skip
+                  ellipse: wp.array | None = None, cam: CameraParams | None = None, settings: RasterSettings | None = None,
+                  sizer: TileListSizer | None = None):  # fmt: skip
     """Sorted per-tile lists of Gaussian indices.
 
     Args:
@@ -127,10 +223,13 @@ def bin_gaussians(rect: wp.array, tiles_touched: wp.array, depth: wp.array, tile
         tiles_x: tiles per image row; num_tiles: tiles in the image.
         ellipse, cam, settings: the ``[N]`` ``ellipse`` output of ``screen_bounds`` and the camera and
             settings it ran with: bin into the tiles the ellipse meets. ``None``: every tile of ``rect``.
+        sizer: size the lists from earlier calls' counts instead of reading this call's back (no host–device
+            synchronisation; see :class:`TileListSizer`). ``None``: exact, one synchronisation.
 
     Returns:
         ``(values, range_start, range_end, count)``: ``values [count]`` int32 Gaussian indices, sorted by
-        (tile, depth, index); tile ``t`` owns ``values[range_start[t]:range_end[t]]``.
+        (tile, depth, index); tile ``t`` owns ``values[range_start[t]:range_end[t]]``. With a sizer ``count`` is
+        the entries allocated (the true count or more; the rest are padding no tile owns).
     """
     device = rect.device
     n = rect.shape[0]
@@ -147,13 +246,22 @@ def bin_gaussians(rect: wp.array, tiles_touched: wp.array, depth: wp.array, tile
         wp.launch(count_tile_keys, dim=n, inputs=[rect, ellipse, cam, settings], outputs=[tiles_touched], device=device, record_tape=False)
     offsets = wp.empty(n, dtype=wp.int32, device=device)
     wp.utils.array_scan(tiles_touched, offsets, inclusive=True)
-    count = int(offsets[n - 1 : n].numpy()[0])  # one small device-to-host copy (sizes the lists)
+    count = sizer.plan(n) if sizer is not None else 0
+    padded = count > 0
+    if not padded:
+        count = int(offsets[n - 1 : n].numpy()[0])  # one small device-to-host copy (sizes the lists): a sync
+        if sizer is not None:
+            sizer.measured += 1
+            sizer.observe(count, n)
     if count == 0:
         return wp.zeros(0, dtype=wp.int32, device=device), range_start, range_end, 0
     keys = wp.empty(2 * count, dtype=wp.int64, device=device)  # radix sort needs 2x scratch
     values = wp.empty(2 * count, dtype=wp.int32, device=device)
-    wp.launch(write_tile_keys, dim=n, inputs=[rect, ellipse, offsets, tiles_touched, float_bits_view(depth), cam, settings],
-              outputs=[keys, values], device=device, record_tape=False)  # fmt: skip
-    wp.utils.radix_sort_pairs(keys, values, count, begin_bit=0, end_bit=32 + max(1, int(num_tiles - 1).bit_length()))
+    if padded:
+        keys[:count].fill_(num_tiles << 32)  # after every tile's keys; owned by no tile
+        sizer.record(offsets, n, count)
+    wp.launch(write_tile_keys, dim=n, inputs=[rect, ellipse, offsets, tiles_touched, float_bits_view(depth), cam, settings,
+              count], outputs=[keys, values], device=device, record_tape=False)  # fmt: skip
+    wp.utils.radix_sort_pairs(keys, values, count, begin_bit=0, end_bit=32 + max(1, int(num_tiles).bit_length()))
     wp.launch(tile_ranges, dim=count, inputs=[keys, count], outputs=[range_start, range_end], device=device, record_tape=False)
     return values[:count], range_start, range_end, count

@@ -23,7 +23,7 @@ from dataclasses import dataclass, fields
 
 import warp as wp
 
-from .binning import bin_gaussians
+from .binning import TileListSizer, bin_gaussians
 from .project import preprocess_gaussians, screen_bounds
 from .rasterize import rasterize_forward
 from .rasterize_backward import accumulate_grad2d, rasterize_backward
@@ -116,12 +116,12 @@ def use_tiled_kernels(device, settings: RasterSettings, tiled: bool | None = Non
 
 
 def prepare_view(means, quats, scales, opacities, sh, sh_degree: int, cam: CameraParams, settings: RasterSettings,
-                 profile: list | None = None) -> tuple[Splats, TileLists, int]:
+                 profile: list | None = None, sizer: TileListSizer | None = None) -> tuple[Splats, TileLists, int]:
     """Per-view preprocessing and tile binning, shared by rendering and the opacity field.
 
     Returns ``(splats, lists, count)``: camera-space per-Gaussian data (``[N]`` each), the depth-sorted
-    Gaussian indices of every tile, and the number of (Gaussian, tile) entries. Memory:
-    ``BYTES_PER_GAUSSIAN · N + BYTES_PER_TILE_ENTRY · count``.
+    Gaussian indices of every tile, and the number of (Gaussian, tile) entries (allocated ones with a ``sizer``:
+    see :func:`~.binning.bin_gaussians`). Memory: ``BYTES_PER_GAUSSIAN · N + BYTES_PER_TILE_ENTRY · count``.
     """
     device = means.device
     n = means.shape[0]
@@ -138,7 +138,8 @@ def prepare_view(means, quats, scales, opacities, sh, sh_degree: int, cam: Camer
               outputs=[rect, touched, radii, depth, ellipse], device=device, record_tape=False)  # fmt: skip
     _mark(profile, "preprocess", device)
     num_tiles = settings.tiles_x * settings.tiles_y
-    values, range_start, range_end, count = bin_gaussians(rect, touched, depth, settings.tiles_x, num_tiles, ellipse, cam, settings)
+    values, range_start, range_end, count = bin_gaussians(rect, touched, depth, settings.tiles_x, num_tiles, ellipse, cam, settings,
+                                                          sizer)
     _mark(profile, "binning", device)
     lists = make_struct(TileLists, values=values, range_start=range_start, range_end=range_end)
     splats = make_struct(Splats, P=P, o_g=o_g, colour=colour, opacity=opacities, mu_v=mu_v, radius=radii)
@@ -147,7 +148,7 @@ def prepare_view(means, quats, scales, opacities, sh, sh_degree: int, cam: Camer
 
 def render_forward(means, quats, scales, opacities, sh, sh_degree: int, cam: CameraParams, settings: RasterSettings,
                    out: RenderOutputs | None = None, profile: list | None = None, tiled: bool | None = None,
-                   ) -> tuple[RenderOutputs, RenderState]:  # fmt: skip
+                   sizer: TileListSizer | None = None) -> tuple[RenderOutputs, RenderState]:  # fmt: skip
     """Render ``N`` Gaussians (activated parameters) into ``out`` (allocated when ``None``).
 
     Args:
@@ -157,6 +158,8 @@ def render_forward(means, quats, scales, opacities, sh, sh_degree: int, cam: Cam
             are appended (timings for benchmarks).
         tiled: force the shared-memory (True) or plain (False) per-pixel kernels; default: see
             :func:`use_tiled_kernels`.
+        sizer: a :class:`~.binning.TileListSizer` kept across renders: no host–device synchronisation to size
+            the tile lists (``None``: exact sizing, one synchronisation).
     """
     device = means.device
     n = means.shape[0]
@@ -168,7 +171,7 @@ def render_forward(means, quats, scales, opacities, sh, sh_degree: int, cam: Cam
     def empty(dtype, size=n):
         return wp.empty(size, dtype=dtype, device=device)
 
-    splats, lists, count = prepare_view(means, quats, scales, opacities, sh, sh_degree, cam, settings, profile)
+    splats, lists, count = prepare_view(means, quats, scales, opacities, sh, sh_degree, cam, settings, profile, sizer)
     mu_v, P, o_g, colour, radii = splats.mu_v, splats.P, splats.o_g, splats.colour, splats.radius
 
     final_T, last_end = empty(float, num_pixels), empty(wp.int32, num_pixels)

@@ -1,0 +1,98 @@
+"""Tile lists sized without a host–device synchronisation (``kernels.binning.TileListSizer``).
+
+A training loop's renders size their (Gaussian, tile) lists from earlier renders' counts instead of reading each
+render's count back (which makes the host wait for the GPU). Checked here on the CPU, where the same padded path
+runs: renders and gradients through a sizer are bitwise those of exact sizing; the padding owns no tile; the first
+render of a number of Gaussians measures; a render whose lists outgrow the planned size is counted as an overflow
+and the size grows; bad margins are errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+import warp as wp
+
+from gof_warp.config import ConfigError
+from gof_warp.kernels.binning import TileListSizer
+from gof_warp.kernels.renderer import prepare_view
+from gof_warp.kernels.render_types import camera_params_from
+from gof_warp.render import RenderConfig, raster_settings_for, rasterize
+from gof_warp.trainer import TrainConfig
+
+NAMES = ("means", "quats", "scales", "opacities", "sh")
+
+
+def _scene_and_cameras():
+    from reference_render import make_camera, random_scene
+
+    cam = make_camera(width=97, height=71, fx=90.0, fy=80.0)
+    close = make_camera(width=194, height=142, fx=180.0, fy=160.0)  # twice the resolution: ~2.6x the entries
+    scene = random_scene(cam, 300, 2, seed=11, n_behind=3, n_near=8, spread=1.5)
+    return {k: scene[k].float() for k in NAMES}, cam, close
+
+
+def _render_and_grads(scene, cam, tile_lists):
+    leaves = [scene[k].clone().requires_grad_(True) for k in NAMES]
+    out = rasterize(*leaves, cam, config=RenderConfig(), tile_lists=tile_lists)
+    w = torch.Generator().manual_seed(1)
+    loss = sum((out[k] * torch.randn(out[k].shape, generator=w)).sum() for k in sorted(out) if out[k].is_floating_point())
+    loss.backward()
+    return {**{k: v.detach() for k, v in out.items()}, **{f"grad_{k}": l.grad for k, l in zip(NAMES, leaves)}}
+
+
+def _assert_equal(a, b):
+    for key in a:
+        assert torch.equal(a[key], b[key]), key
+
+
+def test_sized_renders_equal_exact_renders_bit_for_bit():
+    scene, cam, _ = _scene_and_cameras()
+    exact = _render_and_grads(scene, cam, None)
+    sizer = TileListSizer(margin=1.5)
+    for _ in range(3):  # the first measures; the next two run padded (1.5x the count)
+        _assert_equal(_render_and_grads(scene, cam, sizer), exact)
+    assert sizer.stats()["calls"] == 3 and sizer.measured == 1 and sizer.overflows == 0
+    assert float(exact["alpha"].mean()) > 0.3  # the scene covers the image
+
+
+def test_padding_owns_no_tile():
+    scene, cam, _ = _scene_and_cameras()
+    args = [wp.from_torch(scene[k].contiguous(), dtype=t) for k, t in
+            zip(NAMES, (wp.vec3, wp.vec4, wp.vec3, wp.float32, wp.vec3))]
+    cp, settings = camera_params_from(cam), raster_settings_for(cam, RenderConfig())
+    _, exact, count = prepare_view(*args, 2, cp, settings)
+    sizer = TileListSizer(margin=2.0)
+    prepare_view(*args, 2, cp, settings, sizer=sizer)  # measures
+    _, padded, allocated = prepare_view(*args, 2, cp, settings, sizer=sizer)
+    assert allocated == sizer.size >= 2 * count - 1 and count > 100
+    np.testing.assert_array_equal(padded.range_start.numpy(), exact.range_start.numpy())
+    np.testing.assert_array_equal(padded.range_end.numpy(), exact.range_end.numpy())
+    np.testing.assert_array_equal(padded.values.numpy()[:count], exact.values.numpy())
+    assert exact.range_end.numpy().max() == count  # the last real entry ends a range; none reaches the padding
+
+
+def test_overflow_is_counted_and_the_size_grows():
+    scene, cam, close = _scene_and_cameras()
+    sizer = TileListSizer(margin=1.0)
+    _render_and_grads(scene, cam, sizer)  # measures the far view: size = its count
+    size_far = sizer.size
+    _render_and_grads(scene, close, sizer)  # the close view needs more entries: dropped, counted
+    assert sizer.overflows == 1 and sizer.size > size_far
+    _assert_equal(_render_and_grads(scene, close, sizer), _render_and_grads(scene, close, None))
+    assert sizer.overflows == 1
+    # other Gaussians (a densification): measured again
+    fewer = {k: v[:200] for k, v in scene.items()}
+    _render_and_grads(fewer, cam, sizer)
+    assert sizer.measured == 2 and sizer.num_gaussians == 200
+
+
+def test_bad_margins_are_errors():
+    with pytest.raises(ValueError, match="margin"):
+        TileListSizer(margin=0.9)
+    with pytest.raises(ConfigError, match="tile_list_margin"):
+        TrainConfig(tile_list_margin=0.5)
+    assert TrainConfig(tile_list_margin=0).tile_list_margin == 0  # 0: exact sizing
+    scene, cam, _ = _scene_and_cameras()
+    with pytest.raises(TypeError, match="tile_lists"):
+        rasterize(*[scene[k] for k in NAMES], cam, tile_lists=1.25)
