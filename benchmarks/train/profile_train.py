@@ -168,6 +168,8 @@ def main(argv=None) -> int:
         "torch": torch.__version__, "iterations": a.iterations, "wall_ms_per_it": round(wall * 1e3 / a.iterations, 3),
     }
     result.update(profile(trainer, a.trace, a.out))
+    sizer = getattr(trainer, "tile_lists", None)  # absent in code before the TileListSizer
+    result["tile_lists"] = None if sizer is None else sizer.stats()
     (a.out / "profile.json").write_text(json.dumps(result, indent=1))
     print(json.dumps({k: v for k, v in result.items() if k != "top_kernels"}, indent=1))
     for k in result["top_kernels"][:12]:
