@@ -44,6 +44,7 @@ except ImportError:
 from gof_warp.camera import look_at  # noqa: E402
 from gof_warp.render import DensifyStats, RenderConfig, rasterize  # noqa: E402
 from gof_warp.kernels.render_types import camera_params_from, make_raster_settings  # noqa: E402
+from gof_warp.kernels.binning import TileListSizer  # noqa: E402
 from gof_warp.kernels.renderer import RenderOutputs, render_backward, render_forward  # noqa: E402
 
 OUTPUT_KEYS = ("rgb", "alpha", "depth", "median_depth", "normal", "distortion")
@@ -185,9 +186,17 @@ def bench_one(n, size, iters, tile_cull=True):
         w = weights
         sum((out[k] * w[k]).sum() for k in OUTPUT_KEYS).backward()
 
+    sizer = TileListSizer()  # as in training: the tile lists sized without a host-device sync per render
+
+    def fwd_bwd_sized():
+        out = rasterize(*leaves, cam, stats=stats, config=config, tile_lists=sizer)
+        sum((out[k] * weights[k]).sum() for k in OUTPUT_KEYS).backward()
+
     weights = _loss_weights(rasterize(*params, cam, config=config))
     res["fwd_ms"], res["fwd_ms_min"] = _time(fwd, iters)
     res["fwd_bwd_ms"], res["fwd_bwd_ms_min"] = _time(fwd_bwd, iters)
+    res["fwd_bwd_sized_ms"], res["fwd_bwd_sized_ms_min"] = _time(fwd_bwd_sized, iters)
+    res["sizer"] = sizer.stats()
     torch.cuda.synchronize()
     res["peak_torch_mb"] = torch.cuda.max_memory_allocated() / 2**20
     res["peak_warp_mb"] = wp.get_mempool_used_mem_high("cuda:0") / 2**20  # fresh process: Warp's temporaries only
