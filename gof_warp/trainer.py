@@ -483,6 +483,7 @@ class Trainer:
             "history": list(self.history),
             "snapshots": list(self.snapshots),
             "loss_spikes": self.spikes.state_dict(),
+            "tile_lists": None if self.tile_lists is None else self.tile_lists.state_dict(),
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -505,6 +506,8 @@ class Trainer:
         self.snapshots = list(state.get("snapshots", []))  # checkpoints written before snapshots existed have none
         if state.get("loss_spikes") is not None:
             self.spikes.load_state_dict(state["loss_spikes"])
+        if self.tile_lists is not None and state.get("tile_lists") is not None:  # counters over the whole run
+            self.tile_lists.load_state_dict(state["tile_lists"])
         self.iteration = int(state["iteration"])
         self.elapsed = float(state["elapsed"])
 

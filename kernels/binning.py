@@ -163,6 +163,13 @@ class TileListSizer:
     def stats(self) -> dict:
         return {"calls": self.calls, "measured": self.measured, "overflows": self.overflows, "size": self.size}
 
+    def state_dict(self) -> dict:
+        """The counters (a checkpoint's; the size is measured again after a resume)."""
+        return {"calls": self.calls, "measured": self.measured, "overflows": self.overflows}
+
+    def load_state_dict(self, state: dict) -> None:
+        self.calls, self.measured, self.overflows = (int(state[k]) for k in ("calls", "measured", "overflows"))
+
     def plan(self, n: int) -> int:
         """Entries to allocate for a call with ``n`` Gaussians (0: measure exactly)."""
         self._settle()

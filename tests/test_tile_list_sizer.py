@@ -96,3 +96,11 @@ def test_bad_margins_are_errors():
     scene, cam, _ = _scene_and_cameras()
     with pytest.raises(TypeError, match="tile_lists"):
         rasterize(*[scene[k] for k in NAMES], cam, tile_lists=1.25)
+
+
+def test_counters_survive_a_checkpoint():
+    sizer = TileListSizer()
+    sizer.calls, sizer.measured, sizer.overflows, sizer.size = 40, 3, 1, 1000
+    again = TileListSizer()
+    again.load_state_dict(sizer.state_dict())
+    assert again.stats() == {"calls": 40, "measured": 3, "overflows": 1, "size": 0}  # the size is measured again
