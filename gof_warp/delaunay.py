@@ -66,6 +66,7 @@ CHUNK_POINTS = 25_000  # target points per chunk core (auto chunk count); ~1 s o
 # peak at 16 workers. Measured on the 2-core CPU (benchmarks/extract/README.md, session 7): 150k / 50k / 25k →
 # 3M points in 96 / 88 / 75 s, 2.33 / 1.36 / 1.21 GB above the start.
 DUPLICATES_SEEN = 8  # the exact merge maps a point to the lowest index among this many exact copies
+FILL_SPLIT_POINTS = 8 * CHUNK_POINTS  # a fill with this many points is triangulated in chunks itself
 MAX_FILLS = 3  # passes of the exact merge (one suffices in general position; more only guard against rounding)
 HALO_FRACTION = 0.5  # a chunk triangulates its core's points and this fraction more around it
 _FACES = np.array([[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]])  # face i is opposite vertex i (Qhull's order)
@@ -344,11 +345,38 @@ def _rows_in(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return hit[: a.shape[0]]
 
 
-def _fill_piece(p: np.ndarray, pieces: list[_Piece], unmatched: np.ndarray, tree) -> _Piece | None:
+def _neighbours(t: np.ndarray) -> np.ndarray:
+    """``[T, 4]``: the tetrahedron across face ``i`` (opposite vertex ``i``) of each of ``t [T, 4]``, −1 where none
+    shares it (Qhull's ``neighbors`` layout, for a tetrahedralisation that does not come from one Qhull call)."""
+    f = np.sort(t[:, _FACES], axis=2).reshape(-1, 3)  # row 4 i + k: face k of tetrahedron i
+    order = np.lexsort(f.T[::-1])
+    same = np.all(f[order[1:]] == f[order[:-1]], axis=1)
+    a, b = order[:-1][same], order[1:][same]
+    nb = np.full(f.shape[0], -1, np.int64)
+    nb[a], nb[b] = b // 4, a // 4
+    return nb.reshape(-1, 4)
+
+
+def _fill_triangulation(q: np.ndarray, workers: int, halo_fraction: float, processes: bool):
+    """``(tets [T, 4] local ids, neighbours [T, 4], local → canonical local ids)``: the Delaunay tetrahedralisation of
+    the fill's points ``q``. One Qhull call, or — from ``FILL_SPLIT_POINTS`` points on with several workers — the
+    exact chunked path itself (the fill's points gather along every chunk border, so one call was the serial
+    tail of the merge: 8.8 s of a 9.5 s stitch at 900k points in 144 chunks on 2 cores)."""
+    if workers > 1 and q.shape[0] >= FILL_SPLIT_POINTS:
+        chunks = max(2 * workers, round(q.shape[0] / CHUNK_POINTS))
+        t = delaunay_chunked(q, chunks, workers, halo_fraction, processes=processes)
+        return t, _neighbours(t), np.arange(q.shape[0])
+    tri = _qhull(q)
+    return tri.simplices, tri.neighbors, _canonical_vertices(tri, q, np.arange(q.shape[0]))
+
+
+def _fill_piece(p: np.ndarray, pieces: list[_Piece], unmatched: np.ndarray, tree, workers: int = 1,
+                halo_fraction: float = HALO_FRACTION, processes: bool = False) -> _Piece | None:
     """The global Delaunay tetrahedra no chunk kept. They fill the region bounded by the unmatched faces, and
     every vertex of one is a vertex of an unmatched face or a point no kept tetrahedron uses (around a vertex
     the tetrahedra are connected through faces that contain it, so a vertex with kept and missing tetrahedra
-    lies on a face between the two kinds). One Qhull call on those points gives every missing tetrahedron
+    lies on a face between the two kinds). The Delaunay tetrahedralisation of those points (one Qhull call, or
+    chunked on ``workers`` when they are many: :func:`_fill_triangulation`) holds every missing tetrahedron
     (its circumsphere is empty of all points, so of these); of its tetrahedra, those with an empty
     circumsphere (KD-tree over all points) that were not kept already are added."""
     kept = np.concatenate([pc.tets for pc in pieces])
@@ -363,8 +391,8 @@ def _fill_piece(p: np.ndarray, pieces: list[_Piece], unmatched: np.ndarray, tree
     # points (up to DUPLICATES_SEEN copies), so the new tetrahedra use the same vertex as the chunks did
     dist, nbr = tree.query(p[ids], k=min(DUPLICATES_SEEN, p.shape[0]))
     ids_canon = np.where(dist == 0.0, nbr, np.iinfo(np.int64).max).min(axis=1)
-    tri = _qhull(p[ids])
-    t = np.minimum(_canonical_vertices(tri, p, ids), ids_canon)[tri.simplices]
+    local, nb, canon = _fill_triangulation(p[ids], workers, halo_fraction, processes)
+    t = np.minimum(ids[canon], ids_canon)[local]
     vol6, flat, centre, radius = tet_geometry(t, p)
     keep = ~flat
     cand = np.flatnonzero(keep)
@@ -373,7 +401,7 @@ def _fill_piece(p: np.ndarray, pieces: list[_Piece], unmatched: np.ndarray, tree
     near = kept[s_mask[kept].all(axis=1)]  # only these can equal a tetrahedron of the S-triangulation
     cand = np.flatnonzero(keep)
     keep[cand[_rows_in(np.sort(t[cand], axis=1), np.sort(near, axis=1))]] = False
-    return _piece(t, tri.neighbors, keep, vol6, flat, int(flat.size), int((~keep).sum()))
+    return _piece(t, nb, keep, vol6, flat, int(flat.size), int((~keep).sum()))
 
 
 def _unmatched_faces(pieces: list[_Piece], p: np.ndarray, hull_vertices: np.ndarray) -> np.ndarray:
@@ -445,7 +473,7 @@ def delaunay_chunked(p: np.ndarray, chunks: int, workers: int, halo_fraction: fl
     unmatched = _unmatched_faces(pieces, p, hull.vertices)
     first_unmatched, fills, filled = int(unmatched.shape[0]), 0, 0
     while unmatched.shape[0] and fills < MAX_FILLS:
-        fill = _fill_piece(p, pieces, unmatched, tree)
+        fill = _fill_piece(p, pieces, unmatched, tree, workers, halo_fraction, processes)
         fills += 1
         if fill is None or fill.tets.shape[0] == 0:
             break

@@ -69,6 +69,30 @@ def test_chunked_fills_the_large_tets_no_chunk_sees():
     assert_exact(par, delaunay(p), p, stats)
 
 
+@pytest.mark.parametrize("kind", ["clusters", "box_corners"])
+def test_a_large_fill_is_chunked_itself_and_stays_exact(monkeypatch, kind):
+    """The merge's fill (the points along the chunk borders) is triangulated in chunks too once it has
+    ``FILL_SPLIT_POINTS``; lowered here so that small scenes take that path: the result is still one call's."""
+    import gof_warp.delaunay as D
+
+    calls = []
+    monkeypatch.setattr(D, "FILL_SPLIT_POINTS", 500)
+    real = D._fill_triangulation
+    monkeypatch.setattr(D, "_fill_triangulation", lambda q, *a: calls.append(q.shape[0]) or real(q, *a))
+    rng = np.random.default_rng(7)
+    if kind == "clusters":
+        p = np.concatenate([rng.normal(size=(8000, 3)), rng.normal(size=(8000, 3)) + [20.0, 0, 0]])
+    else:
+        g = torch.tensor(rng.normal(size=(1500, 3)), dtype=torch.float64)
+        q = torch.nn.functional.normalize(torch.tensor(rng.normal(size=(1500, 4))), dim=1)
+        p, _, _ = tetra_points(g, q, torch.full((1500, 3), 0.05, dtype=torch.float64))
+        p = np.asarray(p, np.float64)
+    stats = {}
+    par = delaunay(p, workers=2, chunks=24, stats=stats)
+    assert calls and max(calls) >= 500, "the fill took the chunked path"
+    assert_exact(par, delaunay(p), p, stats)
+
+
 @pytest.mark.parametrize("chunks", [4, 9])
 def test_chunked_equals_one_call_on_cospherical_box_corners(chunks):
     """GOF's points (3σ-box corners: cospherical octuples everywhere) and a regular lattice (every cube's corners
