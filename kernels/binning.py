@@ -156,12 +156,12 @@ class TileListSizer:
         self.calls = 0
         self.measured = 0  # calls that synchronised to measure
         self.overflows = 0
-        self._pending: list = []  # (slot, entries allocated, number of Gaussians, event or None)
+        self._pending: list = []  # (slot, entries allocated, number of Gaussians, event), CUDA only
         self._host = None  # pinned int32[PENDING] landing slots (CUDA)
         self._next_slot = 0
 
     def stats(self) -> dict:
-        return {"calls": self.calls, "measured": self.measured, "overflows": self.overflows, "size": self.size}
+        return {**self.state_dict(), "size": self.size}
 
     def state_dict(self) -> dict:
         """The counters (a checkpoint's; the size is measured again after a resume)."""
@@ -184,12 +184,16 @@ class TileListSizer:
             self.largest = count
             self.size = max(self.size, int(math.ceil(count * self.margin)), 1)
 
+    def measure(self, count: int, n: int) -> None:
+        """The count of a call that read it back at once (exact sizing)."""
+        self.measured += 1
+        self.observe(count, n)
+
     def record(self, offsets: wp.array, n: int, allocated: int) -> None:
-        """Queue the read-back of the true count ``offsets[n − 1]`` of a call given ``allocated`` entries."""
+        """Queue the read-back of the true count ``offsets[n − 1]`` of a call given ``allocated`` entries (on the CPU
+        it is read at once)."""
         if offsets.device.is_cpu:
-            count = int(offsets[n - 1 : n].numpy()[0])
-            self._pending.append((count, allocated, n, None))  # without an event the first field is the count
-            self._settle()
+            self._take(int(offsets[n - 1 : n].numpy()[0]), allocated, n)
             return
         if self._host is None:
             self._host = wp.empty(self.PENDING, dtype=wp.int32, device="cpu", pinned=True)
@@ -204,19 +208,19 @@ class TileListSizer:
         """Take the counts that have arrived, in order (waiting for the oldest one if asked)."""
         while self._pending:
             slot, allocated, n, event = self._pending[0]
-            if event is not None:
-                if wait_oldest:
-                    wp.synchronize_event(event)
-                    wait_oldest = False
-                elif not event.is_complete:
-                    return
-                count = int(self._host.numpy()[slot])
-            else:
-                count = slot
+            if wait_oldest:
+                wp.synchronize_event(event)
+                wait_oldest = False
+            elif not event.is_complete:
+                return
             self._pending.pop(0)
-            if count > allocated:
-                self.overflows += 1
-            self.observe(count, n)
+            self._take(int(self._host.numpy()[slot]), allocated, n)
+
+    def _take(self, count: int, allocated: int, n: int) -> None:
+        """A call's true count against the entries it was given: an overflow when over, then :meth:`observe`."""
+        if count > allocated:
+            self.overflows += 1
+        self.observe(count, n)
 
 
 def bin_gaussians(rect: wp.array, tiles_touched: wp.array, depth: wp.array, tiles_x: int, num_tiles: int,
@@ -258,8 +262,7 @@ def bin_gaussians(rect: wp.array, tiles_touched: wp.array, depth: wp.array, tile
     if not padded:
         count = int(offsets[n - 1 : n].numpy()[0])  # one small device-to-host copy (sizes the lists): a sync
         if sizer is not None:
-            sizer.measured += 1
-            sizer.observe(count, n)
+            sizer.measure(count, n)
     if count == 0:
         return wp.zeros(0, dtype=wp.int32, device=device), range_start, range_end, 0
     keys = wp.empty(2 * count, dtype=wp.int64, device=device)  # radix sort needs 2x scratch
