@@ -21,8 +21,8 @@ import warp as wp
 from gof_warp.camera import look_at
 from gof_warp.kernels.binning import bin_gaussians
 from gof_warp.kernels.project import preprocess_gaussians, screen_bounds
-from gof_warp.kernels.render_types import camera_params_from, make_raster_settings
-from gof_warp.kernels.tile_overlap import TileEllipse
+from gof_warp.kernels.render_types import CameraParams, RasterSettings, camera_params_from, make_raster_settings
+from gof_warp.kernels.tile_overlap import TileEllipse, row_tile_span, row_tile_span_scan
 
 K_MAX = math.sqrt(2.0 * math.log(255.0))
 BOX_TOL_PX = 1e-3  # float32 camera/parameters vs float64: the box edges agree to far below a pixel here
@@ -509,3 +509,54 @@ def test_tile_culling_reduces_benchmark_entries(n, W, H, bound):
           f"{crossing} Gaussians crossing the near plane")
     assert np.array_equal(radii[True], radii[False]) and crossing > 0
     assert counts[True] < bound * counts[False]
+
+
+@wp.kernel
+def _spans_both(rect: wp.array(dtype=wp.vec4i), ellipse: wp.array(dtype=TileEllipse), cam: CameraParams, settings: RasterSettings,
+                row: int, closed: wp.array(dtype=wp.vec2i), scan: wp.array(dtype=wp.vec2i)):  # fmt: skip
+    k = wp.tid()
+    r = rect[k]
+    ty = r[1] + row
+    closed[k] = wp.vec2i(0, 0)
+    scan[k] = wp.vec2i(0, 0)
+    if ty < r[3]:
+        closed[k] = row_tile_span(ellipse[k], ty, r[0], r[2], cam, settings)
+        scan[k] = row_tile_span_scan(ellipse[k], ty, r[0], r[2], cam, settings)
+
+
+@pytest.mark.parametrize("pad, ts", [(0.0, 16), (0.5, 16), (0.5, 4), (0.0, 1)])
+def test_closed_form_row_span_equals_the_tile_scan(pad, ts):
+    """The binning's O(1) row span (``row_tile_span``) against its reference that tests tiles one by one from both
+    ends of the row (``row_tile_span_scan``), on every row of 1,500 Gaussians of all stress kinds: it contains the
+    scan's span, and equals it on all but a vanishing fraction of rows (its float64 allowance may add a tile whose
+    edge lies within ~1e-6 of the ellipse's half-extent)."""
+    cam = look_at((0.3, -2.0, 0.5), (0.0, 0.0, 0.0), **TILE_CAMERA)
+    parts = [_cull_scene(cam, 500, seed=7)] + [_scene(cam, 500, seed, kind) for seed, kind in ((3, "anisotropic"), (4, "border"))]
+    means, quats, scales, opac = (np.concatenate(x) for x in zip(*parts))
+    settings = make_raster_settings(cam.width, cam.height, pixel_pad=pad, tile_size=ts)
+    camp = camera_params_from(cam)
+    n = len(means)
+    arr = lambda a, t: wp.array(a.astype(np.float32), dtype=t, device="cpu")  # noqa: E731
+    mu_v, P, o_g, col = (wp.empty(n, dtype=t, device="cpu") for t in (wp.vec3, wp.mat33, wp.vec3, wp.vec3))
+    wp.launch(preprocess_gaussians, n, inputs=[arr(means, wp.vec3), arr(quats, wp.vec4), arr(scales, wp.vec3), wp.zeros((n, 1), dtype=wp.vec3, device="cpu"),
+              0, camp.R, camp.t, camp.centre], outputs=[mu_v, P, o_g, col], device="cpu")  # fmt: skip
+    rect, touched, radii, depth = (wp.empty(n, dtype=t, device="cpu") for t in (wp.vec4i, wp.int32, wp.int32, float))
+    ellipse = wp.empty(n, dtype=TileEllipse, device="cpu")
+    wp.launch(screen_bounds, n, inputs=[mu_v, arr(quats, wp.vec4), arr(scales, wp.vec3), arr(opac, float), camp, settings],
+              outputs=[rect, touched, radii, depth, ellipse], device="cpu")  # fmt: skip
+    r = rect.numpy()
+    exact = ellipse.numpy()["exact"]
+    rows = equal = narrower = 0
+    for row in range(int((r[:, 3] - r[:, 1]).max())):
+        closed, scan = wp.empty(n, dtype=wp.vec2i, device="cpu"), wp.empty(n, dtype=wp.vec2i, device="cpu")
+        wp.launch(_spans_both, n, inputs=[rect, ellipse, camp, settings, row], outputs=[closed, scan], device="cpu")
+        c, s = closed.numpy(), scan.numpy()
+        live = (r[:, 1] + row < r[:, 3]) & (exact == 1)
+        c, s = c[live], s[live]
+        c_len, s_len = c[:, 1] - c[:, 0], s[:, 1] - s[:, 0]
+        rows += int(live.sum())
+        equal += int(((c == s).all(1) | ((c_len == 0) & (s_len == 0))).sum())
+        narrower += int(((s_len > 0) & ((c[:, 0] > s[:, 0]) | (c[:, 1] < s[:, 1]))).sum())
+    print(f"pad {pad}, tile {ts}: {rows} rows of exact ellipses, {equal} equal, {narrower} narrower than the scan")
+    assert rows > 1500 and narrower == 0
+    assert equal >= rows - max(2, rows // 1000)
