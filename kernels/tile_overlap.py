@@ -277,18 +277,43 @@ CONIC_BLOCK = wp.constant(8)  # tiles per side of the blocks of the general test
 
 
 @wp.func
+def tiles_inside_conic(e: TileEllipse, tx0: int, tx1: int, ty0: int, ty1: int, cam: CameraParams, settings: RasterSettings) -> bool:
+    """A shortcut of :func:`conic_block_mask`: whether ``q ≤ 0`` on the whole hull of tiles ``[tx0, tx1) × [ty0, ty1)``,
+    decided only when ``q`` is convex (2×2 part positive semi-definite: its maximum over a rectangle is at a corner,
+    so four corners decide); ``False`` otherwise. Every tile of such a hull meets the conic, so its per-tile tests
+    can be skipped (a tile they would drop within rounding of the conic's edge is kept: an extra entry, skipped by
+    the per-pixel test)."""
+    c = e.conic
+    zero = wp.float64(0.0)
+    if not (c[0] >= zero and c[3] >= zero and c[0] * c[3] - c[1] * c[1] >= zero):
+        return False
+    r = tiles_rect(tx0, tx1, ty0, ty1, cam, settings)
+    return (conic_at(c, r[0], r[2]) <= zero and conic_at(c, r[1], r[2]) <= zero and conic_at(c, r[0], r[3]) <= zero
+            and conic_at(c, r[1], r[3]) <= zero)  # fmt: skip
+
+
+@wp.func
 def conic_block_mask(e: TileEllipse, bx: int, by: int, x1: int, y1: int, cam: CameraParams, settings: RasterSettings) -> wp.uint64:
     """``exact = 2``: the tiles of the block ``[bx, min(bx + 8, x1)) × [by, min(by + 8, y1))`` that meet the
     conic, bit ``8 (ty − by) + (tx − bx)``. The block hull, then each row segment, then each tile is tested
-    (a hull that misses the conic contains no tile that meets it)."""
+    (a hull that misses the conic contains no tile that meets it); a hull, or a row, on which the conic is ``≤ 0``
+    throughout (:func:`tiles_inside_conic`) has all its tiles set without testing them one by one."""
     ex = wp.min(bx + CONIC_BLOCK, x1)
     ey = wp.min(by + CONIC_BLOCK, y1)
     mask = wp.uint64(0)
     if not tiles_meet_conic(e, bx, ex, by, ey, cam, settings):
         return mask
+    row_bits = (wp.uint64(1) << wp.uint64(ex - bx)) - wp.uint64(1)  # the block's tiles of one row
+    whole = tiles_inside_conic(e, bx, ex, by, ey, cam, settings)
     for ty in range(by, ey):
-        if ey - by == 1 or tiles_meet_conic(e, bx, ex, ty, ty + 1, cam, settings):
-            for tx in range(bx, ex):
-                if ex - bx == 1 or tiles_meet_conic(e, tx, tx + 1, ty, ty + 1, cam, settings):
-                    mask = mask | (wp.uint64(1) << wp.uint64(CONIC_BLOCK * (ty - by) + tx - bx))
+        shift = wp.uint64(CONIC_BLOCK * (ty - by))
+        if whole:
+            mask = mask | (row_bits << shift)
+        elif ey - by == 1 or tiles_meet_conic(e, bx, ex, ty, ty + 1, cam, settings):
+            if ex - bx > 1 and tiles_inside_conic(e, bx, ex, ty, ty + 1, cam, settings):
+                mask = mask | (row_bits << shift)
+            else:
+                for tx in range(bx, ex):
+                    if ex - bx == 1 or tiles_meet_conic(e, tx, tx + 1, ty, ty + 1, cam, settings):
+                        mask = mask | (wp.uint64(1) << (shift + wp.uint64(tx - bx)))
     return mask
