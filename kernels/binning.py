@@ -21,7 +21,7 @@ import math
 import warp as wp
 
 from .render_types import CameraParams, RasterSettings
-from .tile_overlap import CONIC_BLOCK, TileEllipse, conic_block_mask, row_tile_span
+from .tile_overlap import CONIC_BLOCK, TileEllipses, conic_block_mask, conic_test, empty_tile_ellipses, load_ellipse, row_tile_span
 
 # no FMA contraction: the count and write kernels must evaluate the float64 tile test identically
 wp.set_module_options({"fuse_fp": False, "enable_backward": False})
@@ -30,7 +30,7 @@ wp.set_module_options({"fuse_fp": False, "enable_backward": False})
 @wp.kernel
 def count_tile_keys(
     rect: wp.array(dtype=wp.vec4i),
-    ellipse: wp.array(dtype=TileEllipse),
+    ellipse: TileEllipses,
     cam: CameraParams,
     settings: RasterSettings,
     tiles_touched: wp.array(dtype=wp.int32),
@@ -40,12 +40,13 @@ def count_tile_keys(
     ``exact = 2`` the set bits of :func:`conic_block_mask` over the 8 × 8 blocks of ``rect``)."""
     k = wp.tid()
     r = rect[k]
-    e = ellipse[k]
+    e = load_ellipse(ellipse, k)
     n = int(0)
     if e.exact == 2:
+        t = conic_test(e, cam)
         for by in range(r[1], r[3], CONIC_BLOCK):
             for bx in range(r[0], r[2], CONIC_BLOCK):
-                m = conic_block_mask(e, bx, by, r[2], r[3], cam, settings)
+                m = conic_block_mask(t, bx, by, r[2], r[3], cam, settings)
                 while m != wp.uint64(0):
                     m = m & (m - wp.uint64(1))
                     n += 1
@@ -59,7 +60,7 @@ def count_tile_keys(
 @wp.kernel
 def write_tile_keys(
     rect: wp.array(dtype=wp.vec4i),
-    ellipse: wp.array(dtype=TileEllipse),
+    ellipse: TileEllipses,
     offsets: wp.array(dtype=wp.int32),
     tiles_touched: wp.array(dtype=wp.int32),
     depth_bits: wp.array(dtype=wp.int32),
@@ -74,14 +75,15 @@ def write_tile_keys(
     none at or past ``limit`` (the entries allocated)."""
     k = wp.tid()
     r = rect[k]
-    e = ellipse[k]
+    e = load_ellipse(ellipse, k)
     end = wp.min(offsets[k], limit)
     idx = end - tiles_touched[k]
     d = wp.int64(depth_bits[k])
     if e.exact == 2:
+        t = conic_test(e, cam)
         for by in range(r[1], r[3], CONIC_BLOCK):
             for bx in range(r[0], r[2], CONIC_BLOCK):
-                m = conic_block_mask(e, bx, by, r[2], r[3], cam, settings)
+                m = conic_block_mask(t, bx, by, r[2], r[3], cam, settings)
                 if m != wp.uint64(0):
                     for bit in range(CONIC_BLOCK * CONIC_BLOCK):
                         if ((m >> wp.uint64(bit)) & wp.uint64(1)) != wp.uint64(0) and idx < end:
@@ -249,7 +251,7 @@ def bin_gaussians(rect: wp.array, tiles_touched: wp.array, depth: wp.array, tile
     if n == 0:
         return wp.zeros(0, dtype=wp.int32, device=device), range_start, range_end, 0
     if ellipse is None:  # exact = 0 everywhere: the whole rectangle, counted by screen_bounds
-        ellipse = wp.zeros(n, dtype=TileEllipse, device=device)
+        ellipse = empty_tile_ellipses(n, device, whole_rect=True)
         cam = CameraParams()
         settings = RasterSettings()
         settings.tiles_x = int(tiles_x)

@@ -26,7 +26,7 @@ import warp as wp
 
 from .gaussian_math import quat_to_rotation, sh_to_color
 from .render_types import CameraParams, RasterSettings
-from .tile_overlap import TileEllipse, tile_ellipse
+from .tile_overlap import TileEllipses, store_ellipse, tile_ellipse
 
 # Relative enlargement of k for the box: the per-pixel float32 d² has a relative error ~1e-6.
 BOUNDS_K_MARGIN = wp.constant(1.0e-4)
@@ -83,7 +83,7 @@ def screen_bounds(
     tiles_touched: wp.array(dtype=wp.int32),
     radii: wp.array(dtype=wp.int32),
     depth: wp.array(dtype=float),
-    ellipse: wp.array(dtype=TileEllipse),
+    ellipse: TileEllipses,
 ):
     """Outputs per Gaussian (``[N]`` each): tile rectangle ``(x0, y0, x1, y1)`` (half-open) of the bounding
     box, its tile count (an upper bound of the binned tiles: ``bin_gaussians`` recounts with ``ellipse``),
@@ -95,7 +95,7 @@ def screen_bounds(
     k = wp.tid()
     mv = mu_v[k]
     depth[k] = mv[2]
-    ellipse[k] = TileEllipse()
+    ellipse.exact[k] = 0
     rect[k] = wp.vec4i(0, 0, 0, 0)
     tiles_touched[k] = 0
     radii[k] = 0
@@ -158,4 +158,4 @@ def screen_bounds(
     one_row = r[3] - r[1] == 1 and y_inside
     one_column = r[2] - r[0] == 1 and x_inside
     if settings.tile_cull != 0 and not (one_row or one_column):
-        ellipse[k] = tile_ellipse(wp.vec3d(mx, my, mz), R_v, s, Sigma, k2, in_front)
+        store_ellipse(ellipse, k, tile_ellipse(wp.vec3d(mx, my, mz), R_v, s, Sigma, k2, in_front))

@@ -29,12 +29,12 @@ from .rasterize import rasterize_forward
 from .rasterize_backward import accumulate_grad2d, rasterize_backward
 from .rasterize_tiled import TILE_PIXELS, TILE_SIZE, rasterize_backward_tiled, rasterize_forward_tiled
 from .render_types import CameraParams, PixelAux, PixelMaps, RasterSettings, SplatGrads, Splats, TileLists, make_struct
-from .tile_overlap import TileEllipse
+from .tile_overlap import empty_tile_ellipses
 
 #: Bytes of per-Gaussian renderer state (mu_v 12, P 36, o_g 12, colour 12, rect 16, counts/radii/depth/
-#: offsets 16, tile-test ellipse 72) and per (Gaussian, tile) entry (int64 key + int32 value, ×2 for the
+#: offsets 16, tile-test exact/conic/centre 4 + 48 + 16) and per (Gaussian, tile) entry (int64 key + int32 value, ×2 for the
 #: radix sort's scratch).
-BYTES_PER_GAUSSIAN = 176
+BYTES_PER_GAUSSIAN = 172
 BYTES_PER_TILE_ENTRY = 24
 
 
@@ -131,7 +131,7 @@ def prepare_view(means, quats, scales, opacities, sh, sh_degree: int, cam: Camer
 
     mu_v, P, o_g, colour = empty(wp.vec3), empty(wp.mat33), empty(wp.vec3), empty(wp.vec3)
     rect, touched, radii, depth = empty(wp.vec4i), empty(wp.int32), empty(wp.int32), empty(float)
-    ellipse = empty(TileEllipse)
+    ellipse = empty_tile_ellipses(n, device)
     wp.launch(preprocess_gaussians, dim=n, inputs=[means, quats, scales, sh, int(sh_degree), cam.R, cam.t, cam.centre],
               outputs=[mu_v, P, o_g, colour], device=device, record_tape=False)  # fmt: skip
     wp.launch(screen_bounds, dim=n, inputs=[mu_v, quats, scales, opacities, cam, settings],

@@ -63,11 +63,52 @@ CONIC_TOL = wp.constant(1.0e-10)
 
 @wp.struct
 class TileEllipse:
-    """Per-Gaussian input of the tile test (written by ``screen_bounds``, read by both binning passes)."""
+    """One Gaussian's tile test, in registers (stored per Gaussian in :class:`TileEllipses`)."""
 
     conic: vec6d  # (q00, q01, q02, q11, q12, q22) of Q (tolerance included); inside iff dᵀQd ≤ 0
     centre: wp.vec2d  # the projected mean in normalised coordinates (a point inside the ellipse)
     exact: int  # 1: filled ellipse, row spans; 2: any conic, block/tile minimum test; 0: every tile of the rectangle
+
+
+@wp.struct
+class TileEllipses:
+    """Per-Gaussian storage of the tile test (``[N]`` each; written by ``screen_bounds``, read by both binning passes):
+    the fields of :class:`TileEllipse` in separate arrays of plain types. An array of the struct itself would be read
+    and written byte by byte in the generated CUDA (one 8-bit access per byte of its 72), which made
+    ``screen_bounds`` ~10× slower; here ``conic`` and ``centre`` are touched only where ``exact != 0``."""
+
+    exact: wp.array(dtype=wp.int32)
+    conic: wp.array(dtype=vec6d)
+    centre: wp.array(dtype=wp.vec2d)
+
+
+def empty_tile_ellipses(n: int, device=None, *, whole_rect: bool = False) -> TileEllipses:
+    """Storage for ``n`` Gaussians' tile tests; ``whole_rect``: every ``exact = 0`` (bin the whole rectangle)."""
+    el = TileEllipses()
+    el.exact = (wp.zeros if whole_rect else wp.empty)(n, dtype=wp.int32, device=device)
+    el.conic = wp.empty(n, dtype=vec6d, device=device)
+    el.centre = wp.empty(n, dtype=wp.vec2d, device=device)
+    return el
+
+
+@wp.func
+def store_ellipse(el: TileEllipses, k: int, e: TileEllipse):
+    """Write Gaussian ``k``'s tile test (the conic only when it is used)."""
+    el.exact[k] = e.exact
+    if e.exact != 0:
+        el.conic[k] = e.conic
+        el.centre[k] = e.centre
+
+
+@wp.func
+def load_ellipse(el: TileEllipses, k: int) -> TileEllipse:
+    """Gaussian ``k``'s tile test as written by :func:`store_ellipse`."""
+    e = TileEllipse()
+    e.exact = el.exact[k]
+    if e.exact != 0:
+        e.conic = el.conic[k]
+        e.centre = el.centre[k]
+    return e
 
 
 @wp.func
@@ -240,80 +281,127 @@ def row_tile_span(e: TileEllipse, ty: int, x0: int, x1: int, cam: CameraParams, 
     return wp.vec2i(lo, hi)
 
 
+@wp.struct
+class ConicTest:
+    """The general test's per-Gaussian constants (:func:`conic_test`), so that the many rectangle tests of one
+    Gaussian multiply where they would divide."""
+
+    conic: vec6d
+    inv: wp.vec3d  # 1/q00, 1/q11, 1/det of the 2×2 part (each 0 unless that quantity is > 0)
+    frame: wp.vec4d  # 1/fx, 1/fy, cx, cy: pixel → normalised coordinates
+
+
 @wp.func
-def rect_meets_conic(c: vec6d, a0: wp.float64, a1: wp.float64, b0: wp.float64, b1: wp.float64) -> bool:
-    """Whether ``min q ≤ 0`` over the rectangle ``[a0, a1] × [b0, b1]`` for any conic ``c`` (exact minimum of
-    a 2-D quadratic over a rectangle: corners, convex edge vertices, positive definite interior minimum)."""
+def conic_test(e: TileEllipse, cam: CameraParams) -> ConicTest:
+    """:class:`ConicTest` of ``e`` under ``cam``."""
+    c = e.conic
+    zero = wp.float64(0.0)
+    one = wp.float64(1.0)
+    t = ConicTest()
+    t.conic = c
+    det = c[0] * c[3] - c[1] * c[1]
+    inv = wp.vec3d(zero, zero, zero)
+    if c[0] > zero:
+        inv[0] = one / c[0]
+    if c[3] > zero:
+        inv[1] = one / c[3]
+    if det > zero:
+        inv[2] = one / det
+    t.inv = inv
+    t.frame = wp.vec4d(one / wp.float64(cam.fx), one / wp.float64(cam.fy), wp.float64(cam.cx), wp.float64(cam.cy))
+    return t
+
+
+@wp.func
+def rect_meets_conic(t: ConicTest, a0: wp.float64, a1: wp.float64, b0: wp.float64, b1: wp.float64) -> bool:
+    """Whether ``min q ≤ 0`` over the rectangle ``[a0, a1] × [b0, b1]`` for any conic (exact minimum of a 2-D
+    quadratic over a rectangle: corners, convex edge vertices, positive definite interior minimum). The candidate
+    points are computed with ``t``'s reciprocals and clamped into the rectangle, so each is a point of it (a valid
+    witness), and at each the rounding of its position changes ``q`` only to second order (``q`` is stationary
+    there along the free directions): far inside the conic's allowance."""
+    c = t.conic
     zero = wp.float64(0.0)
     if conic_at(c, a0, b0) <= zero or conic_at(c, a1, b0) <= zero or conic_at(c, a0, b1) <= zero or conic_at(c, a1, b1) <= zero:
         return True
     if c[3] > zero:  # vertical edges a = a0, a1: convex in b, smallest at b = −(q01 a + q12)/q11
-        if conic_at(c, a0, wp.clamp(-(c[1] * a0 + c[4]) / c[3], b0, b1)) <= zero:
+        if conic_at(c, a0, wp.clamp(-(c[1] * a0 + c[4]) * t.inv[1], b0, b1)) <= zero:
             return True
-        if conic_at(c, a1, wp.clamp(-(c[1] * a1 + c[4]) / c[3], b0, b1)) <= zero:
+        if conic_at(c, a1, wp.clamp(-(c[1] * a1 + c[4]) * t.inv[1], b0, b1)) <= zero:
             return True
     if c[0] > zero:  # horizontal edges b = b0, b1: convex in a, smallest at a = −(q01 b + q02)/q00
-        if conic_at(c, wp.clamp(-(c[1] * b0 + c[2]) / c[0], a0, a1), b0) <= zero:
+        if conic_at(c, wp.clamp(-(c[1] * b0 + c[2]) * t.inv[0], a0, a1), b0) <= zero:
             return True
-        if conic_at(c, wp.clamp(-(c[1] * b1 + c[2]) / c[0], a0, a1), b1) <= zero:
+        if conic_at(c, wp.clamp(-(c[1] * b1 + c[2]) * t.inv[0], a0, a1), b1) <= zero:
             return True
-    det = c[0] * c[3] - c[1] * c[1]
-    if c[0] > zero and c[3] > zero and det > zero:  # interior minimum of q (a point of the rectangle once clamped)
-        a = wp.clamp((c[1] * c[4] - c[3] * c[2]) / det, a0, a1)
-        b = wp.clamp((c[1] * c[2] - c[0] * c[4]) / det, b0, b1)
+    if c[0] > zero and c[3] > zero and t.inv[2] > zero:  # interior minimum of q (a point of the rectangle once clamped)
+        a = wp.clamp((c[1] * c[4] - c[3] * c[2]) * t.inv[2], a0, a1)
+        b = wp.clamp((c[1] * c[2] - c[0] * c[4]) * t.inv[2], b0, b1)
         return conic_at(c, a, b) <= zero
     return False
 
 
 @wp.func
-def tiles_meet_conic(e: TileEllipse, tx0: int, tx1: int, ty0: int, ty1: int, cam: CameraParams, settings: RasterSettings) -> bool:
-    """Whether the hull of tiles ``[tx0, tx1) × [ty0, ty1)`` (:func:`tiles_rect`; for one tile the rectangle of
-    :func:`tile_meets_ellipse`) meets ``{q ≤ 0}``."""
-    r = tiles_rect(tx0, tx1, ty0, ty1, cam, settings)
-    return rect_meets_conic(e.conic, r[0], r[1], r[2], r[3])
+def tiles_rect_normalised(t: ConicTest, tx0: int, tx1: int, ty0: int, ty1: int, cam: CameraParams, settings: RasterSettings) -> wp.vec4d:
+    """:func:`tiles_rect` with ``t``'s reciprocal focal lengths (a rounding's difference: covered by the allowance)."""
+    ts = settings.tile_size
+    half_pad = wp.float64(0.5) - wp.float64(wp.max(settings.pixel_pad, 0.0))
+    f = t.frame
+    u0 = wp.float64(tx0 * ts) + half_pad
+    u1 = wp.float64(wp.min(tx1 * ts, cam.width)) - half_pad
+    v0 = wp.float64(ty0 * ts) + half_pad
+    v1 = wp.float64(wp.min(ty1 * ts, cam.height)) - half_pad
+    return wp.vec4d((u0 - f[2]) * f[0], (u1 - f[2]) * f[0], (v0 - f[3]) * f[1], (v1 - f[3]) * f[1])
+
+
+@wp.func
+def tiles_meet_conic(t: ConicTest, tx0: int, tx1: int, ty0: int, ty1: int, cam: CameraParams, settings: RasterSettings) -> bool:
+    """Whether the hull of tiles ``[tx0, tx1) × [ty0, ty1)`` (from the first tile's first in-image pixel centre to
+    the last tile's last, grown by ``pixel_pad``) meets ``{q ≤ 0}``."""
+    r = tiles_rect_normalised(t, tx0, tx1, ty0, ty1, cam, settings)
+    return rect_meets_conic(t, r[0], r[1], r[2], r[3])
 
 
 CONIC_BLOCK = wp.constant(8)  # tiles per side of the blocks of the general test (8 × 8 = 64 mask bits)
 
 
 @wp.func
-def tiles_inside_conic(e: TileEllipse, tx0: int, tx1: int, ty0: int, ty1: int, cam: CameraParams, settings: RasterSettings) -> bool:
+def tiles_inside_conic(t: ConicTest, tx0: int, tx1: int, ty0: int, ty1: int, cam: CameraParams, settings: RasterSettings) -> bool:
     """A shortcut of :func:`conic_block_mask`: whether ``q ≤ 0`` on the whole hull of tiles ``[tx0, tx1) × [ty0, ty1)``,
     decided only when ``q`` is convex (2×2 part positive semi-definite: its maximum over a rectangle is at a corner,
     so four corners decide); ``False`` otherwise. Every tile of such a hull meets the conic, so its per-tile tests
     can be skipped (a tile they would drop within rounding of the conic's edge is kept: an extra entry, skipped by
     the per-pixel test)."""
-    c = e.conic
+    c = t.conic
     zero = wp.float64(0.0)
     if not (c[0] >= zero and c[3] >= zero and c[0] * c[3] - c[1] * c[1] >= zero):
         return False
-    r = tiles_rect(tx0, tx1, ty0, ty1, cam, settings)
+    r = tiles_rect_normalised(t, tx0, tx1, ty0, ty1, cam, settings)
     return (conic_at(c, r[0], r[2]) <= zero and conic_at(c, r[1], r[2]) <= zero and conic_at(c, r[0], r[3]) <= zero
             and conic_at(c, r[1], r[3]) <= zero)  # fmt: skip
 
 
 @wp.func
-def conic_block_mask(e: TileEllipse, bx: int, by: int, x1: int, y1: int, cam: CameraParams, settings: RasterSettings) -> wp.uint64:
-    """``exact = 2``: the tiles of the block ``[bx, min(bx + 8, x1)) × [by, min(by + 8, y1))`` that meet the
-    conic, bit ``8 (ty − by) + (tx − bx)``. The block hull, then each row segment, then each tile is tested
-    (a hull that misses the conic contains no tile that meets it); a hull, or a row, on which the conic is ``≤ 0``
-    throughout (:func:`tiles_inside_conic`) has all its tiles set without testing them one by one."""
+def conic_block_mask(t: ConicTest, bx: int, by: int, x1: int, y1: int, cam: CameraParams, settings: RasterSettings) -> wp.uint64:
+    """``exact = 2`` (``t = conic_test(e, cam)``): the tiles of the block ``[bx, min(bx + 8, x1)) × [by, min(by + 8,
+    y1))`` that meet the conic, bit ``8 (ty − by) + (tx − bx)``. The block hull, then each row segment, then each
+    tile is tested (a hull that misses the conic contains no tile that meets it); a hull, or a row, on which the
+    conic is ``≤ 0`` throughout (:func:`tiles_inside_conic`) has all its tiles set without testing them one by one."""
     ex = wp.min(bx + CONIC_BLOCK, x1)
     ey = wp.min(by + CONIC_BLOCK, y1)
     mask = wp.uint64(0)
-    if not tiles_meet_conic(e, bx, ex, by, ey, cam, settings):
+    if not tiles_meet_conic(t, bx, ex, by, ey, cam, settings):
         return mask
     row_bits = (wp.uint64(1) << wp.uint64(ex - bx)) - wp.uint64(1)  # the block's tiles of one row
-    whole = tiles_inside_conic(e, bx, ex, by, ey, cam, settings)
+    whole = tiles_inside_conic(t, bx, ex, by, ey, cam, settings)
     for ty in range(by, ey):
         shift = wp.uint64(CONIC_BLOCK * (ty - by))
         if whole:
             mask = mask | (row_bits << shift)
-        elif ey - by == 1 or tiles_meet_conic(e, bx, ex, ty, ty + 1, cam, settings):
-            if ex - bx > 1 and tiles_inside_conic(e, bx, ex, ty, ty + 1, cam, settings):
+        elif ey - by == 1 or tiles_meet_conic(t, bx, ex, ty, ty + 1, cam, settings):
+            if ex - bx > 1 and tiles_inside_conic(t, bx, ex, ty, ty + 1, cam, settings):
                 mask = mask | (row_bits << shift)
             else:
                 for tx in range(bx, ex):
-                    if ex - bx == 1 or tiles_meet_conic(e, tx, tx + 1, ty, ty + 1, cam, settings):
+                    if ex - bx == 1 or tiles_meet_conic(t, tx, tx + 1, ty, ty + 1, cam, settings):
                         mask = mask | (wp.uint64(1) << (shift + wp.uint64(tx - bx)))
     return mask

@@ -22,7 +22,7 @@ from gof_warp.camera import look_at
 from gof_warp.kernels.binning import bin_gaussians
 from gof_warp.kernels.project import preprocess_gaussians, screen_bounds
 from gof_warp.kernels.render_types import CameraParams, RasterSettings, camera_params_from, make_raster_settings
-from gof_warp.kernels.tile_overlap import TileEllipse, row_tile_span, row_tile_span_scan
+from gof_warp.kernels.tile_overlap import TileEllipses, empty_tile_ellipses, load_ellipse, row_tile_span, row_tile_span_scan
 
 K_MAX = math.sqrt(2.0 * math.log(255.0))
 BOX_TOL_PX = 1e-3  # float32 camera/parameters vs float64: the box edges agree to far below a pixel here
@@ -81,14 +81,14 @@ def _run_binning(cam, means, quats, scales, opac, use_ellipse=True, **cfg):
     wp.launch(preprocess_gaussians, n, inputs=[arr(means, wp.vec3), arr(quats, wp.vec4), arr(scales, wp.vec3), sh, 0, camp.R, camp.t, camp.centre],
               outputs=[mu_v, P, o_g, col], device="cpu")  # fmt: skip
     rect, touched, radii, depth = (wp.empty(n, dtype=t, device="cpu") for t in (wp.vec4i, wp.int32, wp.int32, float))
-    ellipse = wp.empty(n, dtype=TileEllipse, device="cpu")
+    ellipse = empty_tile_ellipses(n, "cpu")
     wp.launch(screen_bounds, n, inputs=[mu_v, arr(quats, wp.vec4), arr(scales, wp.vec3), arr(opac, float), camp, settings],
               outputs=[rect, touched, radii, depth, ellipse], device="cpu")  # fmt: skip
     extra = (ellipse, camp, settings) if use_ellipse else ()
     values, start, end, count = bin_gaussians(rect, touched, depth, settings.tiles_x, settings.tiles_x * settings.tiles_y, *extra)
     lists = [values.numpy()[s:e] for s, e in zip(start.numpy(), end.numpy())]
     return dict(rect=rect.numpy(), radii=radii.numpy(), depth=depth.numpy(), lists=lists, count=count, settings=settings,
-                touched=touched.numpy(), exact=ellipse.numpy()["exact"])
+                touched=touched.numpy(), exact=ellipse.exact.numpy())
 
 
 def _binning_k(opac, alpha_min, k_max):
@@ -512,7 +512,7 @@ def test_tile_culling_reduces_benchmark_entries(n, W, H, bound):
 
 
 @wp.kernel
-def _spans_both(rect: wp.array(dtype=wp.vec4i), ellipse: wp.array(dtype=TileEllipse), cam: CameraParams, settings: RasterSettings,
+def _spans_both(rect: wp.array(dtype=wp.vec4i), ellipse: TileEllipses, cam: CameraParams, settings: RasterSettings,
                 row: int, closed: wp.array(dtype=wp.vec2i), scan: wp.array(dtype=wp.vec2i)):  # fmt: skip
     k = wp.tid()
     r = rect[k]
@@ -520,8 +520,8 @@ def _spans_both(rect: wp.array(dtype=wp.vec4i), ellipse: wp.array(dtype=TileElli
     closed[k] = wp.vec2i(0, 0)
     scan[k] = wp.vec2i(0, 0)
     if ty < r[3]:
-        closed[k] = row_tile_span(ellipse[k], ty, r[0], r[2], cam, settings)
-        scan[k] = row_tile_span_scan(ellipse[k], ty, r[0], r[2], cam, settings)
+        closed[k] = row_tile_span(load_ellipse(ellipse, k), ty, r[0], r[2], cam, settings)
+        scan[k] = row_tile_span_scan(load_ellipse(ellipse, k), ty, r[0], r[2], cam, settings)
 
 
 @pytest.mark.parametrize("pad, ts", [(0.0, 16), (0.5, 16), (0.5, 4), (0.0, 1)])
@@ -541,11 +541,11 @@ def test_closed_form_row_span_equals_the_tile_scan(pad, ts):
     wp.launch(preprocess_gaussians, n, inputs=[arr(means, wp.vec3), arr(quats, wp.vec4), arr(scales, wp.vec3), wp.zeros((n, 1), dtype=wp.vec3, device="cpu"),
               0, camp.R, camp.t, camp.centre], outputs=[mu_v, P, o_g, col], device="cpu")  # fmt: skip
     rect, touched, radii, depth = (wp.empty(n, dtype=t, device="cpu") for t in (wp.vec4i, wp.int32, wp.int32, float))
-    ellipse = wp.empty(n, dtype=TileEllipse, device="cpu")
+    ellipse = empty_tile_ellipses(n, "cpu")
     wp.launch(screen_bounds, n, inputs=[mu_v, arr(quats, wp.vec4), arr(scales, wp.vec3), arr(opac, float), camp, settings],
               outputs=[rect, touched, radii, depth, ellipse], device="cpu")  # fmt: skip
     r = rect.numpy()
-    exact = ellipse.numpy()["exact"]
+    exact = ellipse.exact.numpy()
     rows = equal = narrower = 0
     for row in range(int((r[:, 3] - r[:, 1]).max())):
         closed, scan = wp.empty(n, dtype=wp.vec2i, device="cpu"), wp.empty(n, dtype=wp.vec2i, device="cpu")

@@ -29,24 +29,25 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from gof_warp.kernels.binning import CONIC_BLOCK, count_tile_keys  # noqa: E402
 from gof_warp.kernels.project import preprocess_gaussians, screen_bounds  # noqa: E402
 from gof_warp.kernels.render_types import CameraParams, RasterSettings, camera_params_from  # noqa: E402
-from gof_warp.kernels.tile_overlap import TileEllipse, conic_block_mask, row_tile_span_scan  # noqa: E402
+from gof_warp.kernels.tile_overlap import TileEllipses, conic_block_mask, conic_test, empty_tile_ellipses, load_ellipse, row_tile_span_scan  # noqa: E402
 from gof_warp.render import RenderConfig, raster_settings_for  # noqa: E402
 
 wp.set_module_options({"fuse_fp": False, "enable_backward": False})
 
 
 @wp.kernel
-def count_tile_keys_scan(rect: wp.array(dtype=wp.vec4i), ellipse: wp.array(dtype=TileEllipse), cam: CameraParams,
+def count_tile_keys_scan(rect: wp.array(dtype=wp.vec4i), ellipse: TileEllipses, cam: CameraParams,
                          settings: RasterSettings, tiles_touched: wp.array(dtype=wp.int32)):  # fmt: skip
     """``count_tile_keys`` as it was: each row's span found by :func:`row_tile_span_scan`."""
     k = wp.tid()
     r = rect[k]
-    e = ellipse[k]
+    e = load_ellipse(ellipse, k)
     n = int(0)
     if e.exact == 2:
+        t = conic_test(e, cam)
         for by in range(r[1], r[3], CONIC_BLOCK):
             for bx in range(r[0], r[2], CONIC_BLOCK):
-                m = conic_block_mask(e, bx, by, r[2], r[3], cam, settings)
+                m = conic_block_mask(t, bx, by, r[2], r[3], cam, settings)
                 while m != wp.uint64(0):
                     m = m & (m - wp.uint64(1))
                     n += 1
@@ -86,14 +87,14 @@ def compare_view(params, camera, config, iters):
     wp.launch(preprocess_gaussians, dim=n, inputs=[wpar[0], wpar[1], wpar[2], wpar[4], int(round(sh.shape[1] ** 0.5)) - 1, cam.R, cam.t, cam.centre],
               outputs=[mu_v, P, o_g, col])  # fmt: skip
     rect, touched, radii, depth = (wp.empty(n, dtype=t) for t in (wp.vec4i, wp.int32, wp.int32, float))
-    ellipse = wp.empty(n, dtype=TileEllipse)
+    ellipse = empty_tile_ellipses(n)
     wp.launch(screen_bounds, dim=n, inputs=[mu_v, wpar[1], wpar[2], wpar[3], cam, settings], outputs=[rect, touched, radii, depth, ellipse])
     closed, scan = wp.empty(n, dtype=wp.int32), wp.empty(n, dtype=wp.int32)
     inputs = [rect, ellipse, cam, settings]
     ms_closed = _timed(count_tile_keys, n, inputs, closed, iters)
     ms_scan = _timed(count_tile_keys_scan, n, inputs, scan, iters)
     c, s = closed.numpy(), scan.numpy()
-    exact = ellipse.numpy()["exact"]
+    exact = ellipse.exact.numpy()
     return dict(count_ms_closed=ms_closed, count_ms_scan=ms_scan, entries_closed=int(c.sum()), entries_scan=int(s.sum()),
                 gaussians_differing=int((c != s).sum()), gaussians_fewer=int((c < s).sum()),
                 rows_exact1=int(((rect.numpy()[:, 3] - rect.numpy()[:, 1]) * (exact == 1)).sum()))  # fmt: skip

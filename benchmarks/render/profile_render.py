@@ -35,7 +35,7 @@ import warp as wp  # noqa: E402
 from gof_warp.kernels.binning import TileListSizer  # noqa: E402
 from gof_warp.kernels.project import preprocess_gaussians, screen_bounds  # noqa: E402
 from gof_warp.kernels.render_types import camera_params_from  # noqa: E402
-from gof_warp.kernels.tile_overlap import TileEllipse  # noqa: E402
+from gof_warp.kernels.tile_overlap import empty_tile_ellipses  # noqa: E402
 from gof_warp.render import DensifyStats, RenderConfig, raster_settings_for, rasterize  # noqa: E402
 
 
@@ -48,7 +48,7 @@ def census(params, camera, config) -> dict:
     mu_v, P, o_g, col = (wp.empty(n, dtype=t) for t in (wp.vec3, wp.mat33, wp.vec3, wp.vec3))
     wp.launch(preprocess_gaussians, dim=n, inputs=[w[0], w[1], w[2], w[4], 3, cam.R, cam.t, cam.centre], outputs=[mu_v, P, o_g, col])
     rect, touched, radii, depth = (wp.empty(n, dtype=t) for t in (wp.vec4i, wp.int32, wp.int32, float))
-    ellipse = wp.empty(n, dtype=TileEllipse)
+    ellipse = empty_tile_ellipses(n)
     wp.launch(screen_bounds, dim=n, inputs=[mu_v, w[1], w[2], w[3], cam, settings], outputs=[rect, touched, radii, depth, ellipse])
     timed = {}
     if wp.get_device().is_cuda:  # screen_bounds with and without the tile test's conic (its share of the kernel)
@@ -65,7 +65,7 @@ def census(params, camera, config) -> dict:
             timed[f"screen_bounds_ms_tile_cull{cull}"] = float(np.median(times[1:]))
         settings.tile_cull = 1
         wp.launch(screen_bounds, dim=n, inputs=[mu_v, w[1], w[2], w[3], cam, settings], outputs=[rect, touched, radii, depth, ellipse])
-    r, exact = rect.numpy(), ellipse.numpy()["exact"]
+    r, exact = rect.numpy(), ellipse.exact.numpy()
     tiles = (r[:, 2] - r[:, 0]) * (r[:, 3] - r[:, 1])
     rows = r[:, 3] - r[:, 1]
     out = {f"exact{e}": int(((exact == e) & (tiles > 0)).sum()) for e in (0, 1, 2)}
