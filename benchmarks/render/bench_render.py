@@ -192,10 +192,19 @@ def bench_one(n, size, iters, tile_cull=True):
         out = rasterize(*leaves, cam, stats=stats, config=config, tile_lists=sizer)
         sum((out[k] * weights[k]).sum() for k in OUTPUT_KEYS).backward()
 
+    train_sizer = TileListSizer()
+
+    def fwd_bwd_train():  # the trainer's path: render() skips the positivity read-back; zero_grad(set_to_none)
+        for p in leaves:
+            p.grad = None
+        out = rasterize(*leaves, cam, stats=stats, config=config, check_values=False, tile_lists=train_sizer)
+        sum((out[k] * weights[k]).sum() for k in OUTPUT_KEYS).backward()
+
     weights = _loss_weights(rasterize(*params, cam, config=config))
     res["fwd_ms"], res["fwd_ms_min"] = _time(fwd, iters)
     res["fwd_bwd_ms"], res["fwd_bwd_ms_min"] = _time(fwd_bwd, iters)
     res["fwd_bwd_sized_ms"], res["fwd_bwd_sized_ms_min"] = _time(fwd_bwd_sized, iters)
+    res["fwd_bwd_train_ms"], res["fwd_bwd_train_ms_min"] = _time(fwd_bwd_train, iters)
     res["sizer"] = sizer.stats()
     torch.cuda.synchronize()
     res["peak_torch_mb"] = torch.cuda.max_memory_allocated() / 2**20
