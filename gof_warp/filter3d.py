@@ -27,7 +27,6 @@ from .camera import Camera
 from .devices import warp_device
 from .errors import GofError
 from .kernels.filter3d import nearest_seen_depth
-from .kernels.render_types import CameraParams, camera_params_from
 from .marching_inputs import torch_stream
 from .model import Gaussians
 
@@ -98,11 +97,12 @@ def _nearest_seen_depth_warp(means: torch.Tensor, cameras: Sequence[Camera], nea
     wp.init()
     device = warp_device(means.device)
     depth = torch.empty(means.shape[0], dtype=torch.float32, device=means.device)
-    cams = wp.array([camera_params_from(c) for c in cameras], dtype=CameraParams, device=device)
+    cam = _camera_tensors(cameras, torch.float32, means.device)
+    types = {"R": wp.mat33, "t": wp.vec3, "f": wp.vec2, "c": wp.vec2, "wh": wp.vec2}
     with torch_stream(device):
-        wp.launch(nearest_seen_depth, dim=means.shape[0], device=device,
-                  inputs=[wp.from_torch(means.detach().contiguous(), dtype=wp.vec3), cams, float(near),
-                          float(SCREEN_GUARD)], outputs=[wp.from_torch(depth)])
+        arrays = [wp.from_torch(means.detach().contiguous(), dtype=wp.vec3)] + [wp.from_torch(cam[k], dtype=v) for k, v in types.items()]
+        wp.launch(nearest_seen_depth, dim=means.shape[0], device=device, inputs=[*arrays, float(near), float(SCREEN_GUARD)],
+                  outputs=[wp.from_torch(depth)])
     return depth
 
 

@@ -12,30 +12,38 @@ from __future__ import annotations
 
 import warp as wp
 
-from .render_types import CameraParams
 
 
 @wp.kernel
 def nearest_seen_depth(
     means: wp.array(dtype=wp.vec3),
-    cameras: wp.array(dtype=CameraParams),
+    R: wp.array(dtype=wp.mat33),
+    t: wp.array(dtype=wp.vec3),
+    f: wp.array(dtype=wp.vec2),
+    c: wp.array(dtype=wp.vec2),
+    wh: wp.array(dtype=wp.vec2),
     near: float,
     guard: float,
     depth: wp.array(dtype=float),
 ):
-    """``depth[i]`` = the smallest ``z`` of ``means[i]`` over the ``cameras`` that see it; ``+inf`` if none does."""
+    """``depth[i]`` = the smallest ``z`` of ``means[i]`` over the cameras that see it; ``+inf`` if none does.
+
+    Camera ``k``: world-to-camera ``R[k]``, ``t[k]``; ``f[k] = (fx, fy)``, ``c[k] = (cx, cy)``, ``wh[k] = (W, H)``
+    (``[C]`` each: plain arrays, not an array of a camera struct, whose elements the generated CUDA would read
+    byte by byte)."""
     i = wp.tid()
     x = means[i]
     d = float(wp.inf)
-    for k in range(cameras.shape[0]):
-        cam = cameras[k]
-        p = cam.R @ x + cam.t
+    for k in range(R.shape[0]):
+        p = R[k] @ x + t[k]
         z = p[2]
         if z > near:
-            w = float(cam.width)
-            h = float(cam.height)
-            u = p[0] / z * cam.fx + cam.cx
-            v = p[1] / z * cam.fy + cam.cy
+            fk = f[k]
+            ck = c[k]
+            w = wh[k][0]
+            h = wh[k][1]
+            u = p[0] / z * fk[0] + ck[0]
+            v = p[1] / z * fk[1] + ck[1]
             if u >= -guard * w and u <= (1.0 + guard) * w and v >= -guard * h and v <= (1.0 + guard) * h:
                 d = wp.min(d, z)
     depth[i] = d
