@@ -25,6 +25,7 @@ Images are channel-last ``[H, W, 3]`` floats in ``[0, 1]``, like the renderer's 
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 
 import torch
@@ -32,6 +33,8 @@ import torch
 from .camera import Camera
 from .errors import GofError
 from .metrics import ssim
+
+log = logging.getLogger(__name__)
 
 NORMAL_FORMS = ("paper", "gof")
 # A central-difference cross product this much smaller than |dv|·|du| (sine of the angle between the
@@ -81,10 +84,22 @@ def distortion_loss(distortion: torch.Tensor) -> torch.Tensor:
 def depth_to_points(depth: torch.Tensor, camera: Camera) -> torch.Tensor:
     """Camera-space points ``[H, W, 3]`` of a z-depth map ``[H, W]`` through the pixel centres
     ``((i + ½ − cx)/fx, (j + ½ − cy)/fy, 1)·depth`` (any principal point)."""
+    return _points(depth, _intrinsics(camera))
+
+
+def _intrinsics(camera: Camera) -> tuple[float, float, float, float]:
+    return (camera.fx, camera.fy, camera.cx, camera.cy)
+
+
+def _points(depth: torch.Tensor, intr) -> torch.Tensor:
+    """:func:`depth_to_points` for ``intr = (fx, fy, cx, cy)``: floats, or a ``[4]`` tensor (no constants to
+    specialise on in a compiled graph)."""
     h, w = depth.shape
     kw = {"dtype": depth.dtype, "device": depth.device}
-    x = (torch.arange(w, **kw) + 0.5 - camera.cx) / camera.fx
-    y = (torch.arange(h, **kw) + 0.5 - camera.cy) / camera.fy
+    if isinstance(intr, torch.Tensor):  # float64 on the device: rounded to the depth's dtype, as a float would be
+        intr = intr.to(depth.dtype)
+    x = (torch.arange(w, **kw) + 0.5 - intr[2]) / intr[0]
+    y = (torch.arange(h, **kw) + 0.5 - intr[3]) / intr[1]
     rays = torch.stack(torch.broadcast_tensors(x[None, :], y[:, None], torch.ones((), **kw)), dim=-1)
     return depth[..., None] * rays
 
@@ -107,7 +122,13 @@ def depth_to_normal(depth: torch.Tensor, camera: Camera, *, return_valid: bool =
     """
     if depth.ndim != 2 or depth.shape[0] < 3 or depth.shape[1] < 3:
         raise GofError(f"depth_to_normal: depth must be [H, W] with H, W >= 3, got {list(depth.shape)}")
-    p = depth_to_points(depth, camera)
+    normals, valid = _normals(depth, _intrinsics(camera))
+    return (normals, valid) if return_valid else normals
+
+
+def _normals(depth: torch.Tensor, intr) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`depth_to_normal` (unchecked) for ``intr`` as in :func:`_points`: ``(normals, valid)``."""
+    p = _points(depth, intr)
     dv = p[2:, 1:-1] - p[:-2, 1:-1]
     du = p[1:-1, 2:] - p[1:-1, :-2]
     n = torch.linalg.cross(dv, du, dim=-1)
@@ -115,10 +136,7 @@ def depth_to_normal(depth: torch.Tensor, camera: Camera, *, return_valid: bool =
     valid = norm > DEGENERATE_SINE * dv.norm(dim=-1) * du.norm(dim=-1)
     inner = torch.where(valid[..., None], n / torch.where(valid, norm, torch.ones_like(norm))[..., None],
                         torch.zeros_like(n))
-    normals = torch.nn.functional.pad(inner, (0, 0, 1, 1, 1, 1))
-    if return_valid:
-        return normals, torch.nn.functional.pad(valid, (1, 1, 1, 1))
-    return normals
+    return torch.nn.functional.pad(inner, (0, 0, 1, 1, 1, 1)), torch.nn.functional.pad(valid, (1, 1, 1, 1))
 
 
 def depth_normal_consistency(median_depth: torch.Tensor, normal: torch.Tensor, camera: Camera,
@@ -132,19 +150,30 @@ def depth_normal_consistency(median_depth: torch.Tensor, normal: torch.Tensor, c
         alpha: ``[H, W]`` rendered ``Σ_i ω_i``; required for ``form="paper"``.
         form: ``"paper"`` (``alpha − normalᵀN``) or ``"gof"`` (``1 − normalize(normal)ᵀN``).
     """
+    _check_consistency_inputs(median_depth, normal, alpha, form)
+    return _consistency(median_depth, normal, _intrinsics(camera), alpha, form)
+
+
+def _check_consistency_inputs(median_depth, normal, alpha, form: str) -> None:
     if form not in NORMAL_FORMS:
         raise GofError(f"depth_normal_consistency: form must be one of {NORMAL_FORMS}, got {form!r}")
     if normal.shape != (*median_depth.shape, 3):
         raise GofError(f"depth_normal_consistency: normal {list(normal.shape)} does not match "
                        f"depth {list(median_depth.shape)}")
-    n_depth, valid = depth_to_normal(median_depth, camera, return_valid=True)
-    if form == "gof":
-        return (1.0 - (torch.nn.functional.normalize(normal, dim=-1) * n_depth).sum(-1)).mean()
-    if alpha is None:
+    if median_depth.ndim != 2 or median_depth.shape[0] < 3 or median_depth.shape[1] < 3:
+        raise GofError(f"depth_to_normal: depth must be [H, W] with H, W >= 3, got {list(median_depth.shape)}")
+    if form == "paper" and alpha is None:
         raise GofError("depth_normal_consistency: form='paper' needs the rendered alpha (Σ ω_i)")
-    if alpha.shape != median_depth.shape:
+    if alpha is not None and alpha.shape != median_depth.shape:
         raise GofError(f"depth_normal_consistency: alpha {list(alpha.shape)} does not match "
                        f"depth {list(median_depth.shape)}")
+
+
+def _consistency(median_depth, normal, intr, alpha, form: str) -> torch.Tensor:
+    """:func:`depth_normal_consistency` (unchecked) for ``intr`` as in :func:`_points`."""
+    n_depth, valid = _normals(median_depth, intr)
+    if form == "gof":
+        return (1.0 - (torch.nn.functional.normalize(normal, dim=-1) * n_depth).sum(-1)).mean()
     per_pixel = alpha - (normal * n_depth).sum(-1)
     return torch.where(valid, per_pixel, torch.zeros_like(per_pixel)).mean()
 
@@ -167,24 +196,93 @@ def total_loss(out: dict, gt_image: torch.Tensor, camera: Camera, config: LossCo
         ``(loss, terms)``: the scalar loss and detached scalars ``l1, dssim, distortion, normal,
         total`` (terms that were off or inactive are absent).
     """
+    args, regularise = _loss_inputs(out, gt_image, config, iteration, l1_pair)
+    loss, terms = loss_terms(*args, _intrinsics(camera), config, regularise)
+    return loss, {k: v.detach() for k, v in terms.items()}
+
+
+def _loss_inputs(out: dict, gt_image, config: LossConfig, iteration: int, l1_pair) -> tuple[tuple, bool]:
+    """The checked tensor arguments of :func:`loss_terms` (up to ``intr``) and ``regularise``."""
     rgb = out["rgb"]
     if gt_image.shape != rgb.shape:
         raise GofError(f"total_loss: gt_image {list(gt_image.shape)} does not match rendered rgb {list(rgb.shape)} "
                        "(both channel-last [H, W, 3])")
-    terms: dict[str, torch.Tensor] = {}
+    regularise = iteration >= config.regularization_from_iter
+    if regularise and config.lambda_normal > 0:
+        _check_consistency_inputs(out["median_depth"], out["normal"], out.get("alpha"), config.normal_form)
     pred, target = (rgb, gt_image) if l1_pair is None else l1_pair
-    terms["l1"] = l1(pred, target)
+    return (rgb, gt_image, pred, target, out.get("alpha"), out["median_depth"], out["normal"], out["distortion"]), regularise
+
+
+def loss_terms(rgb, gt_image, l1_pred, l1_target, alpha, median_depth, normal, distortion, intr, config: LossConfig,
+               regularise: bool) -> tuple[torch.Tensor, dict]:
+    """The core of :func:`total_loss` on plain tensors, unchecked: ``(loss, terms)`` (terms not detached).
+
+    ``intr = (fx, fy, cx, cy)`` as floats or a ``[4]`` tensor on the images' device; ``regularise``: the
+    distortion and normal terms are on. Tensors and one flag only, so that ``torch.compile`` can fuse it into a
+    few kernels (one graph per value of ``regularise``: the trainer's ``compile_loss``)."""
+    terms: dict[str, torch.Tensor] = {}
+    terms["l1"] = l1(l1_pred, l1_target)
     loss = (1.0 - config.lambda_dssim) * terms["l1"]
     if config.lambda_dssim > 0:
         terms["dssim"] = dssim(rgb, gt_image)
         loss = loss + config.lambda_dssim * terms["dssim"]
-    if iteration >= config.regularization_from_iter:
+    if regularise:
         if config.lambda_distortion > 0:
-            terms["distortion"] = distortion_loss(out["distortion"])
+            terms["distortion"] = distortion_loss(distortion)
             loss = loss + config.lambda_distortion * terms["distortion"]
         if config.lambda_normal > 0:
-            terms["normal"] = depth_normal_consistency(out["median_depth"], out["normal"], camera,
-                                                       out.get("alpha"), form=config.normal_form)
+            terms["normal"] = _consistency(median_depth, normal, intr, alpha, config.normal_form)
             loss = loss + config.lambda_normal * terms["normal"]
     terms["total"] = loss
-    return loss, {k: v.detach() for k, v in terms.items()}
+    return loss, terms
+
+
+COMPILE_MODES = ("auto", "on", "off")
+
+
+class TrainingLoss:
+    """:func:`total_loss` over a fixed list of cameras, through ``torch.compile`` where asked.
+
+    The loss is some 60 small tensor operations (SSIM's moments, the normals of the depth map, the products
+    of the consistency term) and as many in its backward: on a GPU the host spends longer issuing them than the
+    GPU takes to run them, and training steps are host-bound (``benchmarks/train/README.md``). Compiled, the
+    forward and the backward are a few fused kernels each. The compiled graph takes the intrinsics as a
+    ``[4]`` tensor per camera (kept on the device) so that views do not trigger recompilation; there is one
+    graph per value of ``regularise``.
+
+    ``mode``: ``"auto"`` compiles on CUDA and falls back to the eager loss (with a warning) if compiling fails;
+    ``"on"`` compiles on any device and raises if it fails; ``"off"`` never compiles. ``backend``: passed to
+    ``torch.compile`` (tests use ``"aot_eager"``, which traces without generating code)."""
+
+    def __init__(self, config: LossConfig, cameras, device, mode: str = "auto", backend: str = "inductor"):
+        if mode not in COMPILE_MODES:
+            raise GofError(f"compile_loss must be one of {COMPILE_MODES}, got {mode!r}")
+        self.config, self.mode = config, mode
+        device = torch.device(device)
+        self.compiled = None
+        self.fallback_reason: str | None = None
+        if mode == "on" or (mode == "auto" and device.type == "cuda"):
+            self.intr = [torch.tensor(_intrinsics(c), dtype=torch.float64, device=device) for c in cameras]
+            self.compiled = torch.compile(loss_terms, dynamic=False, fullgraph=True, backend=backend)
+
+    def __call__(self, out: dict, gt_image, camera: Camera, view: int, iteration: int, *, l1_pair=None):
+        """``total_loss(out, gt_image, camera, config, iteration, l1_pair=l1_pair)``; ``view``: ``camera``'s index
+        in the list given at construction."""
+        if self.compiled is None:
+            return total_loss(out, gt_image, camera, self.config, iteration, l1_pair=l1_pair)
+        args, regularise = _loss_inputs(out, gt_image, self.config, iteration, l1_pair)
+        try:
+            loss, terms = self.compiled(*args, self.intr[view], self.config, regularise)
+        except Exception as e:  # noqa: BLE001 - any compiler failure: the eager loss computes the same
+            if self.mode != "auto":
+                raise
+            self.give_up(e)
+            return total_loss(out, gt_image, camera, self.config, iteration, l1_pair=l1_pair)
+        return loss, {k: v.detach() for k, v in terms.items()}
+
+    def give_up(self, error: Exception) -> None:
+        """Use the eager loss from now on (``mode="auto"`` after ``error`` from the compiler), with a warning."""
+        self.fallback_reason = f"{type(error).__name__}: {' '.join(str(error).split())[:400]}"
+        log.warning("torch.compile of the loss failed (%s); using the eager loss", self.fallback_reason)
+        self.compiled = None

@@ -46,7 +46,7 @@ from .interrupts import TrainingInterrupted, deferred_interrupt  # noqa: F401 - 
 from .io_utils import ensure_writable_dir, write_json_atomic, write_text_atomic
 from .kernels.binning import TileListSizer
 from .loss_monitor import LossSpikeMonitor
-from .losses import LossConfig, total_loss
+from .losses import COMPILE_MODES, LossConfig, TrainingLoss
 from .metrics import image_metrics, psnr
 from .model import Gaussians
 from .optim import OptimConfig, make_optimizer, update_learning_rate
@@ -110,6 +110,8 @@ class TrainConfig:
     # on CUDA, size the tile lists at this margin over earlier renders' counts instead of waiting for each render's
     # count (kernels.binning.TileListSizer: no host–device synchronisation per iteration); 0: exact sizing
     tile_list_margin: float = 1.25
+    # the loss through torch.compile ("auto": on CUDA, eager if compiling fails; "on"; "off"): losses.TrainingLoss
+    compile_loss: str = "auto"
     data: DataConfig = field(default_factory=DataConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
     render: RenderConfig = field(default_factory=RenderConfig)
@@ -132,6 +134,8 @@ class TrainConfig:
         m = self.tile_list_margin
         if isinstance(m, bool) or not isinstance(m, (int, float)) or not (m == 0 or m >= 1):
             raise ConfigError(f"tile_list_margin must be 0 (exact sizing) or a number >= 1, got {m!r}")
+        if self.compile_loss not in COMPILE_MODES:
+            raise ConfigError(f"compile_loss must be one of {COMPILE_MODES}, got {self.compile_loss!r}")
 
 
 def initial_gaussians(scene: Scene, cfg: ModelConfig, seed: int, device) -> tuple[Gaussians, dict]:
@@ -182,6 +186,7 @@ class Trainer:
         # tile lists sized without waiting for the GPU each iteration (on the CPU there is nothing to overlap)
         self.tile_lists = (TileListSizer(config.tile_list_margin)
                            if self.device.type == "cuda" and config.tile_list_margin else None)
+        self.loss = TrainingLoss(config.loss, self.cameras, self.device, config.compile_loss)
         self._rng = np.random.default_rng(config.seed)
         self._stack: list[int] = []
         self._pending = PendingScalars()  # iterations whose loss terms are still on the device
@@ -280,7 +285,7 @@ class Trainer:
                 corrected = self.appearance.apply(out["rgb"].permute(2, 0, 1), idx)
                 if corrected.numel():
                     l1_pair = (corrected.permute(1, 2, 0), AppearanceModel.crop(gt.permute(2, 0, 1)).permute(1, 2, 0))
-            loss, terms = total_loss(out, gt, cam, self.config.loss, loss_it, l1_pair=l1_pair)
+            loss, terms = self.loss(out, gt, cam, idx, loss_it, l1_pair=l1_pair)
             terms["psnr"] = psnr(out["rgb"].detach(), gt)
         return loss, terms
 
@@ -348,6 +353,7 @@ class Trainer:
             "loss_spikes": self.spikes.report(),
             # calls, exact measurements, overflows (renders that dropped entries: see kernels.binning.TileListSizer)
             "tile_lists": None if self.tile_lists is None else self.tile_lists.stats(),
+            "loss_compiled": self.loss.compiled is not None, "loss_compile_fallback": self.loss.fallback_reason,
             "init": self.init_info,
             "snapshots": self.snapshots,
             "history": self.history,
@@ -355,17 +361,27 @@ class Trainer:
         write_json_atomic(self.out_dir / "metrics.json", metrics)
         return metrics
 
-    def _warm_up(self) -> None:
+    def _warm_up(self, started: float | None = None) -> None:
         """A throw-away forward and backward pass of one training view before the clock starts: it loads the
         renderer's Warp modules and lets torch set up its libraries (first-call costs of ~6 s on a GPU that
-        would otherwise land in the first iterations' time; reported apart as ``warmup_s``). It changes
-        nothing that training reads: no optimiser step, no densification statistics kept, no random numbers
+        would otherwise land in the first iterations' time; reported apart as ``warmup_s``), and compiles both
+        graphs of a compiled loss (``compile_loss``; a failure there makes ``"auto"`` fall back to the eager
+        loss, and the pass is repeated). It changes nothing that training reads: no optimiser step, no densification statistics kept, no random numbers
         drawn, and the gradients it leaves are cleared, so a run with it is bitwise the run without it."""
-        t = time.perf_counter()
+        t = time.perf_counter() if started is None else started
         it = self.iteration + 1
         regularised = max(it, self.config.loss.regularization_from_iter)  # the regularisers' kernels too
-        loss, _ = self._view_loss(0, regularised, self._new_stats(it))
-        loss.backward()
+        schedule = [regularised] + ([it] if self.loss.compiled is not None and it < regularised else [])
+        for loss_it in schedule:  # a compiled loss: both of its graphs (with and without the regularisers)
+            loss, _ = self._view_loss(0, loss_it, self._new_stats(it))
+            try:
+                loss.backward()  # the compiled loss's backward graph is built here
+            except Exception as e:  # noqa: BLE001 - "auto" falls back to the eager loss; anything else is raised
+                if self.loss.compiled is None or self.loss.mode != "auto":
+                    raise
+                self.loss.give_up(e)
+                self.optimizer.zero_grad(set_to_none=True)
+                return self._warm_up(t)
         self.optimizer.zero_grad(set_to_none=True)
         if self.appearance_optimizer is not None:
             self.appearance_optimizer.zero_grad(set_to_none=True)

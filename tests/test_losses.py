@@ -192,3 +192,63 @@ def test_bad_inputs_raise():
         LossConfig(normal_form="other")
     with pytest.raises(GofError):
         total_loss(_render_out(np.random.default_rng(7)), torch.rand(3, H, W), _camera(), LossConfig(), 1)
+
+
+def _loss_and_grads(loss_fn, out, gt, *args, **kw):
+    for v in out.values():
+        v.grad = None
+    loss, terms = loss_fn(out, gt, *args, **kw)
+    loss.backward()
+    return loss.detach(), terms, {k: v.grad.clone() for k, v in out.items() if v.grad is not None}
+
+
+@pytest.mark.parametrize("form", ["paper", "gof"])
+def test_compiled_training_loss_equals_the_eager_loss(form):
+    """``TrainingLoss`` through ``torch.compile`` (backend ``aot_eager``: Dynamo's capture of the whole loss as one
+    graph, ``fullgraph=True``, and AOTAutograd's backward, without code generation) gives the eager loss, its terms
+    and its gradients, with and without the regularisers, for two cameras of different intrinsics (passed as device
+    tensors, not baked in) and with an L1 pair."""
+    from gof_warp.losses import TrainingLoss
+
+    rng = np.random.default_rng(11)
+    cams = [_camera(), _camera(cx=8.9, cy=4.2, fx=25.0, fy=23.5)]
+    cfg = LossConfig(normal_form=form)
+    compiled = TrainingLoss(cfg, cams, "cpu", mode="on", backend="aot_eager")
+    assert compiled.compiled is not None
+    out = _render_out(rng)
+    gt = torch.tensor(rng.random((H, W, 3)))
+    for view, it in ((0, 14_999), (1, 15_000), (0, 20_000)):
+        pair = (lambda: (out["rgb"][1:-1, 1:-1] * 0.9, gt[1:-1, 1:-1])) if view == 1 else (lambda: None)  # noqa: E731
+        ref = _loss_and_grads(total_loss, out, gt, cams[view], cfg, it, l1_pair=pair())
+        got = _loss_and_grads(compiled, out, gt, cams[view], view, it, l1_pair=pair())
+        assert abs(got[0].item() - ref[0].item()) <= 1e-12 * max(1.0, abs(ref[0].item()))
+        assert set(got[1]) == set(ref[1]) and all(abs(got[1][k].item() - ref[1][k].item()) <= 1e-12 for k in ref[1])
+        assert set(got[2]) == set(ref[2])
+        for k in ref[2]:
+            assert torch.allclose(got[2][k], ref[2][k], rtol=1e-10, atol=1e-14), k
+    assert compiled.compiled is not None and compiled.fallback_reason is None
+
+
+def test_training_loss_modes_and_fallback():
+    from gof_warp.losses import TrainingLoss
+
+    cams = [_camera()]
+    assert TrainingLoss(LossConfig(), cams, "cpu").compiled is None  # "auto" compiles on CUDA only
+    assert TrainingLoss(LossConfig(), cams, "cpu", mode="off").compiled is None
+    with pytest.raises(GofError):
+        TrainingLoss(LossConfig(), cams, "cpu", mode="sometimes")
+
+    def broken_backend(gm, example_inputs):
+        raise RuntimeError("no compiler here")
+
+    rng = np.random.default_rng(12)
+    out, gt = _render_out(rng), torch.tensor(rng.random((H, W, 3)))
+    ref = _loss_and_grads(total_loss, out, gt, cams[0], LossConfig(), 20_000)
+    auto = TrainingLoss(LossConfig(), cams, "cpu", mode="on", backend=broken_backend)
+    auto.mode = "auto"  # as on a GPU machine whose compiler fails: the eager loss, and the reason kept
+    got = _loss_and_grads(auto, out, gt, cams[0], 0, 20_000)
+    assert auto.compiled is None and "no compiler here" in auto.fallback_reason
+    assert got[0].item() == ref[0].item()
+    strict = TrainingLoss(LossConfig(), cams, "cpu", mode="on", backend=broken_backend)
+    with pytest.raises(Exception, match="no compiler here"):
+        strict(out, gt, cams[0], 0, 20_000)
