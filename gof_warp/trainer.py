@@ -110,8 +110,9 @@ class TrainConfig:
     # on CUDA, size the tile lists at this margin over earlier renders' counts instead of waiting for each render's
     # count (kernels.binning.TileListSizer: no host–device synchronisation per iteration); 0: exact sizing
     tile_list_margin: float = 1.25
-    # the loss through torch.compile ("auto": on CUDA, eager if compiling fails; "on"; "off"): losses.TrainingLoss
-    compile_loss: str = "auto"
+    # the loss through torch.compile ("auto": on CUDA, eager if compiling fails; "on"; "off"): losses.TrainingLoss.
+    # YAML reads a bare on/off as true/false: those are taken as "on"/"off"
+    compile_loss: str | bool = "auto"
     data: DataConfig = field(default_factory=DataConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
     render: RenderConfig = field(default_factory=RenderConfig)
@@ -134,6 +135,8 @@ class TrainConfig:
         m = self.tile_list_margin
         if isinstance(m, bool) or not isinstance(m, (int, float)) or not (m == 0 or m >= 1):
             raise ConfigError(f"tile_list_margin must be 0 (exact sizing) or a number >= 1, got {m!r}")
+        if isinstance(self.compile_loss, bool):
+            self.compile_loss = "on" if self.compile_loss else "off"
         if self.compile_loss not in COMPILE_MODES:
             raise ConfigError(f"compile_loss must be one of {COMPILE_MODES}, got {self.compile_loss!r}")
 

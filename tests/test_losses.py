@@ -252,3 +252,17 @@ def test_training_loss_modes_and_fallback():
     strict = TrainingLoss(LossConfig(), cams, "cpu", mode="on", backend=broken_backend)
     with pytest.raises(Exception, match="no compiler here"):
         strict(out, gt, cams[0], 0, 20_000)
+
+
+def test_compile_loss_config_values():
+    """``compile_loss``: auto / on / off; a bare YAML on/off (read as true/false) means on/off; nonsense is an error
+    naming the key."""
+    from gof_warp.config import ConfigError, merge, parse_override
+    from gof_warp.trainer import TrainConfig
+
+    assert TrainConfig().compile_loss == "auto"
+    assert merge(TrainConfig(), parse_override("compile_loss=off")).compile_loss == "off"
+    assert merge(TrainConfig(), parse_override("compile_loss=on")).compile_loss == "on"
+    assert merge(TrainConfig(), parse_override("compile_loss=auto")).compile_loss == "auto"
+    with pytest.raises(ConfigError, match="compile_loss"):
+        merge(TrainConfig(), parse_override("compile_loss=sometimes"))
