@@ -111,8 +111,10 @@ class TrainConfig:
     # count (kernels.binning.TileListSizer: no host–device synchronisation per iteration); 0: exact sizing
     tile_list_margin: float = 1.25
     # the loss through torch.compile ("auto": on CUDA, eager if compiling fails; "on"; "off"): losses.TrainingLoss.
-    # YAML reads a bare on/off as true/false: those are taken as "on"/"off"
-    compile_loss: str | bool = "auto"
+    # Off by default: on an H200 it saves ~0.65 ms of a 16 ms DTU step but costs ~16 s of compiling per fresh
+    # machine (benchmarks/train/README.md, session 9), so it pays off only for long runs. YAML reads a bare on/off
+    # as true/false: those are taken as "on"/"off"
+    compile_loss: str | bool = "off"
     data: DataConfig = field(default_factory=DataConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
     render: RenderConfig = field(default_factory=RenderConfig)

@@ -260,7 +260,7 @@ def test_compile_loss_config_values():
     from gof_warp.config import ConfigError, merge, parse_override
     from gof_warp.trainer import TrainConfig
 
-    assert TrainConfig().compile_loss == "auto"
+    assert TrainConfig().compile_loss == "off"
     assert merge(TrainConfig(), parse_override("compile_loss=off")).compile_loss == "off"
     assert merge(TrainConfig(), parse_override("compile_loss=on")).compile_loss == "on"
     assert merge(TrainConfig(), parse_override("compile_loss=auto")).compile_loss == "auto"
