@@ -389,14 +389,14 @@ def _fill_piece(p: np.ndarray, pieces: list[_Piece], unmatched: np.ndarray, tree
         return None
     # unused points include the copies of duplicated points: map every point to its lowest-index copy in all
     # points (up to DUPLICATES_SEEN copies), so the new tetrahedra use the same vertex as the chunks did
-    dist, nbr = tree.query(p[ids], k=min(DUPLICATES_SEEN, p.shape[0]))
+    dist, nbr = tree.query(p[ids], k=min(DUPLICATES_SEEN, p.shape[0]), workers=workers)
     ids_canon = np.where(dist == 0.0, nbr, np.iinfo(np.int64).max).min(axis=1)
     local, nb, canon = _fill_triangulation(p[ids], workers, halo_fraction, processes)
     t = np.minimum(ids[canon], ids_canon)[local]
     vol6, flat, centre, radius = tet_geometry(t, p)
     keep = ~flat
     cand = np.flatnonzero(keep)
-    dist, _ = tree.query(centre[cand], k=1)
+    dist, _ = tree.query(centre[cand], k=1, workers=workers)
     keep[cand[dist < radius[cand] * (1.0 - SPHERE_RTOL)]] = False
     near = kept[s_mask[kept].all(axis=1)]  # only these can equal a tetrahedron of the S-triangulation
     cand = np.flatnonzero(keep)
