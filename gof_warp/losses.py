@@ -120,10 +120,14 @@ def depth_to_normal(depth: torch.Tensor, camera: Camera, *, return_valid: bool =
         ``[H, W, 3]`` unit normals; 0 on the 1-pixel border and where the two tangents are (nearly)
         parallel or zero (see ``DEGENERATE_SINE``).
     """
-    if depth.ndim != 2 or depth.shape[0] < 3 or depth.shape[1] < 3:
-        raise GofError(f"depth_to_normal: depth must be [H, W] with H, W >= 3, got {list(depth.shape)}")
+    _check_depth_map(depth)
     normals, valid = _normals(depth, _intrinsics(camera))
     return (normals, valid) if return_valid else normals
+
+
+def _check_depth_map(depth: torch.Tensor) -> None:
+    if depth.ndim != 2 or depth.shape[0] < 3 or depth.shape[1] < 3:
+        raise GofError(f"depth_to_normal: depth must be [H, W] with H, W >= 3, got {list(depth.shape)}")
 
 
 def _normals(depth: torch.Tensor, intr) -> tuple[torch.Tensor, torch.Tensor]:
@@ -160,8 +164,7 @@ def _check_consistency_inputs(median_depth, normal, alpha, form: str) -> None:
     if normal.shape != (*median_depth.shape, 3):
         raise GofError(f"depth_normal_consistency: normal {list(normal.shape)} does not match "
                        f"depth {list(median_depth.shape)}")
-    if median_depth.ndim != 2 or median_depth.shape[0] < 3 or median_depth.shape[1] < 3:
-        raise GofError(f"depth_to_normal: depth must be [H, W] with H, W >= 3, got {list(median_depth.shape)}")
+    _check_depth_map(median_depth)
     if form == "paper" and alpha is None:
         raise GofError("depth_normal_consistency: form='paper' needs the rendered alpha (Σ ω_i)")
     if alpha is not None and alpha.shape != median_depth.shape:
@@ -269,17 +272,16 @@ class TrainingLoss:
     def __call__(self, out: dict, gt_image, camera: Camera, view: int, iteration: int, *, l1_pair=None):
         """``total_loss(out, gt_image, camera, config, iteration, l1_pair=l1_pair)``; ``view``: ``camera``'s index
         in the list given at construction."""
-        if self.compiled is None:
-            return total_loss(out, gt_image, camera, self.config, iteration, l1_pair=l1_pair)
-        args, regularise = _loss_inputs(out, gt_image, self.config, iteration, l1_pair)
-        try:
-            loss, terms = self.compiled(*args, self.intr[view], self.config, regularise)
-        except Exception as e:  # noqa: BLE001 - any compiler failure: the eager loss computes the same
-            if self.mode != "auto":
-                raise
-            self.give_up(e)
-            return total_loss(out, gt_image, camera, self.config, iteration, l1_pair=l1_pair)
-        return loss, {k: v.detach() for k, v in terms.items()}
+        if self.compiled is not None:
+            args, regularise = _loss_inputs(out, gt_image, self.config, iteration, l1_pair)
+            try:
+                loss, terms = self.compiled(*args, self.intr[view], self.config, regularise)
+                return loss, {k: v.detach() for k, v in terms.items()}
+            except Exception as e:  # noqa: BLE001 - any compiler failure: the eager loss computes the same
+                if self.mode != "auto":
+                    raise
+                self.give_up(e)
+        return total_loss(out, gt_image, camera, self.config, iteration, l1_pair=l1_pair)
 
     def give_up(self, error: Exception) -> None:
         """Use the eager loss from now on (``mode="auto"`` after ``error`` from the compiler), with a warning."""

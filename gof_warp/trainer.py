@@ -371,8 +371,8 @@ class Trainer:
         renderer's Warp modules and lets torch set up its libraries (first-call costs of ~6 s on a GPU that
         would otherwise land in the first iterations' time; reported apart as ``warmup_s``), and compiles both
         graphs of a compiled loss (``compile_loss``; a failure there makes ``"auto"`` fall back to the eager
-        loss, and the pass is repeated). It changes nothing that training reads: no optimiser step, no densification statistics kept, no random numbers
-        drawn, and the gradients it leaves are cleared, so a run with it is bitwise the run without it."""
+        loss, and the pass is repeated). It changes nothing that training reads: no optimiser step, no
+        densification statistics kept, no random numbers drawn, and the gradients it leaves are cleared, so a run with it is bitwise the run without it."""
         t = time.perf_counter() if started is None else started
         it = self.iteration + 1
         regularised = max(it, self.config.loss.regularization_from_iter)  # the regularisers' kernels too

@@ -21,10 +21,25 @@ import math
 import warp as wp
 
 from .render_types import CameraParams, RasterSettings
-from .tile_overlap import CONIC_BLOCK, TileEllipses, conic_block_mask, conic_test, empty_tile_ellipses, load_ellipse, row_tile_span
+from .tile_overlap import CONIC_BLOCK, TileEllipse, TileEllipses, conic_block_mask, conic_test, empty_tile_ellipses, load_ellipse, row_tile_span
 
 # no FMA contraction: the count and write kernels must evaluate the float64 tile test identically
 wp.set_module_options({"fuse_fp": False, "enable_backward": False})
+
+
+@wp.func
+def conic_tile_count(r: wp.vec4i, e: TileEllipse, cam: CameraParams, settings: RasterSettings) -> int:
+    """``exact = 2``: the number of tiles of ``r`` that the general conic meets (set bits of
+    :func:`conic_block_mask` over its 8 × 8 blocks)."""
+    t = conic_test(e, cam)
+    n = int(0)
+    for by in range(r[1], r[3], CONIC_BLOCK):
+        for bx in range(r[0], r[2], CONIC_BLOCK):
+            m = conic_block_mask(t, bx, by, r[2], r[3], cam, settings)
+            while m != wp.uint64(0):
+                m = m & (m - wp.uint64(1))
+                n += 1
+    return n
 
 
 @wp.kernel
@@ -43,13 +58,7 @@ def count_tile_keys(
     e = load_ellipse(ellipse, k)
     n = int(0)
     if e.exact == 2:
-        t = conic_test(e, cam)
-        for by in range(r[1], r[3], CONIC_BLOCK):
-            for bx in range(r[0], r[2], CONIC_BLOCK):
-                m = conic_block_mask(t, bx, by, r[2], r[3], cam, settings)
-                while m != wp.uint64(0):
-                    m = m & (m - wp.uint64(1))
-                    n += 1
+        n = conic_tile_count(r, e, cam, settings)
     else:
         for ty in range(r[1], r[3]):
             span = row_tile_span(e, ty, r[0], r[2], cam, settings)
@@ -226,7 +235,7 @@ class TileListSizer:
 
 
 def bin_gaussians(rect: wp.array, tiles_touched: wp.array, depth: wp.array, tiles_x: int, num_tiles: int,
-                  ellipse: wp.array | None = None, cam: CameraParams | None = None, settings: RasterSettings | None = None,
+                  ellipse: TileEllipses | None = None, cam: CameraParams | None = None, settings: RasterSettings | None = None,
                   sizer: TileListSizer | None = None):  # fmt: skip
     """Sorted per-tile lists of Gaussian indices.
 

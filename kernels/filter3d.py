@@ -13,7 +13,6 @@ from __future__ import annotations
 import warp as wp
 
 
-
 @wp.kernel
 def nearest_seen_depth(
     means: wp.array(dtype=wp.vec3),

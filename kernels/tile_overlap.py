@@ -83,11 +83,13 @@ class TileEllipses:
 
 
 def empty_tile_ellipses(n: int, device=None, *, whole_rect: bool = False) -> TileEllipses:
-    """Storage for ``n`` Gaussians' tile tests; ``whole_rect``: every ``exact = 0`` (bin the whole rectangle)."""
+    """Storage for ``n`` Gaussians' tile tests; ``whole_rect``: every ``exact = 0`` (bin the whole rectangle; no conic
+    is stored or read then)."""
     el = TileEllipses()
     el.exact = (wp.zeros if whole_rect else wp.empty)(n, dtype=wp.int32, device=device)
-    el.conic = wp.empty(n, dtype=vec6d, device=device)
-    el.centre = wp.empty(n, dtype=wp.vec2d, device=device)
+    m = 0 if whole_rect else n
+    el.conic = wp.empty(m, dtype=vec6d, device=device)
+    el.centre = wp.empty(m, dtype=wp.vec2d, device=device)
     return el
 
 
@@ -172,20 +174,24 @@ def rect_meets_ellipse(e: TileEllipse, a0: wp.float64, a1: wp.float64, b0: wp.fl
 
 
 @wp.func
-def tiles_rect(tx0: int, tx1: int, ty0: int, ty1: int, cam: CameraParams, settings: RasterSettings) -> wp.vec4d:
-    """``(a0, a1, b0, b1)``: the normalised-coordinate rectangle of the tiles ``[tx0, tx1) × [ty0, ty1)`` — from
-    the first tile's first in-image pixel centre to the last tile's last, grown by ``pixel_pad``."""
+def tiles_pixel_rect(tx0: int, tx1: int, ty0: int, ty1: int, cam: CameraParams, settings: RasterSettings) -> wp.vec4d:
+    """``(u0, u1, v0, v1)``: the pixel-coordinate rectangle of the tiles ``[tx0, tx1) × [ty0, ty1)`` — from the first
+    tile's first in-image pixel centre to the last tile's last, grown by ``pixel_pad``."""
     ts = settings.tile_size
     half_pad = wp.float64(0.5) - wp.float64(wp.max(settings.pixel_pad, 0.0))  # centre 0.5, minus the pad
-    u0 = wp.float64(tx0 * ts) + half_pad
-    u1 = wp.float64(wp.min(tx1 * ts, cam.width)) - half_pad
-    v0 = wp.float64(ty0 * ts) + half_pad
-    v1 = wp.float64(wp.min(ty1 * ts, cam.height)) - half_pad
+    return wp.vec4d(wp.float64(tx0 * ts) + half_pad, wp.float64(wp.min(tx1 * ts, cam.width)) - half_pad,
+                    wp.float64(ty0 * ts) + half_pad, wp.float64(wp.min(ty1 * ts, cam.height)) - half_pad)  # fmt: skip
+
+
+@wp.func
+def tiles_rect(tx0: int, tx1: int, ty0: int, ty1: int, cam: CameraParams, settings: RasterSettings) -> wp.vec4d:
+    """``(a0, a1, b0, b1)``: :func:`tiles_pixel_rect` in normalised coordinates."""
+    u = tiles_pixel_rect(tx0, tx1, ty0, ty1, cam, settings)
     fx = wp.float64(cam.fx)
     fy = wp.float64(cam.fy)
     cx = wp.float64(cam.cx)
     cy = wp.float64(cam.cy)
-    return wp.vec4d((u0 - cx) / fx, (u1 - cx) / fx, (v0 - cy) / fy, (v1 - cy) / fy)
+    return wp.vec4d((u[0] - cx) / fx, (u[1] - cx) / fx, (u[2] - cy) / fy, (u[3] - cy) / fy)
 
 
 @wp.func
@@ -251,8 +257,9 @@ def row_tile_span(e: TileEllipse, ty: int, x0: int, x1: int, cam: CameraParams, 
     fx = wp.float64(cam.fx)
     fy = wp.float64(cam.fy)
     px_b = wp.float64(1.0e-9) / fy
-    b0 = (wp.float64(ty * ts) + half_pad - wp.float64(cam.cy)) / fy
-    b1 = (wp.float64(wp.min((ty + 1) * ts, cam.height)) - half_pad - wp.float64(cam.cy)) / fy
+    strip = tiles_rect(x0, x0 + 1, ty, ty + 1, cam, settings)
+    b0 = strip[2]
+    b1 = strip[3]
     grow_b = tol * h_b + px_b * (wp.float64(1.0) + wp.abs(b_c) * fy)
     lo_b = wp.max(b0, b_c - h_b - grow_b) - b_c
     hi_b = wp.min(b1, b_c + h_b + grow_b) - b_c
@@ -273,7 +280,7 @@ def row_tile_span(e: TileEllipse, ty: int, x0: int, x1: int, cam: CameraParams, 
     lo = int(wp.ceil(wp.clamp((u_lo - grow_u - tsd + half_pad) / tsd, -lim, lim)))
     hi = int(wp.floor(wp.clamp((u_hi + grow_u - half_pad) / tsd, -lim, lim)))
     lo = wp.max(lo, x0)
-    if wp.float64(wp.min((lo + 1) * ts, cam.width)) - half_pad < u_lo - grow_u:
+    if tiles_pixel_rect(lo, lo + 1, ty, ty + 1, cam, settings)[1] < u_lo - grow_u:
         lo += 1  # the image's last tile column is clipped: its pixels end before u_lo
     hi = wp.min(hi + 1, x1)
     if lo >= hi:
@@ -343,14 +350,9 @@ def rect_meets_conic(t: ConicTest, a0: wp.float64, a1: wp.float64, b0: wp.float6
 @wp.func
 def tiles_rect_normalised(t: ConicTest, tx0: int, tx1: int, ty0: int, ty1: int, cam: CameraParams, settings: RasterSettings) -> wp.vec4d:
     """:func:`tiles_rect` with ``t``'s reciprocal focal lengths (a rounding's difference: covered by the allowance)."""
-    ts = settings.tile_size
-    half_pad = wp.float64(0.5) - wp.float64(wp.max(settings.pixel_pad, 0.0))
+    u = tiles_pixel_rect(tx0, tx1, ty0, ty1, cam, settings)
     f = t.frame
-    u0 = wp.float64(tx0 * ts) + half_pad
-    u1 = wp.float64(wp.min(tx1 * ts, cam.width)) - half_pad
-    v0 = wp.float64(ty0 * ts) + half_pad
-    v1 = wp.float64(wp.min(ty1 * ts, cam.height)) - half_pad
-    return wp.vec4d((u0 - f[2]) * f[0], (u1 - f[2]) * f[0], (v0 - f[3]) * f[1], (v1 - f[3]) * f[1])
+    return wp.vec4d((u[0] - f[2]) * f[0], (u[1] - f[2]) * f[0], (u[2] - f[3]) * f[1], (u[3] - f[3]) * f[1])
 
 
 @wp.func

@@ -26,10 +26,10 @@ REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from gof_warp.kernels.binning import CONIC_BLOCK, count_tile_keys  # noqa: E402
+from gof_warp.kernels.binning import conic_tile_count, count_tile_keys  # noqa: E402
 from gof_warp.kernels.project import preprocess_gaussians, screen_bounds  # noqa: E402
 from gof_warp.kernels.render_types import CameraParams, RasterSettings, camera_params_from  # noqa: E402
-from gof_warp.kernels.tile_overlap import TileEllipses, conic_block_mask, conic_test, empty_tile_ellipses, load_ellipse, row_tile_span_scan  # noqa: E402
+from gof_warp.kernels.tile_overlap import TileEllipses, empty_tile_ellipses, load_ellipse, row_tile_span_scan  # noqa: E402
 from gof_warp.render import RenderConfig, raster_settings_for  # noqa: E402
 
 wp.set_module_options({"fuse_fp": False, "enable_backward": False})
@@ -44,13 +44,7 @@ def count_tile_keys_scan(rect: wp.array(dtype=wp.vec4i), ellipse: TileEllipses, 
     e = load_ellipse(ellipse, k)
     n = int(0)
     if e.exact == 2:
-        t = conic_test(e, cam)
-        for by in range(r[1], r[3], CONIC_BLOCK):
-            for bx in range(r[0], r[2], CONIC_BLOCK):
-                m = conic_block_mask(t, bx, by, r[2], r[3], cam, settings)
-                while m != wp.uint64(0):
-                    m = m & (m - wp.uint64(1))
-                    n += 1
+        n = conic_tile_count(r, e, cam, settings)
     else:
         for ty in range(r[1], r[3]):
             span = row_tile_span_scan(e, ty, r[0], r[2], cam, settings)
