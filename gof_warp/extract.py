@@ -22,7 +22,8 @@ from .extraction import (METHODS, MeshConfig, StageTimer, empty_mesh_message, ex
                          save_mesh)
 from .io_utils import write_json_atomic
 from .run_folder import cameras_from_json, load_run  # noqa: F401 - re-exported: extract.load_run is public
-from .tetra import TetraConfig
+from .octree_tets import OctreeConfig
+from .tetra import GRIDS, TetraConfig
 
 
 def main(argv=None) -> int:
@@ -44,6 +45,12 @@ def main(argv=None) -> int:
     ap.add_argument("--band", action="store_true",
                     help="tetra: triangulate only the points near a level crossing (faster, not the same mesh: "
                          "benchmarks/extract/README.md)")
+    ap.add_argument("--grid", default=TetraConfig.grid, choices=GRIDS,
+                    help="tetra: the tetrahedral grid: 'delaunay' (official: Delaunay of the 3-sigma box corners and "
+                         "centres, on the CPU) or 'octree' (a balanced octree sized by the Gaussians, on the model's "
+                         "device; no Delaunay)")
+    ap.add_argument("--cell-factor", type=float, default=OctreeConfig.cell_factor,
+                    help="--grid octree: leaf side at most this times a Gaussian's 3-sigma box width (smaller: finer)")
     ap.add_argument("--opacity-min", type=float, default=None, help="drop Gaussians below this opacity first")
     ap.add_argument("--corner-min-extent", type=float, default=None,
                     help="tetra: only the centre point for Gaussians whose 3-sigma extent is below this (world units)")
@@ -97,7 +104,8 @@ def extract_run(a, ranks, device) -> None:
                      tetra=TetraConfig(backend=a.delaunay, opacity_min=a.opacity_min,
                                        corner_min_extent=a.corner_min_extent,
                                        delaunay_workers=a.delaunay_workers, band=a.band,
-                                       delaunay_processes=a.delaunay_processes))
+                                       delaunay_processes=a.delaunay_processes, grid=a.grid,
+                                       octree=OctreeConfig(cell_factor=a.cell_factor)))
     if a.resolution:
         cfg.cubes_resolution = a.resolution
         cfg.tsdf.resolution = a.resolution

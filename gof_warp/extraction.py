@@ -15,6 +15,7 @@ and peak memory), :func:`meshable`, :func:`save_mesh`. Memory per stage: ``bench
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 import resource
 import time
@@ -31,7 +32,7 @@ from .io_utils import atomic_path
 from .marching import compact_mesh
 from .opacity_field import OpacityFieldConfig, opacity_field
 from .render import RenderConfig
-from .tetra import TetraConfig, grid_points, level_band, tetrahedralize
+from .tetra import TetraConfig, grid_points, level_band, octree_grid_from_gaussians, tetrahedralize
 from .tsdf import TSDFConfig, extract_tsdf_mesh, fuse_tsdf
 
 log = logging.getLogger("gof_warp.extract")  # one logger name for the stage and its CLI
@@ -65,6 +66,7 @@ class MeshConfig:
             raise GofError(f"max_faces must be >= 4, got {self.max_faces}")
         if self.max_error is not None and not self.max_error > 0:
             raise GofError(f"max_error must be > 0 (world units), got {self.max_error}")
+        self.tetra.validate()
 
 
 class StageTimer:
@@ -164,6 +166,8 @@ def _tetra_grid(gaussians, cameras, config: MeshConfig, tc: TetraConfig, field_f
     ``(points [P, 3] float32, values [P] (the field, on the model's device), tets [T, 4] int32 or None when fewer
     than 4 points are left, counts)``; each stage is timed on ``timer``. With several ``ranks`` the Delaunay
     runs on rank 0 only and its tetrahedra are broadcast (every rank has the same points)."""
+    if tc.grid == "octree":
+        return _octree_grid(gaussians, cameras, config, field_fn, timer)
     with timer("tetra_points"):
         points, owner, scale = grid_points(gaussians.means.detach(), gaussians.rotations.detach(),
                                            gaussians.scales.detach(), gaussians.opacities.detach(), cameras, tc)
@@ -188,6 +192,28 @@ def _tetra_grid(gaussians, cameras, config: MeshConfig, tc: TetraConfig, field_f
     log.info("%d points, %d tetrahedra", len(points), len(tets))
     counts["tetrahedra"] = int(len(tets))
     return points, values, tets, counts
+
+
+def tetra_field_config(config: MeshConfig) -> OpacityFieldConfig:
+    """The field settings of the tetra path. The octree grid fills whole boxes, which reach out of the views: there,
+    as on the marching-cubes grid, a point no view sees counts as empty (GOF's "unseen = 1" would raise walls at the
+    frustum boundaries). The Delaunay grid's points are in view (frustum mask) and keep GOF's setting."""
+    return dataclasses.replace(config.field, unseen_value=0.0) if config.tetra.grid == "octree" else config.field
+
+
+def _octree_grid(gaussians, cameras, config: MeshConfig, field_fn, timer: StageTimer):
+    """The tetra path's octree grid (:func:`gof_warp.tetra.octree_grid_from_gaussians`): ``(points, values, tets,
+    counts)`` as :func:`_tetra_grid`; ``field_fn`` is :func:`tetra_field_config`'s field."""
+    sub: dict = {}
+    with timer("octree_grid"):
+        points, tets = octree_grid_from_gaussians(gaussians.means.detach(), gaussians.scales.detach(),
+                                                  gaussians.opacities.detach(), cameras, config.tetra, stats=sub)
+    timer.stages["octree_grid"]["substages"] = sub
+    counts = {"points": int(points.shape[0]), "tetrahedra": int(tets.shape[0])}
+    with timer("opacity_field"):
+        values = field_fn(points)
+    log.info("octree grid: %d points, %d tetrahedra", points.shape[0], tets.shape[0])
+    return points, values, (tets if tets.shape[0] else None), counts
 
 
 def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = None, *,
@@ -232,6 +258,8 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
     meshes = []
     if config.method == "tetra":
         tc = config.tetra
+        tetra_field = tetra_field_config(config)
+        field_fn = functools.partial(field_fn, field_config=tetra_field)
         key = ("tetra", repr(tc), repr(config.field), tuple(config.levels) if tc.band else None)
         cached = grid_cache.get(key) if grid_cache is not None else None
         if cached is not None:

@@ -26,7 +26,7 @@ import itertools
 import logging
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
@@ -36,12 +36,14 @@ from .camera import Camera
 from .delaunay import default_workers, delaunay
 from .errors import GofError
 from .model import quat_to_rotmat
+from .octree_tets import OctreeConfig
 
 log = logging.getLogger(__name__)
 
 BOX_SIGMAS = 3.0  # paper: "3 times the Gaussian scales"
 CORNER_SIGNS = np.array(list(itertools.product((-1.0, 1.0), repeat=3)))  # [8, 3]
 BAND_NEIGHBOURS = 12  # level_band: nearest points looked at per point
+GRIDS = ("delaunay", "octree")
 FAST_OPACITY_MIN = 0.2  # TetraConfig.fast(): −34 % points, F-score ±0.2 points (benchmarks/extract)
 
 
@@ -63,6 +65,18 @@ class TetraConfig:
     # hold the GIL for part of the time (DTU scan 24 on a 16-core host: chunks 60.7 s in threads, 35.3 s in processes)
     delaunay_processes: bool = True
     filter_cells: bool = True  # paper's edge filter (the official code does not filter)
+    # "delaunay": the official grid (Delaunay of the 3σ-box corners and centres); "octree": a balanced octree sized by
+    # the Gaussians' boxes, split into tetrahedra on the model's device (gof_warp.octree_tets; no Delaunay)
+    grid: str = "delaunay"
+    octree: OctreeConfig = field(default_factory=OctreeConfig)
+
+    def validate(self):
+        if self.grid not in GRIDS:
+            raise GofError(f"tetra grid must be one of {GRIDS}, got {self.grid!r}")
+        if self.grid == "octree":
+            self.octree.validate()
+            if self.band:
+                raise GofError("the level band (--band) thins the Delaunay grid's points; the octree grid has none")
 
     @classmethod
     def fast(cls, **overrides) -> TetraConfig:
@@ -265,6 +279,32 @@ def grid_points(means, rotations, scales, opacities=None, cameras: Sequence[Came
     return tetra_points(means, rotations, scales, opacities, opacity_min=cfg.opacity_min,
                         cameras=cameras if cfg.frustum_mask else None, near=cfg.near, far=cfg.far,
                         corner_min_extent=cfg.corner_min_extent)
+
+
+def octree_grid_from_gaussians(means, scales, opacities=None, cameras: Sequence[Camera] | None = None,
+                               config: TetraConfig | None = None, stats: dict | None = None
+                               ) -> tuple[torch.Tensor, torch.Tensor]:
+    """The octree grid (:mod:`gof_warp.octree_tets`) over the Gaussians' 3σ boxes (radius ``3 max(s)``), with the
+    Delaunay grid's selection: ``opacity_min``, and the frustum mask applied to the centres. Returns ``(points [P, 3]
+    float32, tets [T, 4] int32)`` on the means' device."""
+    from .octree_tets import octree_grid
+
+    cfg = config or TetraConfig()
+    mu = _as_tensor(means, "means", (3,))
+    s = _as_tensor(scales, "scales", (3,), mu.shape[0]).to(mu.device)
+    if mu.shape[0] and not bool((s > 0).all()):
+        raise GofError("scales must be positive (standard deviations, not log-scales)")
+    keep = torch.ones(mu.shape[0], dtype=torch.bool, device=mu.device)
+    if cfg.opacity_min is not None:
+        if opacities is None:
+            raise GofError("opacity_min needs opacities")
+        keep &= _as_tensor(opacities.reshape(-1), "opacities", (), mu.shape[0]).to(mu.device) >= cfg.opacity_min
+    if cameras and cfg.frustum_mask:
+        keep &= frustum_mask(mu, cameras, cfg.near, cfg.far)
+    if not bool(keep.any()):
+        raise GofError("no Gaussian is left for the octree grid (opacity_min / frustum mask)")
+    points, tets, _ = octree_grid(mu[keep], BOX_SIGMAS * s[keep].max(dim=1).values, cfg.octree, stats=stats)
+    return points, tets
 
 
 def tetrahedral_grid(means, rotations, scales, opacities=None, cameras: Sequence[Camera] | None = None,

@@ -11,6 +11,7 @@ import trimesh
 from gof_warp.camera import look_at
 from gof_warp.extract import MeshConfig, extract_mesh, save_mesh
 from gof_warp.model import Gaussians
+from gof_warp.octree_tets import OctreeConfig
 from gof_warp.render import RenderConfig
 from gof_warp.tetra import TetraConfig
 
@@ -70,6 +71,25 @@ def test_face_budget_and_band_keep_the_sphere_closed():
     for bad in ({"max_faces": 0}, {"max_error": -1.0}):
         with pytest.raises(ValueError, match="max_"):
             MeshConfig(**bad).validate()
+
+
+def test_octree_grid_gives_the_closed_analytic_sphere():
+    """grid="octree": no Delaunay; the mesh is closed and on the analytic sphere, and finer cells give more faces;
+    the level band (a Delaunay-grid option) with it is a clear error."""
+    cams = _ring_cameras()
+    cfg_render = RenderConfig(alpha_min=0.0, k_max=10.0)
+    faces_at = {}
+    for factor in (0.5, 0.25):
+        cfg = MeshConfig(binary_steps=8, tetra=TetraConfig(grid="octree", octree=OctreeConfig(cell_factor=factor)))
+        (v, f), = extract_mesh(_one_gaussian(), cams, cfg, render_config=cfg_render)
+        assert trimesh.Trimesh(v, f).is_watertight
+        assert _radial_error(v).max() < 0.02 * RADIUS
+        faces_at[factor] = len(f)
+    assert faces_at[0.25] > faces_at[0.5] >= 8
+    with pytest.raises(ValueError, match="band"):
+        MeshConfig(tetra=TetraConfig(grid="octree", band=True)).validate()
+    with pytest.raises(ValueError, match="grid"):
+        MeshConfig(tetra=TetraConfig(grid="voronoi")).validate()
 
 
 def test_every_method_gives_a_closed_sphere_like_mesh():

@@ -1,0 +1,161 @@
+"""The octree grid (gof_warp.octree_tets): a hand-counted tree, conformity, balance, cover, watertight marching."""
+
+import numpy as np
+import pytest
+import torch
+
+from gof_warp.errors import GofError
+from gof_warp.marching import marching_tetrahedra
+from gof_warp.octree_tets import OctreeConfig, build_octree, octree_grid, octree_tetrahedra, unpack
+
+
+def _all_occupied(tree):
+    tree.occupied = [torch.ones_like(k, dtype=torch.bool) for k in tree.leaves]
+    return tree
+
+
+def _leaf_boxes(tree):
+    """Per leaf: (level, lo [3], hi [3]) in world units, float64."""
+    out = []
+    for level, keys in enumerate(tree.leaves):
+        h = tree.size / 2**level
+        for c in unpack(keys).tolist():
+            lo = tree.lo.numpy() + np.array(c) * h
+            out.append((level, lo, lo + h))
+    return out
+
+
+def _triangles(tets):
+    t = tets.long()
+    f = torch.cat([t[:, [0, 1, 2]], t[:, [0, 1, 3]], t[:, [0, 2, 3]], t[:, [1, 2, 3]]]).sort(dim=1).values
+    return torch.unique(f, dim=0, return_counts=True)
+
+
+def _volumes(points, tets):
+    p = points.double()
+    t = tets.long()
+    return torch.linalg.det(p[t[:, 1:]] - p[t[:, :1]]) / 6
+
+
+def test_one_refined_octant_gives_the_hand_counted_tetrahedra():
+    """Root [0, 4]^3, one Gaussian asks for level-2 cells in the octant [0, 2]^3. Counted by hand:
+    8 level-2 leaves × 12 = 96; the 3 level-1 leaves sharing a face with the octant: that face as 4 diagonal-split
+    sub-faces (8) + 4 faces fanned around one hanging vertex (5 each) + 1 plain face (2) = 30 each; the 3 sharing an
+    edge: 2 fans (5) + 4 plain (2) = 18 each; the one sharing a corner: 12. Total 96 + 90 + 54 + 12 = 252.
+    Points: 27 corners of the fine octant + 27 of the coarse grid − 8 shared = 46, 15 leaf centres, 12 fan centres."""
+    tree = _all_occupied(build_octree(torch.tensor([[0.6, 0.6, 0.6]], dtype=torch.float64),
+                                      torch.tensor([0.5], dtype=torch.float64), depth=2, cell_factor=1.0,
+                                      lo=torch.zeros(3, dtype=torch.float64), size=4.0))
+    assert [int(k.numel()) for k in tree.leaves] == [0, 7, 8]
+    points, tets = octree_tetrahedra(tree)
+    assert tets.shape == (252, 4)
+    assert points.shape == (46 + 15 + 12, 3)
+    v = _volumes(points, tets)
+    assert bool((v > 0).all())
+    assert float(v.sum()) == pytest.approx(64.0, rel=1e-6)
+
+
+def test_grid_is_conforming_and_fills_the_root_cube():
+    """Random boxes of many sizes: every tetrahedron positive, volumes sum to the cube, every triangle is shared by
+    two tetrahedra except those on the root cube's faces (no hanging vertex, no crack)."""
+    g = torch.Generator().manual_seed(3)
+    centres = torch.rand(200, 3, generator=g, dtype=torch.float64)
+    radii = torch.exp(torch.randn(200, generator=g, dtype=torch.float64)) * 0.02
+    tree = _all_occupied(build_octree(centres, radii, depth=8))
+    assert sum(1 for k in tree.leaves if k.numel()) >= 4  # several levels meet
+    points, tets = octree_tetrahedra(tree)
+    v = _volumes(points, tets)
+    assert bool((v > 0).all())
+    assert float(v.sum()) == pytest.approx(tree.size ** 3, rel=1e-5)
+    tri, count = _triangles(tets)
+    assert int(count.max()) == 2
+    x = points.double()[tri[count == 1]]  # [K, 3 corners, 3]
+    lo, hi = tree.lo, tree.lo + tree.size
+    tol = 1e-5 * tree.size
+    on_face = (((x - lo).abs() < tol).all(dim=1) | ((x - hi).abs() < tol).all(dim=1)).any(dim=1)
+    assert bool(on_face.all())
+
+
+def test_touching_leaves_differ_by_at_most_one_level_and_boxes_get_small_cells():
+    g = torch.Generator().manual_seed(5)
+    centres = torch.rand(40, 3, generator=g, dtype=torch.float64)
+    radii = torch.exp(torch.randn(40, generator=g, dtype=torch.float64)) * 0.03
+    tree = build_octree(centres, radii, depth=7, cell_factor=1.0)
+    boxes = _leaf_boxes(tree)
+    lv = np.array([b[0] for b in boxes])
+    lo = np.stack([b[1] for b in boxes])
+    hi = np.stack([b[2] for b in boxes])
+    eps = 1e-9
+    touch = np.all((lo[:, None] <= hi[None] + eps) & (lo[None] <= hi[:, None] + eps), axis=2)
+    assert np.abs(lv[:, None] - lv[None])[touch].max() <= 1  # faces, edges and corners
+    # a leaf overlapping a box's interior is no larger than cell_factor × its width (or the deepest level)
+    for c, r in zip(centres.numpy(), radii.numpy()):
+        inter = np.all((lo < c + r) & (hi > c - r), axis=1)
+        side = hi[inter, 0] - lo[inter, 0]
+        assert np.all((side <= 2 * r + eps) | (lv[inter] == tree.depth))
+        # and the box's leaves are occupied
+        occ = np.concatenate([o.numpy() for o in tree.occupied])
+        assert occ[inter].all()
+
+
+def test_leaves_outside_every_box_get_no_tetrahedra():
+    centres = torch.tensor([[0.2, 0.2, 0.2], [0.8, 0.8, 0.8]], dtype=torch.float64)
+    radii = torch.tensor([0.05, 0.05], dtype=torch.float64)
+    points, tets, tree = octree_grid(centres, radii, OctreeConfig(depth=6))
+    occ = np.concatenate([o.numpy() for o in tree.occupied])
+    assert 0 < occ.sum() < occ.size
+    p = points.double()[tets.long()].mean(dim=1)  # tetrahedron centroids
+    near = torch.cdist(p, centres).min(dim=1).values
+    # occupied cells are those of the two boxes: at most a cell diagonal beyond the radius
+    assert float(near.max()) < 0.05 + 2 * 0.1 * np.sqrt(3)
+
+
+def test_marching_on_the_octree_grid_is_watertight_on_a_sphere():
+    """Boxes along a sphere of radius 0.3: the level set of a radial field meshed on the octree grid is closed
+    (every edge in two faces) and on the sphere after 8 bisection steps."""
+    g = torch.Generator().manual_seed(7)
+    d = torch.randn(400, 3, generator=g, dtype=torch.float64)
+    centres = 0.5 + 0.3 * d / d.norm(dim=1, keepdim=True)
+    radii = torch.full((400,), 0.06, dtype=torch.float64)
+    points, tets, _ = octree_grid(centres, radii, OctreeConfig(depth=8))
+
+    def field(x):
+        x = torch.as_tensor(x, dtype=torch.float32)
+        return torch.sigmoid((0.3 - (x - 0.5).norm(dim=1)) * 40.0)
+
+    (verts, faces), = marching_tetrahedra(points, tets, field(points), field, levels=(0.5,), binary_steps=8,
+                                          oriented=True, device="cpu")
+    assert len(faces) > 100
+    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    _, count = np.unique(e, axis=0, return_counts=True)
+    assert np.all(count == 2)
+    r = np.linalg.norm(verts - 0.5, axis=1)
+    assert np.abs(r - 0.3).max() < 1e-3
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(cell_factor=0.0), "cell_factor"), (dict(cell_factor=float("nan")), "cell_factor"),
+    (dict(depth=0), "depth"), (dict(depth=21), "depth"), (dict(box_percentile=50), "box_percentile")])
+def test_bad_settings_are_clear_errors(kwargs, match):
+    with pytest.raises(GofError, match=match):
+        octree_grid(torch.zeros(1, 3), torch.ones(1), OctreeConfig(**kwargs))
+
+
+def test_bad_boxes_are_clear_errors():
+    with pytest.raises(GofError, match="positive"):
+        octree_grid(torch.zeros(2, 3), torch.tensor([1.0, 0.0]))
+    with pytest.raises(GofError, match="finite"):
+        octree_grid(torch.tensor([[0.0, float("nan"), 0.0]]), torch.ones(1))
+    with pytest.raises(GofError, match="disagree"):
+        octree_grid(torch.zeros(2, 3), torch.ones(3))
+
+
+@pytest.mark.parametrize("device", ["cpu"] + (["cuda"] if torch.cuda.is_available() else []))
+def test_same_grid_on_every_device(device):
+    g = torch.Generator().manual_seed(11)
+    centres = torch.rand(100, 3, generator=g, dtype=torch.float64)
+    radii = torch.exp(torch.randn(100, generator=g, dtype=torch.float64)) * 0.03
+    ref_p, ref_t, _ = octree_grid(centres, radii)
+    p, t, _ = octree_grid(centres.to(device), radii.to(device))
+    assert ref_t.shape[0] > 0
+    assert torch.equal(p.cpu(), ref_p) and torch.equal(t.cpu(), ref_t)
