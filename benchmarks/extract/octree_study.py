@@ -69,6 +69,9 @@ def main(argv=None):
     settings += [(f"octree x{c:g}", TetraConfig(grid="octree", octree=OctreeConfig(cell_factor=c, depth=a.depth)))
                  for c in a.cell_factors]
     rows, reference = [], None
+    result = {"run": str(a.run), "gt": str(gt) if gt else None, "num_gaussians": len(gaussians),
+              "num_views": len(cameras), "binary_steps": a.binary_steps, "device": a.device, "machine": a.machine,
+              "versions": {"torch": torch.__version__, "python": platform.python_version()}, "rows": rows}
     for name, tetra in settings:
         row, mesh = extract(gaussians, cameras, render_config, tetra, a.binary_steps)
         row["setting"] = name
@@ -85,11 +88,8 @@ def main(argv=None):
             m = evaluate_mesh(mesh, reference, tau=[0.001 * diag, 0.005 * diag])["metrics"]
             row["vs_delaunay"] = {"tau": m["tau"], "fscore": m["fscore"], "chamfer": m["chamfer"]}
         rows.append(row)
+        write_json_atomic(a.out, result)  # after every row: a call that runs out of time keeps what it measured
         print(json.dumps({k: row[k] for k in row if k != "stages"}), flush=True)
-    result = {"run": str(a.run), "gt": str(gt) if gt else None, "num_gaussians": len(gaussians),
-              "num_views": len(cameras), "binary_steps": a.binary_steps, "device": a.device, "machine": a.machine,
-              "versions": {"torch": torch.__version__, "python": platform.python_version()}, "rows": rows}
-    write_json_atomic(a.out, result)
     print(json.dumps({"wrote": str(a.out)}))
 
 
