@@ -15,7 +15,6 @@ and peak memory), :func:`meshable`, :func:`save_mesh`. Memory per stage: ``bench
 from __future__ import annotations
 
 import dataclasses
-import functools
 import logging
 import resource
 import time
@@ -37,6 +36,7 @@ from .tsdf import TSDFConfig, extract_tsdf_mesh, fuse_tsdf
 
 log = logging.getLogger("gof_warp.extract")  # one logger name for the stage and its CLI
 METHODS = ("tetra", "cubes", "tsdf")
+UNSEEN_MARK = -1.0  # field value marking the points no view sees (the field itself lies in [0, 1])
 
 
 @dataclass
@@ -194,24 +194,28 @@ def _tetra_grid(gaussians, cameras, config: MeshConfig, tc: TetraConfig, field_f
     return points, values, tets, counts
 
 
-def tetra_field_config(config: MeshConfig) -> OpacityFieldConfig:
-    """The field settings of the tetra path. The octree grid fills whole boxes, which reach out of the views: there,
-    as on the marching-cubes grid, a point no view sees counts as empty (GOF's "unseen = 1" would raise walls at the
-    frustum boundaries). The Delaunay grid's points are in view (frustum mask) and keep GOF's setting."""
-    return dataclasses.replace(config.field, unseen_value=0.0) if config.tetra.grid == "octree" else config.field
-
-
 def _octree_grid(gaussians, cameras, config: MeshConfig, field_fn, timer: StageTimer):
     """The tetra path's octree grid (:func:`gof_warp.tetra.octree_grid_from_gaussians`): ``(points, values, tets,
-    counts)`` as :func:`_tetra_grid`; ``field_fn`` is :func:`tetra_field_config`'s field."""
+    counts)`` as :func:`_tetra_grid`.
+
+    The octree fills whole boxes, which can reach out of every view; the Delaunay grid has no such points (its
+    frustum mask drops them before triangulating). To match it, the tetrahedra with a corner no view sees are left
+    out: an unseen corner would otherwise carry GOF's "unseen = 1" next to empty seen space and raise walls at the
+    frustum boundaries. The search keeps GOF's setting, as on the Delaunay grid."""
     sub: dict = {}
     with timer("octree_grid"):
         points, tets = octree_grid_from_gaussians(gaussians.means.detach(), gaussians.scales.detach(),
                                                   gaussians.opacities.detach(), cameras, config.tetra, stats=sub)
     timer.stages["octree_grid"]["substages"] = sub
-    counts = {"points": int(points.shape[0]), "tetrahedra": int(tets.shape[0])}
+    n_grid = int(tets.shape[0])
     with timer("opacity_field"):
-        values = field_fn(points)
+        values = field_fn(points, dataclasses.replace(config.field, unseen_value=UNSEEN_MARK))
+        seen = values >= 0
+        in_view = seen[tets.long()].all(dim=1)
+        tets = tets[in_view]
+        values = torch.where(seen, values, torch.full_like(values, config.field.unseen_value))
+    counts = {"points": int(points.shape[0]), "tetrahedra": int(tets.shape[0]),
+              "tetrahedra_out_of_view": n_grid - int(tets.shape[0])}
     log.info("octree grid: %d points, %d tetrahedra", points.shape[0], tets.shape[0])
     return points, values, (tets if tets.shape[0] else None), counts
 
@@ -258,8 +262,6 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
     meshes = []
     if config.method == "tetra":
         tc = config.tetra
-        tetra_field = tetra_field_config(config)
-        field_fn = functools.partial(field_fn, field_config=tetra_field)
         key = ("tetra", repr(tc), repr(config.field), tuple(config.levels) if tc.band else None)
         cached = grid_cache.get(key) if grid_cache is not None else None
         if cached is not None:

@@ -42,7 +42,7 @@ log = logging.getLogger(__name__)
 KEY_BITS = 21
 KEY_MASK = (1 << KEY_BITS) - 1
 MAX_DEPTH = KEY_BITS - 1  # the lattice has 2^(depth+1) units per axis
-FACE_CHUNK = 1 << 21  # face records per tetrahedron chunk (~1.3 GB of int64 work at 10 candidate triangles each)
+FACE_CHUNK = 1 << 20  # face records per tetrahedron chunk (~0.7 GB of int64 work at 10 candidate triangles each)
 
 # the 26 neighbours and the cell itself
 _NEIGHBOURS = torch.tensor([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)], dtype=torch.int64)
