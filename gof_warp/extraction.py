@@ -1,9 +1,11 @@
 """Mesh extraction from trained Gaussians — the library behind ``python -m gof_warp.extract`` (GOF Sec. 3.4,
 appendix Algorithms 1–3):
 
-* ``tetra`` (GOF): points from each Gaussian's centre and 3σ-box corners → opacity field at the points →
-  (optional level band) → exact Delaunay tetrahedra (cell filter) → marching tetrahedra with binary search
-  on the crossing edges → (optional) quadric decimation to a face budget.
+* ``tetra`` (GOF): a tetrahedral grid around the Gaussians → opacity field at its points → marching tetrahedra with
+  binary search on the crossing edges → (optional) quadric decimation to a face budget. The grid is by default the
+  octree grid (``TetraConfig.grid = "octree"``, :mod:`gof_warp.octree_tets`: a balanced octree sized by the 3σ boxes,
+  split into tetrahedra on the model's device, no Delaunay); ``"delaunay"`` is the official one: each Gaussian's
+  centre and 3σ-box corners → (optional level band) → exact Delaunay tetrahedra (cell filter) on the CPU.
 * ``cubes``: the same opacity field on a dense grid → marching cubes (+ the same binary search).
 * ``tsdf``: fusion of rendered median depths (the 2DGS/3DGS baseline) → marching cubes.
 

@@ -53,7 +53,9 @@ _CHILDREN = torch.tensor([(i, j, k) for i in (0, 1) for j in (0, 1) for k in (0,
 class OctreeConfig:
     """Settings of the octree grid (``TetraConfig.grid = "octree"``)."""
 
-    cell_factor: float = 1.0  # leaf side <= cell_factor × 2 r over a Gaussian's 3σ box (r = 3 max(s))
+    # leaf side <= cell_factor × 2 r over a Gaussian's 3σ box (r = 3 max(s)). 0.7: the faces of DTU scan 24 under the
+    # extraction issue's 4.3M (3.5M; 0.5 gives 5.9M) at the garden crop's Delaunay accuracy (benchmarks/extract)
+    cell_factor: float = 0.7
     depth: int = 16  # deepest level: the root cube's side / 2^depth is the smallest cell (<= MAX_DEPTH)
     box_percentile: float = 0.0  # root cube: the box of the 3σ boxes, ignoring this % of the Gaussians per side
 

@@ -88,24 +88,28 @@ def test_views_are_shared_out_and_bad_splits_refused(scene, tmp_path):
 
 
 def test_two_processes_extract_the_one_process_mesh(scene, tmp_path):
-    """torchrun extraction: views shared out for every field evaluation, rank 0's Delaunay broadcast, rank 0 writes;
-    the mesh is the one-process mesh exactly (the field's minimum over ranks is exact)."""
+    """torchrun extraction: views shared out for every field evaluation, rank 0 writes; the mesh is the one-process
+    mesh exactly (the field's minimum over ranks is exact) on both grids: the octree (the default, built alike on
+    every rank) and the Delaunay grid (computed on rank 0 and broadcast)."""
     import json
 
     import trimesh
 
     run = tmp_path / "run"
     _train([sys.executable, "-m", "gof_warp.train", str(scene), "--out", str(run), *ARGS])
-    common = [str(run), "--binary-steps", "3", "--device", "cpu", "--no-pictures", "--quiet"]
-    _train([sys.executable, "-m", "gof_warp.extract", *common, "--out", str(tmp_path / "one.ply")])
-    _train([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
-            "-m", "gof_warp.extract", *common, "--out", str(tmp_path / "two.ply")])
-    one = trimesh.load(tmp_path / "one.ply", process=False)
-    two = trimesh.load(tmp_path / "two.ply", process=False)
-    assert len(one.faces) > 100
-    assert np.array_equal(one.vertices, two.vertices) and np.array_equal(one.faces, two.faces)
-    info = json.loads((tmp_path / "two.json").read_text())
-    assert info["processes"] == 2 and info["stages"]["delaunay+filter"]["substages"]["computed_on_rank"] == 0
+    for grid, stage in (("octree", "octree_grid"), ("delaunay", "delaunay+filter")):
+        common = [str(run), "--grid", grid, "--binary-steps", "3", "--device", "cpu", "--no-pictures", "--quiet"]
+        _train([sys.executable, "-m", "gof_warp.extract", *common, "--out", str(tmp_path / f"one_{grid}.ply")])
+        _train([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
+                "-m", "gof_warp.extract", *common, "--out", str(tmp_path / f"two_{grid}.ply")])
+        one = trimesh.load(tmp_path / f"one_{grid}.ply", process=False)
+        two = trimesh.load(tmp_path / f"two_{grid}.ply", process=False)
+        assert len(one.faces) > 100, grid
+        assert np.array_equal(one.vertices, two.vertices) and np.array_equal(one.faces, two.faces), grid
+        info = json.loads((tmp_path / f"two_{grid}.json").read_text())
+        assert info["processes"] == 2 and stage in info["stages"], grid
+        if grid == "delaunay":
+            assert info["stages"][stage]["substages"]["computed_on_rank"] == 0
 
 
 def _other_points(ranks, result):

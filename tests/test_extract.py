@@ -64,8 +64,8 @@ def test_face_budget_and_band_keep_the_sphere_closed():
                                                              tetra=TetraConfig(filter_cells=False)),
                            render_config=cfg_render)
     assert 0.8 * budget <= len(f) <= budget and trimesh.Trimesh(v, f).is_watertight  # accuracy: test_decimate.py
-    (v, f), = extract_mesh(_one_gaussian(), cams, MeshConfig(binary_steps=8, tetra=TetraConfig(filter_cells=False,
-                                                                                                 band=True)),
+    (v, f), = extract_mesh(_one_gaussian(), cams, MeshConfig(binary_steps=8, tetra=TetraConfig(
+                               grid="delaunay", filter_cells=False, band=True)),
                            render_config=cfg_render)
     assert trimesh.Trimesh(v, f).is_watertight and _radial_error(v).max() < 0.02 * RADIUS
     for bad in ({"max_faces": 0}, {"max_error": -1.0}):
@@ -182,8 +182,8 @@ def test_grid_cache_builds_the_tetrahedral_grid_once_per_model():
     extract_mesh(g, cams, MeshConfig(binary_steps=2), render_config=cfg_render, timer=first, grid_cache=cache)
     (v, f), = extract_mesh(g, cams, MeshConfig(binary_steps=6), render_config=cfg_render, timer=second,
                            grid_cache=cache)
-    assert "grid_shared" not in first.stages and "delaunay+filter" in first.stages
-    assert second.stages["grid_shared"]["built_s"] > 0 and "delaunay+filter" not in second.stages
+    assert "grid_shared" not in first.stages and "octree_grid" in first.stages
+    assert second.stages["grid_shared"]["built_s"] > 0 and "octree_grid" not in second.stages
     (v2, f2), = extract_mesh(g, cams, MeshConfig(binary_steps=6), render_config=cfg_render)
     np.testing.assert_array_equal(f, f2)
     np.testing.assert_allclose(v, v2, atol=1e-6)

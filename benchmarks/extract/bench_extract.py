@@ -13,8 +13,9 @@ subset, or copies jittered by one σ beyond 54k; synthetic opacities uniform in 
 A reduction is ``none`` or comma-separated ``key=value`` with keys ``opacity_min``,
 ``corner_min_extent`` (world units), ``corner_frac`` (``corner_min_extent`` as a fraction of the
 diagonal of the Gaussians' robust box), ``workers`` (``TetraConfig.delaunay_workers``: Delaunay in
-chunks on that many workers, 0 = every CPU) and ``processes`` (1: the chunks in forked processes, the default;
-0: in threads) — the last two are not reductions, but set per run the same way. Reductions apply to ``tetra``
+chunks on that many workers, 0 = every CPU), ``processes`` (1: the chunks in forked processes, the default;
+0: in threads), ``grid`` (``delaunay`` or ``octree``) and ``cell_factor`` (the octree's) — the last four are not
+reductions, but set per run the same way. Reductions apply to ``tetra``
 only; ``cubes``/``tsdf`` run once.
 Memory per stage: ``host_peak_rss_mb`` (process maximum so far, from ``extract.StageTimer``),
 ``peak_rss_above_start_mb`` (sampled every 5 ms), ``peak_tree_pss_mb`` (PSS of the process and its forked
@@ -45,7 +46,7 @@ from gof_warp.model import Gaussians
 from gof_warp.tetra import TetraConfig
 from gof_warp.tsdf import gaussian_bounds
 
-REDUCTION_KEYS = ("opacity_min", "corner_min_extent", "corner_frac", "workers", "processes")
+REDUCTION_KEYS = ("opacity_min", "corner_min_extent", "corner_frac", "workers", "processes", "grid", "cell_factor")
 
 
 class BenchTimer(StageTimer):
@@ -80,6 +81,10 @@ def parse_reduction(spec: str, diagonal: float) -> TetraConfig:
             cfg.delaunay_workers = int(value)
         elif key == "processes":  # 1: the chunks in forked processes (default), 0: in threads
             cfg.delaunay_processes = bool(int(value))
+        elif key == "grid":  # delaunay | octree
+            cfg.grid = value
+        elif key == "cell_factor":  # the octree grid's leaf size per 3-sigma box width
+            cfg.octree.cell_factor = float(value)
         else:
             setattr(cfg, key, float(value))
     return cfg
