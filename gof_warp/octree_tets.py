@@ -23,8 +23,11 @@ Coordinates are integers on the lattice of the finest level's half cells: ``2^(d
 21 bits per axis packed in one int64 key (``depth <= 20``). Points are ``lo + key · size / 2^(depth+1)``.
 
 Counts (per leaf): one centre, 12 tetrahedra for a leaf whose faces hold no hanging vertex, up to 96 next to finer
-leaves. Memory: the tree holds a few int64 keys per cell; the tetrahedra are made in chunks of face records, their
-vertex keys deduplicated per chunk, so the peak is the int32 output (16 B per tetrahedron) plus one chunk's keys.
+leaves; ~6 tetrahedra per point. Memory (on the device): the asked-for cells are gathered one box offset at a time
+(``N`` int64 candidates and the distinct cells); the tree holds int64 keys per cell (the balance looks at 27
+neighbours of each refined node of one level at a time); the tetrahedra are made twice in chunks of ``FACE_CHUNK``
+face records — once for the distinct vertex keys, once to write indices — so beyond the output (16 B per
+tetrahedron, 12 B per point) one chunk's work is held (~0.7 GB).
 """
 
 from __future__ import annotations
@@ -113,8 +116,10 @@ class Octree:
 
 
 def _asked_cells(centres: torch.Tensor, radii: torch.Tensor, lo: torch.Tensor, size: float, depth: int,
-                 cell_factor: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """Per Gaussian, the cells of its level overlapping its box: ``(levels [K], coords [K, 3])`` int64."""
+                 cell_factor: float) -> list[torch.Tensor]:
+    """Per level, the sorted keys of the cells some Gaussian asks for: the cells of its level overlapping its box.
+    Gathered one box-corner offset at a time, so the work holds ``N`` candidates, not ``27 N``."""
+    device = centres.device
     want = (size / (cell_factor * 2.0 * radii)).clamp(min=1.0)
     level = torch.ceil(torch.log2(want)).to(torch.int64).clamp_(1, depth)
     h = size / (2.0 ** level.to(torch.float64))  # [N]
@@ -124,16 +129,15 @@ def _asked_cells(centres: torch.Tensor, radii: torch.Tensor, lo: torch.Tensor, s
     top = (1 << level)[:, None] - 1
     first, last = first.clamp(min=0).minimum(top), last.clamp(min=0).minimum(top)
     span = int((last - first).max()) + 1 if centres.shape[0] else 0
-    levels, coords = [], []
-    for off in torch.cartesian_prod(*[torch.arange(span, device=centres.device)] * 3).reshape(-1, 3):
+    asked = [torch.zeros(0, dtype=torch.int64, device=device) for _ in range(depth + 1)]
+    levels_present = torch.unique(level).tolist()
+    for off in torch.cartesian_prod(*[torch.arange(span, device=device)] * 3).reshape(-1, 3):
         ijk = first + off
         ok = (ijk <= last).all(dim=1)
-        levels.append(level[ok])
-        coords.append(ijk[ok])
-    if not levels:
-        return torch.zeros(0, dtype=torch.int64, device=centres.device), torch.zeros(0, 3, dtype=torch.int64,
-                                                                                    device=centres.device)
-    return torch.cat(levels), torch.cat(coords)
+        keys, lv = pack(ijk[ok]), level[ok]
+        for l in levels_present:
+            asked[l] = torch.unique(torch.cat([asked[l], keys[lv == l]]))
+    return asked
 
 
 def build_octree(centres, radii, *, depth: int, cell_factor: float = 1.0, lo=None, size: float | None = None
@@ -154,8 +158,7 @@ def build_octree(centres, radii, *, depth: int, cell_factor: float = 1.0, lo=Non
     lo = torch.as_tensor(lo, dtype=torch.float64, device=device)
     if not (size > 0 and math.isfinite(size)):
         raise GofError(f"octree root cube must have a positive finite size, got {size!r}")
-    level, ijk = _asked_cells(centres, radii, lo, float(size), depth, cell_factor)
-    asked = [torch.unique(pack(ijk[level == l])) for l in range(depth + 1)]
+    asked = _asked_cells(centres, radii, lo, float(size), depth, cell_factor)
     # refined[l]: parents of asked-for cells, then closed under ancestors and balanced, deepest level first
     refined = [torch.zeros(0, dtype=torch.int64, device=device) for _ in range(depth + 1)]
     for l in range(depth, 0, -1):
@@ -271,12 +274,9 @@ def _orient(tets_xyz: torch.Tensor) -> torch.Tensor:
     return (d[:, 0] * torch.linalg.cross(d[:, 1], d[:, 2])).sum(dim=1) < 0
 
 
-def octree_tetrahedra(tree: Octree, *, chunk: int = FACE_CHUNK) -> tuple[torch.Tensor, torch.Tensor]:
-    """Tetrahedralise the occupied leaves: ``(points [P, 3] float32 world, tets [T, 4] int32)``, positively
-    oriented, on the tree's device."""
-    device = tree.lo.device
-    corners = _corner_keys(tree)
-    parts = []
+def _oriented_chunks(tree: Octree, corners: torch.Tensor, chunk: int):
+    """The occupied leaves' tetrahedra as lattice keys ``[T_c, 4]``, positively oriented, a chunk of face records
+    at a time (same chunks, same order, on every call)."""
     for level in range(tree.depth + 1):
         if tree.leaves[level].numel() and bool(tree.occupied[level].any()):
             rec = _face_records(tree, level)
@@ -284,14 +284,31 @@ def octree_tetrahedra(tree: Octree, *, chunk: int = FACE_CHUNK) -> tuple[torch.T
                 t = _face_tets(*(r[s:s + chunk] for r in rec), corners)
                 flip = _orient(unpack(t))
                 t[flip] = t[flip][:, [0, 2, 1, 3]]
-                parts.append(t)
-    if not parts:
+                yield t
+
+
+def octree_tetrahedra(tree: Octree, *, chunk: int = FACE_CHUNK) -> tuple[torch.Tensor, torch.Tensor]:
+    """Tetrahedralise the occupied leaves: ``(points [P, 3] float32 world, tets [T, 4] int32)``, positively
+    oriented, on the tree's device. Two passes over the chunks (the first collects the distinct vertex keys, the
+    second writes point indices), so the int64 keys of one chunk only are held beside the int32 output."""
+    device = tree.lo.device
+    corners = _corner_keys(tree)
+    found, count = [], 0
+    for t in _oriented_chunks(tree, corners, chunk):
+        found.append(torch.unique(t))
+        count += t.shape[0]
+    if not count:
         return torch.zeros(0, 3, dtype=torch.float32, device=device), torch.zeros(0, 4, dtype=torch.int32,
                                                                                   device=device)
-    keys = torch.unique(torch.cat([torch.unique(p) for p in parts]))
+    keys = torch.unique(torch.cat(found))
+    del found
     if keys.numel() >= 2**31:
         raise GofError(f"octree grid has {keys.numel()} points: more than int32 tetrahedra can index")
-    tets = torch.cat([torch.searchsorted(keys, p).to(torch.int32) for p in parts])
+    tets = torch.empty(count, 4, dtype=torch.int32, device=device)
+    at = 0
+    for t in _oriented_chunks(tree, corners, chunk):
+        tets[at:at + t.shape[0]] = torch.searchsorted(keys, t).to(torch.int32)
+        at += t.shape[0]
     points = (tree.lo + unpack(keys).to(torch.float64) * tree.unit()).to(torch.float32)
     return points, tets
 
