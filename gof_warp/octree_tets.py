@@ -20,7 +20,7 @@ the Gaussians' device (torch; CUDA or CPU):
    reach: there the field only changes at the shadow boundaries behind objects, which are not surfaces.
 
 Coordinates are integers on the lattice of the finest level's half cells: ``2^(depth+1)`` units along the root cube,
-21 bits per axis packed in one int64 key (``depth <= 20``). Points are ``lo + key · size / 2^(depth+1)``.
+21 bits per axis packed in one int64 key (``depth <= 19``: the far corner, ``2^(depth+1)``, must fit). Points are ``lo + key · size / 2^(depth+1)``.
 
 Counts (per leaf): one centre, 12 tetrahedra for a leaf whose faces hold no hanging vertex, up to 96 next to finer
 leaves; ~6 tetrahedra per point. Memory (on the device): the asked-for cells are gathered one box offset at a time
@@ -44,7 +44,8 @@ log = logging.getLogger(__name__)
 
 KEY_BITS = 21
 KEY_MASK = (1 << KEY_BITS) - 1
-MAX_DEPTH = KEY_BITS - 1  # the lattice has 2^(depth+1) units per axis
+MAX_DEPTH = KEY_BITS - 2  # the lattice has 2^(depth+1) units per axis, and its far corner 2^(depth+1) fits the bits
+CLAMP_WARN_FRACTION = 0.01  # warn when more Gaussians than this get cells larger than asked (the deepest level)
 FACE_CHUNK = 1 << 20  # face records per tetrahedron chunk (~0.7 GB of int64 work at 10 candidate triangles each)
 
 # the 26 neighbours and the cell itself
@@ -59,7 +60,9 @@ class OctreeConfig:
     # leaf side <= cell_factor × 2 r over a Gaussian's 3σ box (r = 3 max(s)). 0.7: the faces of DTU scan 24 under the
     # extraction issue's 4.3M (3.5M; 0.5 gives 5.9M) at the garden crop's Delaunay accuracy (benchmarks/extract)
     cell_factor: float = 0.7
-    depth: int = 16  # deepest level: the root cube's side / 2^depth is the smallest cell (<= MAX_DEPTH)
+    # deepest level: the root cube's side / 2^depth is the smallest cell. Levels cost only where asked for, so the
+    # default is the deepest the keys allow: 5·10^5 cells along the root cube, room for far background Gaussians
+    depth: int = MAX_DEPTH
     box_percentile: float = 0.0  # root cube: the box of the 3σ boxes, ignoring this % of the Gaussians per side
 
     def validate(self):
@@ -121,7 +124,13 @@ def _asked_cells(centres: torch.Tensor, radii: torch.Tensor, lo: torch.Tensor, s
     Gathered one box-corner offset at a time, so the work holds ``N`` candidates, not ``27 N``."""
     device = centres.device
     want = (size / (cell_factor * 2.0 * radii)).clamp(min=1.0)
-    level = torch.ceil(torch.log2(want)).to(torch.int64).clamp_(1, depth)
+    level = torch.ceil(torch.log2(want)).to(torch.int64)
+    clamped = int((level > depth).sum())
+    if clamped > CLAMP_WARN_FRACTION * max(1, level.numel()):
+        log.warning("warning: %d of %d Gaussians ask for cells finer than the octree's deepest level %d (root cube %.4g): "
+                    "their part of the mesh is coarser than asked; a few far Gaussians can widen the root cube "
+                    "(OctreeConfig.box_percentile drops them)", clamped, level.numel(), depth, size)
+    level = level.clamp_(1, depth)
     h = size / (2.0 ** level.to(torch.float64))  # [N]
     rel = centres - lo
     first = torch.floor((rel - radii[:, None]) / h[:, None]).to(torch.int64)

@@ -135,10 +135,36 @@ def test_marching_on_the_octree_grid_is_watertight_on_a_sphere():
 
 @pytest.mark.parametrize("kwargs, match", [
     (dict(cell_factor=0.0), "cell_factor"), (dict(cell_factor=float("nan")), "cell_factor"),
-    (dict(depth=0), "depth"), (dict(depth=21), "depth"), (dict(box_percentile=50), "box_percentile")])
+    (dict(depth=0), "depth"), (dict(depth=20), "depth"), (dict(box_percentile=50), "box_percentile")])
 def test_bad_settings_are_clear_errors(kwargs, match):
     with pytest.raises(GofError, match=match):
         octree_grid(torch.zeros(1, 3), torch.ones(1), OctreeConfig(**kwargs))
+
+
+def test_the_far_corner_of_the_deepest_lattice_keeps_its_key():
+    """depth = MAX_DEPTH: the root cube's far corner (2^(depth+1) lattice units) packs and unpacks unchanged, so the
+    cells on the far faces keep their corners."""
+    from gof_warp.octree_tets import MAX_DEPTH, pack
+
+    far = torch.tensor([[1 << (MAX_DEPTH + 1)] * 3], dtype=torch.int64)
+    assert torch.equal(unpack(pack(far)), far)
+    tree = _all_occupied(build_octree(torch.tensor([[0.999, 0.999, 0.999]], dtype=torch.float64),
+                                      torch.tensor([1e-6], dtype=torch.float64), depth=MAX_DEPTH,
+                                      lo=torch.zeros(3, dtype=torch.float64), size=1.0))
+    points, tets = octree_tetrahedra(tree)
+    assert float(points.max()) == 1.0 and float(_volumes(points, tets).sum()) == pytest.approx(1.0, rel=1e-5)
+
+
+def test_far_outliers_that_coarsen_the_grid_are_named(caplog):
+    centres = torch.cat([torch.rand(200, 3, dtype=torch.float64), torch.tensor([[1e7, 0.0, 0.0]])])
+    radii = torch.full((201,), 1e-2, dtype=torch.float64)
+    with caplog.at_level("WARNING", logger="gof_warp.octree_tets"):
+        octree_grid(centres, radii, OctreeConfig(depth=8))
+    assert "finer than the octree's deepest level" in caplog.text
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="gof_warp.octree_tets"):
+        octree_grid(centres, radii, OctreeConfig(depth=8, box_percentile=1.0))
+    assert "deepest level" not in caplog.text
 
 
 def test_bad_boxes_are_clear_errors():
