@@ -9,12 +9,14 @@ the Gaussians' device (torch; CUDA or CPU):
    radius the Delaunay grid's points span) at the level ``l`` with ``root / 2^l <= cell_factor · 2r``. Every asked-for
    cell's ancestors are refined, then the tree is **2:1 balanced** over faces, edges and corners (a refined node's 26
    neighbours have refined parents), so leaves that touch differ by at most one level.
-2. **Tetrahedra.** Each leaf is a cone from its centre over a triangulation of its faces. A face is triangulated as a
-   function of the face alone, so both leaves that share it agree: a face none of whose edges holds a hanging vertex
-   (the corner of a finer leaf at its midpoint) is split along its ``q0–q2`` diagonal; otherwise it is a fan from the
-   face's centre over its boundary, hanging vertices included. A leaf whose neighbour is refined triangulates its
-   side as the neighbour's four sub-faces. The result is conforming (every inner triangle belongs to exactly two
-   tetrahedra; tested), so marching tetrahedra on it gives watertight meshes.
+2. **Tetrahedra.** A face is triangulated as a function of the face alone, so both leaves that share it agree: a face
+   none of whose edges holds a hanging vertex (the corner of a finer leaf at its midpoint) is split along its
+   ``q0–q2`` diagonal; otherwise it is a fan from the face's centre over its boundary, hanging vertices included. A
+   leaf next to finer leaves is a cone from its centre over its faces' triangles (a side next to a refined neighbour
+   as the neighbour's four sub-faces). A leaf with no finer neighbour and no hanging vertex — most of them — is
+   Kuhn's six tetrahedra around its main diagonal, which split every face along that same ``q0–q2`` diagonal: no
+   centre point and half the tetrahedra of a cone. The result is conforming (every inner triangle belongs to exactly
+   two tetrahedra; tested), so marching tetrahedra on it gives watertight meshes.
 3. **Occupancy.** Only leaves inside an asked-for cell (some Gaussian's box) get tetrahedra. The empty space between
    boxes is left out, as the paper's cell filter leaves out Delaunay cells with edges longer than the Gaussians'
    reach: there the field only changes at the shadow boundaries behind objects, which are not surfaces.
@@ -22,8 +24,8 @@ the Gaussians' device (torch; CUDA or CPU):
 Coordinates are integers on the lattice of the finest level's half cells: ``2^(depth+1)`` units along the root cube,
 21 bits per axis packed in one int64 key (``depth <= 19``: the far corner, ``2^(depth+1)``, must fit). Points are ``lo + key · size / 2^(depth+1)``.
 
-Counts (per leaf): one centre, 12 tetrahedra for a leaf whose faces hold no hanging vertex, up to 96 next to finer
-leaves; ~6 tetrahedra per point. Memory (on the device): the asked-for cells are gathered one box offset at a time
+Counts (per leaf): 6 tetrahedra and no extra point for a leaf with no finer neighbour; next to finer leaves one
+centre and 12 to 96 tetrahedra. Memory (on the device): the asked-for cells are gathered one box offset at a time
 (``N`` int64 candidates and the distinct cells); the tree holds int64 keys per cell (the balance looks at 27
 neighbours of each refined node of one level at a time); the tetrahedra are made twice in chunks of ``FACE_CHUNK``
 face records — once for the distinct vertex keys, once to write indices — so beyond the output (16 B per
@@ -51,6 +53,25 @@ FACE_CHUNK = 1 << 20  # face records per tetrahedron chunk (~0.7 GB of int64 wor
 # the 26 neighbours and the cell itself
 _NEIGHBOURS = torch.tensor([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)], dtype=torch.int64)
 _CHILDREN = torch.tensor([(i, j, k) for i in (0, 1) for j in (0, 1) for k in (0, 1)], dtype=torch.int64)
+
+
+def _edge_midpoints() -> torch.Tensor:
+    """The 12 edge midpoints of a cube of side 2: one coordinate 1 (along the edge), the other two 0 or 2."""
+    out = []
+    for axis in range(3):
+        for p in (0, 2):
+            for q in (0, 2):
+                m = [0, 0, 0]
+                m[axis], m[(axis + 1) % 3], m[(axis + 2) % 3] = 1, p, q
+                out.append(m)
+    return torch.tensor(out, dtype=torch.int64)
+
+
+_EDGE_MIDPOINTS = _edge_midpoints()
+# Kuhn's six tetrahedra of the unit cube around its main diagonal: corners 0 → +e_i → +e_j → (1, 1, 1)
+_KUHN = torch.tensor([[[0, 0, 0], list(map(int, [a == 0, a == 1, a == 2])),
+                       list(map(int, [a == 0 or b == 0, a == 1 or b == 1, a == 2 or b == 2])), [1, 1, 1]]
+                      for a in range(3) for b in range(3) if a != b], dtype=torch.int64)  # [6, 4, 3]
 
 
 @dataclass
@@ -215,10 +236,31 @@ def _corner_keys(tree: Octree) -> torch.Tensor:
     return torch.unique(torch.cat(out))
 
 
-def _face_records(tree: Octree, level: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """The faces of the occupied leaves at ``level`` to triangulate: ``(origin [F, 3], axis [F], width [F],
+def _plain(tree: Octree, level: int, keys: torch.Tensor, corners: torch.Tensor) -> torch.Tensor:
+    """``[L]`` bool: the leaf has no refined face neighbour and no hanging vertex on its 12 edges. Every face of such
+    a leaf is split along its ``q0–q2`` diagonal by both leaves that share it, which is how Kuhn's six tetrahedra
+    around the main diagonal split a cube's faces: such a leaf needs no centre and half the tetrahedra."""
+    c = unpack(keys)
+    u = 1 << (tree.depth + 1 - level)
+    mids = (c * u)[:, None, :] + _EDGE_MIDPOINTS.to(keys.device)[None] * (u // 2)
+    plain = ~contains(corners, pack(mids)).any(dim=1)
+    for off in torch.cat([torch.eye(3, dtype=torch.int64), -torch.eye(3, dtype=torch.int64)]).to(keys.device):
+        nb = c + off
+        inside = ((nb >= 0) & (nb < (1 << level))).all(dim=1)
+        plain &= ~(inside & contains(tree.refined[level], pack(nb.clamp(min=0))))
+    return plain
+
+
+def _kuhn_tets(keys: torch.Tensor, u: int) -> torch.Tensor:
+    """Kuhn's six tetrahedra of each cell ``keys [L]`` of side ``u`` lattice units, as keys ``[6 L, 4]``."""
+    corner = (unpack(keys) * u)[:, None, None, :] + _KUHN.to(keys.device)[None] * u  # [L, 6, 4, 3]
+    return pack(corner).reshape(-1, 4)
+
+
+def _face_records(tree: Octree, level: int, keys: torch.Tensor
+                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The faces of the leaves ``keys`` at ``level`` to triangulate: ``(origin [F, 3], axis [F], width [F],
     centre [F, 3])`` in lattice units; a side next to a refined neighbour gives its four sub-faces."""
-    keys = tree.leaves[level][tree.occupied[level]]
     device = keys.device
     c = unpack(keys)
     u = 1 << (tree.depth + 1 - level)
@@ -286,14 +328,24 @@ def _orient(tets_xyz: torch.Tensor) -> torch.Tensor:
 def _oriented_chunks(tree: Octree, corners: torch.Tensor, chunk: int):
     """The occupied leaves' tetrahedra as lattice keys ``[T_c, 4]``, positively oriented, a chunk of face records
     at a time (same chunks, same order, on every call)."""
+    def oriented(t):
+        flip = _orient(unpack(t))
+        t[flip] = t[flip][:, [0, 2, 1, 3]]
+        return t
+
     for level in range(tree.depth + 1):
-        if tree.leaves[level].numel() and bool(tree.occupied[level].any()):
-            rec = _face_records(tree, level)
+        keys = tree.leaves[level][tree.occupied[level]]
+        if keys.numel() == 0:
+            continue
+        plain = _plain(tree, level, keys, corners)
+        cubes, cones = keys[plain], keys[~plain]
+        u = 1 << (tree.depth + 1 - level)
+        for s in range(0, cubes.shape[0], chunk):
+            yield oriented(_kuhn_tets(cubes[s:s + chunk], u))
+        if cones.numel():
+            rec = _face_records(tree, level, cones)
             for s in range(0, rec[0].shape[0], chunk):
-                t = _face_tets(*(r[s:s + chunk] for r in rec), corners)
-                flip = _orient(unpack(t))
-                t[flip] = t[flip][:, [0, 2, 1, 3]]
-                yield t
+                yield oriented(_face_tets(*(r[s:s + chunk] for r in rec), corners))
 
 
 def octree_tetrahedra(tree: Octree, *, chunk: int = FACE_CHUNK) -> tuple[torch.Tensor, torch.Tensor]:

@@ -39,17 +39,18 @@ def _volumes(points, tets):
 
 def test_one_refined_octant_gives_the_hand_counted_tetrahedra():
     """Root [0, 4]^3, one Gaussian asks for level-2 cells in the octant [0, 2]^3. Counted by hand:
-    8 level-2 leaves × 12 = 96; the 3 level-1 leaves sharing a face with the octant: that face as 4 diagonal-split
-    sub-faces (8) + 4 faces fanned around one hanging vertex (5 each) + 1 plain face (2) = 30 each; the 3 sharing an
-    edge: 2 fans (5) + 4 plain (2) = 18 each; the one sharing a corner: 12. Total 96 + 90 + 54 + 12 = 252.
-    Points: 27 corners of the fine octant + 27 of the coarse grid − 8 shared = 46, 15 leaf centres, 12 fan centres."""
+    the 8 level-2 leaves have no finer neighbour: Kuhn's 6 each = 48; the 3 level-1 leaves sharing a face with the
+    octant are cones: that face as 4 diagonal-split sub-faces (8) + 4 faces fanned around one hanging vertex (5 each)
+    + 1 plain face (2) = 30 each; the 3 sharing an edge: 2 fans (5) + 4 plain (2) = 18 each; the one sharing a corner
+    only has no hanging vertex: Kuhn's 6. Total 48 + 90 + 54 + 6 = 198.
+    Points: 27 corners of the fine octant + 27 of the coarse grid − 8 shared = 46, 6 cone centres, 12 fan centres."""
     tree = _all_occupied(build_octree(torch.tensor([[0.6, 0.6, 0.6]], dtype=torch.float64),
                                       torch.tensor([0.5], dtype=torch.float64), depth=2, cell_factor=1.0,
                                       lo=torch.zeros(3, dtype=torch.float64), size=4.0))
     assert [int(k.numel()) for k in tree.leaves] == [0, 7, 8]
     points, tets = octree_tetrahedra(tree)
-    assert tets.shape == (252, 4)
-    assert points.shape == (46 + 15 + 12, 3)
+    assert tets.shape == (198, 4)
+    assert points.shape == (46 + 6 + 12, 3)
     v = _volumes(points, tets)
     assert bool((v > 0).all())
     assert float(v.sum()) == pytest.approx(64.0, rel=1e-6)
