@@ -78,9 +78,10 @@ _KUHN = torch.tensor([[[0, 0, 0], list(map(int, [a == 0, a == 1, a == 2])),
 class OctreeConfig:
     """Settings of the octree grid (``TetraConfig.grid = "octree"``)."""
 
-    # leaf side <= cell_factor × 2 r over a Gaussian's 3σ box (r = 3 max(s)). 0.7: the faces of DTU scan 24 under the
-    # extraction issue's 4.3M (3.5M; 0.5 gives 5.9M) at the garden crop's Delaunay accuracy (benchmarks/extract)
-    cell_factor: float = 0.7
+    # leaf side <= cell_factor × 2 r over a Gaussian's 3σ box (r = 3 max(s)). 0.5: DTU scan 24 in 4.22M faces (the
+    # extraction issue's bar 4.3M; 0.35 gives 7.9M) at the Delaunay grid's accuracy on the garden crop
+    # (benchmarks/extract/README.md, session 10)
+    cell_factor: float = 0.5
     # deepest level: the root cube's side / 2^depth is the smallest cell. Levels cost only where asked for, so the
     # default is the deepest the keys allow: 5·10^5 cells along the root cube, room for far background Gaussians
     depth: int = MAX_DEPTH

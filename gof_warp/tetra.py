@@ -67,9 +67,9 @@ class TetraConfig:
     filter_cells: bool = True  # paper's edge filter (the official code does not filter)
     # "octree" (default): a balanced octree sized by the Gaussians' boxes, split into tetrahedra on the model's device
     # (gof_warp.octree_tets; no Delaunay). "delaunay": the official grid, the Delaunay of the 3σ-box corners and
-    # centres on the CPU. Measured (benchmarks/extract/README.md): DTU scan 24 on an H200 6.9 s / 3.5M faces against
-    # 75.7 s / 9.4M; on the synthetic garden's ground-and-objects crop the same Chamfer (0.00568 vs 0.00570); on the
-    # small default scene Chamfer +4.5 % at 0.21x the faces, F-score equal
+    # centres on the CPU. Measured (benchmarks/extract/README.md, session 10): DTU scan 24 on an H200 7.9 s / 4.2M faces
+    # against 81 s / 9.4M; on the synthetic garden's ground-and-objects crop the same Chamfer (0.00563 vs 0.00565); on
+    # the small default scene Chamfer +3.2 % at 0.39x the faces
     grid: str = "octree"
     octree: OctreeConfig = field(default_factory=OctreeConfig)
 

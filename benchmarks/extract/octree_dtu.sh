@@ -10,7 +10,7 @@ run_extract() {  # name, extra args
   cp $EX/$name.json $R/$name.json
   [ -f $EX/pictures/mesh_$name.png ] && cp $EX/pictures/mesh_$name.png $R/
 }
-[ -f $EX/delaunay.ply ] || run_extract delaunay
+[ -f $EX/delaunay.ply ] || run_extract delaunay --grid delaunay
 for f in $FACTORS; do
   run_extract octree_x$f --grid octree --cell-factor $f
   python3 benchmarks/extract/compare_in_box.py $EX/octree_x$f.ply $EX/delaunay.ply --box -1 -1 -1 1 1 1 \

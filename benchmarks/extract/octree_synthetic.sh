@@ -1,15 +1,13 @@
-# On the GPU machine, after gpu_queue.py has trained, extracted (Delaunay grid) and scored a synthetic scene $S
-# (garden or background) in --state $ST: mesh the same run on the octree grid at each factor in $FACTORS and score
-# each mesh as the queue scores the Delaunay one (seen region, ground-and-objects crop). Results in $OUT/octree_$S.
+# On the GPU machine, after gpu_queue.py has trained a synthetic scene $S (garden or background) in --state $ST: mesh
+# the run on the Delaunay grid and on the octree grid at each factor in $FACTORS, and score each mesh as the queue
+# does (seen region, ground-and-objects crop). Results in $OUT/octree_$S, packed into one file (the device tool
+# brings back only a few files per call).
 S=${S:-garden}; ST=${ST:-/tmp/rc}; FACTORS=${FACTORS:-"0.7 0.5"}
 RUN=$ST/run_$S; SCENE=$ST/$S; R=$OUT/octree_$S; mkdir -p $R
 CROP=$(python3 -c "import sys; sys.path.insert(0, 'benchmarks/real_captures'); from gpu_queue import CROPS; print(*CROPS['$S'])")
-cp $RUN/mesh_tetra.json $R/delaunay.json 2>/dev/null
-cp $ST/results/$S/evaluate_seen.json $R/delaunay_evaluate_seen.json 2>/dev/null
-cp $ST/results/$S/evaluate_crop.json $R/delaunay_evaluate_crop.json 2>/dev/null
-for f in $FACTORS; do
-  name=octree_x$f
-  python3 -m gof_warp.extract $RUN --grid octree --cell-factor $f --out $RUN/$name.ply --quiet 2>&1 | grep -v "^Module" | tail -2
+for f in delaunay $FACTORS; do
+  if [ $f = delaunay ]; then name=delaunay; args="--grid delaunay"; else name=octree_x$f; args="--grid octree --cell-factor $f"; fi
+  python3 -m gof_warp.extract $RUN $args --out $RUN/$name.ply --quiet 2>&1 | grep -v "^Module" | tail -2
   cp $RUN/$name.json $R/$name.json; cp $RUN/pictures/mesh_$name.png $R/ 2>/dev/null
   python3 -m gof_warp.evaluate --mesh $RUN/$name.ply --gt $SCENE/gt_mesh.ply --scene $SCENE --json $R/${name}_evaluate_seen.json > /dev/null
   python3 -m gof_warp.evaluate --mesh $RUN/$name.ply --gt $SCENE/gt_mesh.ply --scene $SCENE --crop $CROP --json $R/${name}_evaluate_crop.json > /dev/null
@@ -20,3 +18,4 @@ for f in sorted(glob.glob("$R/*_evaluate_*.json")):
     m = json.load(open(f))["metrics"]
     print(f.split("/")[-1], round(m["chamfer"], 5), [round(x, 4) for x in m["fscore"]])
 PY
+tar czf $OUT/octree_$S.tgz -C $OUT octree_$S && rm -rf $R
