@@ -10,9 +10,11 @@ run_extract() {  # name, extra args
   cp $EX/$name.json $R/$name.json
   [ -f $EX/pictures/mesh_$name.png ] && cp $EX/pictures/mesh_$name.png $R/
 }
-[ -f $EX/delaunay.ply ] || run_extract delaunay --grid delaunay
-for f in $FACTORS; do
-  run_extract octree_x$f --grid octree --cell-factor $f
-  python3 benchmarks/extract/compare_in_box.py $EX/octree_x$f.ply $EX/delaunay.ply --box -1 -1 -1 1 1 1 \
-      --out $R/compare_octree_x$f.json | cut -c1-900
+[ -n "$SKIP_DELAUNAY" ] || [ -f $EX/delaunay.ply ] || run_extract delaunay --grid delaunay
+for f in $FACTORS; do  # F or F:O (cell factor F, --opacity-min O)
+  name=octree_x${f/:/_o}; args="--grid octree --cell-factor ${f%%:*}"
+  [ "${f#*:}" != "$f" ] && args="$args --opacity-min ${f#*:}"
+  run_extract $name $args
+  [ -f $EX/delaunay.ply ] && python3 benchmarks/extract/compare_in_box.py $EX/$name.ply $EX/delaunay.ply \
+      --box -1 -1 -1 1 1 1 --out $R/compare_$name.json | cut -c1-900
 done
