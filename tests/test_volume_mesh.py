@@ -27,9 +27,9 @@ import warp as wp
 from gof_warp.errors import GofError
 from gof_warp.extraction import MeshConfig, extract_mesh
 from gof_warp.geometry_metrics import evaluate_mesh, mesh_statistics
+from gof_warp.tetra import TetraConfig
 from gof_warp.volume import bake_opacity_volume, sample_volume
 from gof_warp.volume_mesh import volume_mesh
-from gof_warp.tetra import TetraConfig
 from tests.test_volume import SPHERE_C, SPHERE_R, ground_and_sphere, scene_cameras
 
 CHAMFER_RATIO_MAX = 1.02  # issue 16: the volume mesh within 2 % of the tetra mesh's Chamfer to the GT
