@@ -102,7 +102,7 @@ class Sizing:
     s_per_iteration_dtu: float = 0.0185  # 800×600 with the appearance model (554 s / 30k)
     setup_s: float = 15.0  # scene generation/loading, initialisation, final PLY + test evaluation
     snapshot_s: float = 4.0  # snapshot PLY + its test evaluation + reloading it
-    tetra_s: float = 25.0  # tetra points, Delaunay (host), field, marching; 100–200k Gaussians
+    tetra_s: float = 25.0  # tetra grid (octree by default; Delaunay on the host with --grid delaunay), field, marching; 100–200k Gaussians
     tetra_step_s: float = 1.0  # per binary-search step
     cubes256_s: float = 4.0  # field on a 256³ grid + marching cubes; × (res/256)² at other resolutions
     cubes256_step_s: float = 0.5
