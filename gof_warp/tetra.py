@@ -78,9 +78,15 @@ class TetraConfig:
             raise GofError(f"tetra grid must be one of {GRIDS}, got {self.grid!r}")
         if self.grid == "octree":
             self.octree.validate()
-            if self.band:
-                raise GofError("the level band (--band) thins the Delaunay grid's points; the octree grid has none: "
-                               "use it with --grid delaunay")
+            delaunay_only = {"band (--band)": self.band, "corner_min_extent (--corner-min-extent)":
+                             self.corner_min_extent is not None, "backend (--delaunay)": self.backend != "scipy",
+                             "delaunay_workers (--delaunay-workers)": self.delaunay_workers != 0,
+                             "delaunay_processes (--no-delaunay-processes)": not self.delaunay_processes,
+                             "delaunay_chunks": self.delaunay_chunks is not None}
+            asked = [name for name, set_ in delaunay_only.items() if set_]
+            if asked:
+                raise GofError(f"{', '.join(asked)}: Delaunay-grid settings, but the grid is the octree (the "
+                               "default); add --grid delaunay (TetraConfig.grid = 'delaunay') to use them")
 
     @classmethod
     def fast(cls, **overrides) -> TetraConfig:

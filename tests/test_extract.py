@@ -88,6 +88,11 @@ def test_octree_grid_gives_the_closed_analytic_sphere():
     assert faces_at[0.25] > faces_at[0.5] >= 8
     with pytest.raises(ValueError, match="band"):
         MeshConfig(tetra=TetraConfig(grid="octree", band=True)).validate()
+    for delaunay_only in ({"backend": "cgal"}, {"delaunay_workers": 4}, {"corner_min_extent": 0.1},
+                          {"delaunay_processes": False}):
+        with pytest.raises(ValueError, match="--grid delaunay"):
+            MeshConfig(tetra=TetraConfig(**delaunay_only)).validate()
+        MeshConfig(tetra=TetraConfig(grid="delaunay", **delaunay_only)).validate()
     with pytest.raises(ValueError, match="grid"):
         MeshConfig(tetra=TetraConfig(grid="voronoi")).validate()
 

@@ -7,7 +7,7 @@ subset, or copies jittered by one σ beyond 54k; synthetic opacities uniform in 
 ``bench_marching.load_gaussians``) with a ring of ``--views`` cameras looking at the scene's centre.
 
     python benchmarks/extract/bench_extract.py --gaussians 100000 1000000 --methods tetra tsdf \
-        --reductions none opacity_min=0.1 opacity_min=0.1,corner_frac=0.002 --device cuda \
+        --reductions none grid=delaunay grid=delaunay,opacity_min=0.1,corner_frac=0.002 --device cuda \
         --machine "1x H200" --out benchmarks/extract/results_extract_h200.json
 
 A reduction is ``none`` or comma-separated ``key=value`` with keys ``opacity_min``,
@@ -15,7 +15,8 @@ A reduction is ``none`` or comma-separated ``key=value`` with keys ``opacity_min
 diagonal of the Gaussians' robust box), ``workers`` (``TetraConfig.delaunay_workers``: Delaunay in
 chunks on that many workers, 0 = every CPU), ``processes`` (1: the chunks in forked processes, the default;
 0: in threads), ``grid`` (``delaunay`` or ``octree``) and ``cell_factor`` (the octree's) — the last four are not
-reductions, but set per run the same way. Reductions apply to ``tetra``
+reductions, but set per run the same way. ``none`` is the default grid (the octree since session 10); the Delaunay-point
+settings (``corner_*``, ``workers``, ``processes``) need ``grid=delaunay`` first. Reductions apply to ``tetra``
 only; ``cubes``/``tsdf`` run once.
 Memory per stage: ``host_peak_rss_mb`` (process maximum so far, from ``extract.StageTimer``),
 ``peak_rss_above_start_mb`` (sampled every 5 ms), ``peak_tree_pss_mb`` (PSS of the process and its forked

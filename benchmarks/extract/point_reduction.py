@@ -72,7 +72,8 @@ def study(run: Path, gt: Path, names: list[str], binary_steps: int, device: str)
     rows = []
     for name in names:
         opacity_min, frac = SETTINGS[name]
-        tetra = TetraConfig(opacity_min=opacity_min, corner_min_extent=None if frac is None else frac * diag)
+        tetra = TetraConfig(grid="delaunay", opacity_min=opacity_min,
+                            corner_min_extent=None if frac is None else frac * diag)
         timer = StageTimer(gaussians.device)
         t0 = time.perf_counter()
         (verts, faces), = extract_mesh(gaussians, cameras, MeshConfig(binary_steps=binary_steps, tetra=tetra),
