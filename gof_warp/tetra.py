@@ -312,7 +312,9 @@ def octree_grid_from_gaussians(means, scales, opacities=None, cameras: Sequence[
     if cameras and cfg.frustum_mask:
         keep &= frustum_mask(mu, cameras, cfg.near, cfg.far)
     if not bool(keep.any()):
-        raise GofError("no Gaussian is left for the octree grid (opacity_min / frustum mask)")
+        raise GofError(f"no Gaussian is left for the octree grid: of {mu.shape[0]}, none has its centre in some camera's "
+                       f"view (near {cfg.near:g}, far {cfg.far:g})"
+                       + (f" and opacity >= opacity_min {cfg.opacity_min:g}" if cfg.opacity_min is not None else ""))
     points, tets, _ = octree_grid(mu[keep], BOX_SIGMAS * s[keep].max(dim=1).values, cfg.octree, stats=stats)
     return points, tets
 

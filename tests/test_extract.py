@@ -119,6 +119,13 @@ def test_every_method_gives_a_closed_sphere_like_mesh():
             assert trimesh.Trimesh(verts, faces).is_watertight
 
 
+def test_no_gaussian_in_view_is_a_clear_error_on_the_octree_grid():
+    behind = Gaussians.from_activated(np.array([[0.0, 0.0, 50.0]]), [[1.0, 0, 0, 0]], np.full((1, 3), SIGMA), [ALPHA],
+                                      device="cpu")
+    with pytest.raises(ValueError, match="none has its centre in some camera's view"):
+        extract_mesh(behind, _ring_cameras(n=4), MeshConfig())
+
+
 def test_empty_model_is_a_clear_error():
     empty = _one_gaussian().subset(np.zeros(1, bool))
     with pytest.raises(ValueError, match="no Gaussians"):
