@@ -246,10 +246,16 @@ def _plain(tree: Octree, level: int, keys: torch.Tensor, corners: torch.Tensor) 
     mids = (c * u)[:, None, :] + _EDGE_MIDPOINTS.to(keys.device)[None] * (u // 2)
     plain = ~contains(corners, pack(mids)).any(dim=1)
     for off in torch.cat([torch.eye(3, dtype=torch.int64), -torch.eye(3, dtype=torch.int64)]).to(keys.device):
-        nb = c + off
-        inside = ((nb >= 0) & (nb < (1 << level))).all(dim=1)
-        plain &= ~(inside & contains(tree.refined[level], pack(nb.clamp(min=0))))
+        plain &= ~_refined_neighbour(tree, level, c, off)
     return plain
+
+
+def _refined_neighbour(tree: Octree, level: int, c: torch.Tensor, off: torch.Tensor) -> torch.Tensor:
+    """``[L]`` bool: the cell ``c + off`` next to each cell ``c [L, 3]`` of ``level`` lies in the root cube and has
+    children (the side of ``c`` facing it is then its four sub-faces)."""
+    nb = c + off
+    inside = ((nb >= 0) & (nb < (1 << level))).all(dim=1)
+    return inside & contains(tree.refined[level], pack(nb.clamp(min=0)))
 
 
 def _kuhn_tets(keys: torch.Tensor, u: int) -> torch.Tensor:
@@ -275,9 +281,7 @@ def _face_records(tree: Octree, level: int, keys: torch.Tensor
         ec = torch.zeros(3, dtype=torch.int64, device=device)
         eb[b], ec[cc] = 1, 1
         for side in (0, 1):
-            nb = c + (e if side else -e)
-            inside = ((nb >= 0) & (nb < (1 << level))).all(dim=1)
-            split = inside & contains(tree.refined[level], pack(nb.clamp(min=0)))
+            split = _refined_neighbour(tree, level, c, e if side else -e)
             plane = origin + e * (u * side)
             whole = ~split
             outs.append((plane[whole], torch.full((int(whole.sum()),), axis, device=device), u, centre[whole]))

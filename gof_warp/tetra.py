@@ -36,7 +36,7 @@ from .camera import Camera
 from .delaunay import default_workers, delaunay
 from .errors import GofError
 from .model import quat_to_rotmat
-from .octree_tets import OctreeConfig
+from .octree_tets import OctreeConfig, octree_grid
 
 log = logging.getLogger(__name__)
 
@@ -111,6 +111,26 @@ def _as_tensor(x, name: str, shape_tail: tuple, n: int | None = None) -> torch.T
     return t
 
 
+def _checked_scales(scales, n: int, device) -> torch.Tensor:
+    """``scales [n, 3]`` (standard deviations, all > 0) as float64 on ``device``."""
+    s = _as_tensor(scales, "scales", (3,), n).to(device)
+    if n and not bool((s > 0).all()):
+        raise GofError("scales must be positive (standard deviations, not log-scales)")
+    return s
+
+
+def _opacity_mask(opacities, opacity_min: float | None, n: int, device) -> torch.Tensor:
+    """``[n]`` bool: the Gaussians with ``opacity >= opacity_min`` (all of them when it is ``None``); ``opacities``
+    ``[n]`` or ``[n, 1]``."""
+    keep = torch.ones(n, dtype=torch.bool, device=device)
+    if opacity_min is not None:
+        if opacities is None:
+            raise GofError("opacity_min needs opacities")
+        o = opacities.reshape(-1) if getattr(opacities, "ndim", 1) == 2 and opacities.shape[1] == 1 else opacities
+        keep &= _as_tensor(o, "opacities", (), n).to(device) >= opacity_min
+    return keep
+
+
 def frustum_mask(points: torch.Tensor, cameras: Sequence[Camera], near: float, far: float) -> torch.Tensor:
     """``[P]`` bool: the point projects into some camera's image ``[0, W] × [0, H]`` with ``near <= z <= far``."""
     keep = torch.zeros(points.shape[0], dtype=torch.bool, device=points.device)
@@ -145,17 +165,10 @@ def tetra_points(means, rotations, scales, opacities=None, *, opacity_min: float
     mu = _as_tensor(means, "means", (3,))
     n = mu.shape[0]
     q = _as_tensor(rotations, "rotations", (4,), n).to(mu.device)
-    s = _as_tensor(scales, "scales", (3,), n).to(mu.device)
-    if n and not bool((s > 0).all()):
-        raise GofError("scales must be positive (standard deviations, not log-scales)")
+    s = _checked_scales(scales, n, mu.device)
     if n and not bool((q.norm(dim=-1) > 0).all()):
         raise GofError("rotations has zero quaternions")
-    keep = torch.ones(n, dtype=torch.bool, device=mu.device)
-    if opacity_min is not None:
-        if opacities is None:
-            raise GofError("opacity_min needs opacities")
-        o = opacities.reshape(-1) if getattr(opacities, "ndim", 1) == 2 and opacities.shape[1] == 1 else opacities
-        keep &= _as_tensor(o, "opacities", (), n).to(mu.device) >= opacity_min
+    keep = _opacity_mask(opacities, opacity_min, n, mu.device)
     gid = torch.nonzero(keep).squeeze(1)
     mu, q, s = mu[gid], q[gid], s[gid]
     extent = BOX_SIGMAS * s.max(dim=1).values
@@ -297,18 +310,10 @@ def octree_grid_from_gaussians(means, scales, opacities=None, cameras: Sequence[
     """The octree grid (:mod:`gof_warp.octree_tets`) over the Gaussians' 3σ boxes (radius ``3 max(s)``), with the
     Delaunay grid's selection: ``opacity_min``, and the frustum mask applied to the centres. Returns ``(points [P, 3]
     float32, tets [T, 4] int32)`` on the means' device."""
-    from .octree_tets import octree_grid
-
     cfg = config or TetraConfig()
     mu = _as_tensor(means, "means", (3,))
-    s = _as_tensor(scales, "scales", (3,), mu.shape[0]).to(mu.device)
-    if mu.shape[0] and not bool((s > 0).all()):
-        raise GofError("scales must be positive (standard deviations, not log-scales)")
-    keep = torch.ones(mu.shape[0], dtype=torch.bool, device=mu.device)
-    if cfg.opacity_min is not None:
-        if opacities is None:
-            raise GofError("opacity_min needs opacities")
-        keep &= _as_tensor(opacities.reshape(-1), "opacities", (), mu.shape[0]).to(mu.device) >= cfg.opacity_min
+    s = _checked_scales(scales, mu.shape[0], mu.device)
+    keep = _opacity_mask(opacities, cfg.opacity_min, mu.shape[0], mu.device)
     if cameras and cfg.frustum_mask:
         keep &= frustum_mask(mu, cameras, cfg.near, cfg.far)
     if not bool(keep.any()):
