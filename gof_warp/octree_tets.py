@@ -130,6 +130,7 @@ class Octree:
     refined: list = field(default_factory=list)
     leaves: list = field(default_factory=list)
     occupied: list = field(default_factory=list)
+    asked: list = field(default_factory=list)  # asked[l]: sorted keys of the cells asked for at level l
 
     @property
     def n_leaves(self) -> int:
@@ -189,7 +190,13 @@ def build_octree(centres, radii, *, depth: int, cell_factor: float = 1.0, lo=Non
     lo = torch.as_tensor(lo, dtype=torch.float64, device=device)
     if not (size > 0 and math.isfinite(size)):
         raise GofError(f"octree root cube must have a positive finite size, got {size!r}")
-    asked = _asked_cells(centres, radii, lo, float(size), depth, cell_factor)
+    return tree_from_asked(_asked_cells(centres, radii, lo, float(size), depth, cell_factor), lo, float(size), depth)
+
+
+def tree_from_asked(asked: list, lo: torch.Tensor, size: float, depth: int) -> Octree:
+    """The balanced octree whose leaves are no larger than the asked-for cells: ``asked[l]`` the sorted keys of the
+    cells wanted at level ``l`` (``depth + 1`` lists), over the cube ``lo [3] + [0, size]^3``."""
+    device = lo.device
     # refined[l]: parents of asked-for cells, then closed under ancestors and balanced, deepest level first
     refined = [torch.zeros(0, dtype=torch.int64, device=device) for _ in range(depth + 1)]
     for l in range(depth, 0, -1):
@@ -201,7 +208,7 @@ def build_octree(centres, radii, *, depth: int, cell_factor: float = 1.0, lo=Non
             parents.append(nb >> 1)
         if parents:
             refined[l - 1] = torch.unique(torch.cat([refined[l - 1], pack(torch.cat(parents))]))
-    tree = Octree(lo=lo, size=float(size), depth=depth, refined=refined)
+    tree = Octree(lo=lo, size=float(size), depth=depth, refined=refined, asked=asked)
     # leaves: children of refined nodes that are not refined; the root alone when nothing is refined
     children_of = _CHILDREN.to(device)
     tree.leaves = [torch.zeros(0, dtype=torch.int64, device=device) for _ in range(depth + 1)]
@@ -353,7 +360,7 @@ def _oriented_chunks(tree: Octree, corners: torch.Tensor, chunk: int):
                 yield oriented(_face_tets(*(r[s:s + chunk] for r in rec), corners))
 
 
-def octree_tetrahedra(tree: Octree, *, chunk: int = FACE_CHUNK) -> tuple[torch.Tensor, torch.Tensor]:
+def octree_tetrahedra(tree: Octree, *, chunk: int = FACE_CHUNK, return_keys: bool = False):
     """Tetrahedralise the occupied leaves: ``(points [P, 3] float32 world, tets [T, 4] int32)``, positively
     oriented, on the tree's device. Two passes over the chunks (the first collects the distinct vertex keys, the
     second writes point indices), so the int64 keys of one chunk only are held beside the int32 output."""
@@ -364,8 +371,9 @@ def octree_tetrahedra(tree: Octree, *, chunk: int = FACE_CHUNK) -> tuple[torch.T
         found.append(torch.unique(t))
         count += t.shape[0]
     if not count:
-        return torch.zeros(0, 3, dtype=torch.float32, device=device), torch.zeros(0, 4, dtype=torch.int32,
-                                                                                  device=device)
+        empty = (torch.zeros(0, 3, dtype=torch.float32, device=device),
+                 torch.zeros(0, 4, dtype=torch.int32, device=device))
+        return (*empty, torch.zeros(0, dtype=torch.int64, device=device)) if return_keys else empty
     keys = torch.unique(torch.cat(found))
     del found
     if keys.numel() >= 2**31:
@@ -376,7 +384,7 @@ def octree_tetrahedra(tree: Octree, *, chunk: int = FACE_CHUNK) -> tuple[torch.T
         tets[at:at + t.shape[0]] = torch.searchsorted(keys, t).to(torch.int32)
         at += t.shape[0]
     points = (tree.lo + unpack(keys).to(torch.float64) * tree.unit()).to(torch.float32)
-    return points, tets
+    return (points, tets, keys) if return_keys else (points, tets)
 
 
 def octree_grid(centres, radii, config: OctreeConfig | None = None, stats: dict | None = None
