@@ -45,6 +45,10 @@ class RenderConfig:
             (paper Eq. 13), whose gradient is ~10⁴ times larger at scene depths of a few units, so λ_d must
             then be scaled down accordingly. Weights are detached in both (gradient only through t*).
         far: the far plane of m(t) (GOF: 100).
+        distortion_linear_from: 0 (GOF): the ``"gof"`` distortion compares m(t) everywhere, so its weight per unit
+            of depth falls as ``near / t²`` and layers far behind the objects cost almost nothing. ``L > near``:
+            beyond depth ``L`` m(t) is continued by its tangent at ``L``, so far layers are compressed as hard as
+            layers at ``L`` (an option measured in ``benchmarks/real_captures/README.md``, session 11; not GOF).
         tile_cull: bin each Gaussian only into the screen tiles its projected ellipse meets (exact,
             conservative; same images and gradients, fewer list entries); False: every tile of its
             bounding rectangle (as 3DGS/GOF), for comparisons.
@@ -60,6 +64,7 @@ class RenderConfig:
     distortion: str = "gof"
     far: float = 100.0
     tile_cull: bool = True
+    distortion_linear_from: float = 0.0
 
     def validate(self) -> None:
         if not self.near > 0:
@@ -76,6 +81,12 @@ class RenderConfig:
             raise ValueError(f"RenderConfig.distortion must be 'gof' or 'paper', got {self.distortion!r}")
         if not self.far > self.near:
             raise ValueError(f"RenderConfig.far must be > near, got {self.far}")
+        if not (self.distortion_linear_from == 0 or self.distortion_linear_from > self.near):
+            raise ValueError("RenderConfig.distortion_linear_from must be 0 (off) or a depth beyond near "
+                             f"({self.near}), got {self.distortion_linear_from}")
+        if self.distortion_linear_from and self.distortion != "gof":
+            raise ValueError("RenderConfig.distortion_linear_from applies to the 'gof' distortion only, "
+                             f"got distortion={self.distortion!r}")
         if len(self.background) != 3:
             raise ValueError(f"RenderConfig.background must have 3 entries, got {self.background}")
 
@@ -86,7 +97,8 @@ def raster_settings_for(camera: Camera, config: RenderConfig, pixel_pad: float =
     return make_raster_settings(camera.width, camera.height, config.near, config.alpha_min, config.alpha_max,
                                 config.transmittance_min, config.k_max, config.background, config.tile_size,
                                 pixel_pad=pixel_pad, distortion=config.distortion, far=config.far,
-                                tile_cull=config.tile_cull)  # fmt: skip
+                                tile_cull=config.tile_cull,
+                                distortion_linear_from=config.distortion_linear_from)  # fmt: skip
 
 
 class DensifyStats:

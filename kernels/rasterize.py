@@ -78,8 +78,14 @@ def pixel_state_init(start: int, done: int) -> PixelState:
 @wp.func
 def distortion_depth(t: float, settings: RasterSettings) -> float:
     """The depth the distortion compares: GOF's NDC depth ``m(t) = far (t − near) / ((far − near) t)``
-    (2DGS/GOF code), or ``t`` itself (the paper's formula)."""
+    (2DGS/GOF code), or ``t`` itself (the paper's formula). With ``linear_from = L > 0`` the NDC depth is
+    continued beyond ``L`` by its tangent there, ``m(L) + m'(L) (t − L)``: layers behind ``L`` keep the weight they
+    have at ``L`` instead of fading as ``1/t²``."""
     if settings.distortion_ndc != 0:
+        L = settings.linear_from
+        if L > 0.0 and t > L:
+            return settings.far * (L - settings.near) / ((settings.far - settings.near) * L) + settings.far * settings.near / (
+                (settings.far - settings.near) * L * L) * (t - L)
         return settings.far * (t - settings.near) / ((settings.far - settings.near) * t)
     return t
 
@@ -88,7 +94,10 @@ def distortion_depth(t: float, settings: RasterSettings) -> float:
 def distortion_depth_grad(t: float, settings: RasterSettings) -> float:
     """``d f / d t`` of :func:`distortion_depth`."""
     if settings.distortion_ndc != 0:
-        return settings.far * settings.near / ((settings.far - settings.near) * t * t)
+        tt = t
+        if settings.linear_from > 0.0 and t > settings.linear_from:
+            tt = settings.linear_from
+        return settings.far * settings.near / ((settings.far - settings.near) * tt * tt)
     return 1.0
 
 

@@ -40,6 +40,7 @@ class RasterSettings:
     pixel_pad: float  # bin a Gaussian into pixels within this many pixels of its box (0 = pixel centres)
     distortion_ndc: int  # 1: GOF's Σ w_i w_j (m_i − m_j)² on NDC depth m(t); 0: the paper's Σ w_i w_j |t_i − t_j|
     far: float  # far plane of the NDC depth map m(t) = far (t − near) / ((far − near) t)
+    linear_from: float  # > 0: m(t) continued by its tangent beyond this depth (0: GOF's m(t) everywhere)
     reduce_min_radius: int  # CUDA backward: warp-reduce the gradients of Gaussians at least this large (pixels)
     tile_cull: int  # 1: bin into the tiles the projected ellipse meets; 0: every tile of its bounding box
 
@@ -80,6 +81,7 @@ def make_raster_settings(
     distortion: str = "gof",
     far: float = 100.0,
     tile_cull: bool = True,
+    distortion_linear_from: float = 0.0,
 ) -> RasterSettings:
     """``RasterSettings`` for a ``width`` × ``height`` image (defaults: GOF's, see ``RenderConfig``)."""
     s = RasterSettings()
@@ -92,6 +94,9 @@ def make_raster_settings(
         raise ValueError(f"distortion must be 'gof' or 'paper', got {distortion!r}")
     s.distortion_ndc = 1 if distortion == "gof" else 0
     s.far = float(far)
+    if not (distortion_linear_from == 0.0 or distortion_linear_from > near):
+        raise ValueError(f"distortion_linear_from must be 0 (off) or beyond near {near}, got {distortion_linear_from}")
+    s.linear_from = float(distortion_linear_from)
     s.reduce_min_radius = int(reduce_min_radius)
     s.tile_cull = 1 if tile_cull else 0
     s.tiles_x = (int(width) + s.tile_size - 1) // s.tile_size

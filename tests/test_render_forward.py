@@ -36,6 +36,9 @@ BACKGROUND = (0.3, 0.6, 0.1)
 CASES = {  # camera kwargs, scene kwargs, config kwargs, active SH degree
     "sh0_offcentre": (dict(width=37, height=29), dict(n=16, sh_degree=0, seed=1), {}, None),
     "paper_distortion": (dict(width=37, height=29), dict(n=16, sh_degree=0, seed=5), dict(distortion="paper"), None),
+    # m(t) continued by its tangent beyond depth 2 (the scene spans 0.3-4.8; the distortion differs by ~28 %)
+    "linear_far_distortion": (dict(width=37, height=29), dict(n=16, sh_degree=0, seed=5),
+                              dict(distortion_linear_from=2.0), None),
     "sh3_nonsquare_pp_far": (
         dict(width=45, height=22, fx=30.0, fy=44.0, cx=36.0, cy=4.4),
         dict(n=16, sh_degree=3, seed=2),

@@ -81,6 +81,11 @@ def test_gradient_of_paper_form_distortion_matches_reference():
     _compare_gradients(["distortion"], config=dataclasses.replace(GRAD_CONFIG, distortion="paper"))
 
 
+def test_gradient_of_linear_far_distortion_matches_reference():
+    """m(t) continued by its tangent beyond depth 2 (``distortion_linear_from``), Gaussians on both sides."""
+    _compare_gradients(["distortion"], config=dataclasses.replace(GRAD_CONFIG, distortion_linear_from=2.0))
+
+
 def test_gradient_with_active_alpha_max_clamp():
     """A low clamp that bites on many pixels: the derivative through a clamped α must be 0 (the spec)."""
     ref = _compare_gradients(["rgb", "alpha"], dataclasses.replace(GRAD_CONFIG, alpha_max=0.6))
