@@ -115,6 +115,12 @@ class TrainConfig:
     # machine (benchmarks/train/README.md, session 9), so it pays off only for long runs. YAML reads a bare on/off
     # as true/false: those are taken as "on"/"off"
     compile_loss: str | bool = "off"
+    # render each training view on a random background colour (3DGS's --random_background) instead of the scene's:
+    # a surface can then no longer stay partly transparent with brighter colours over the fixed background, which
+    # the photometric loss cannot tell apart on opaque photos and which the opacity field turns into holes and
+    # second sheets (benchmarks/real_captures/README.md, session 11). Targets of alpha images (Blender cut-outs) are
+    # composited again on the same colour; other images are the scene through and through and stay as they are
+    random_background: bool = False
     data: DataConfig = field(default_factory=DataConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
     render: RenderConfig = field(default_factory=RenderConfig)
@@ -180,6 +186,11 @@ class Trainer:
         self.render_config.validate()
         self.cameras = scene.train_cameras
         self.images = [_image_tensor(v.image, self.device) for v in scene.train]
+        # per view, 1 − alpha [H, W, 1] of images composited from alpha (random_background recomposites them)
+        self._transparency = [None] * len(scene.train)
+        if config.random_background and scene.format == "blender":
+            self._transparency = [None if v.mask is None or int(v.mask.min()) == 255 else
+                                  1.0 - _image_tensor(v.mask[..., None], self.device) for v in scene.train]
         self.iteration = 0
         self.elapsed = 0.0
         self.history: list[dict] = []
@@ -282,8 +293,11 @@ class Trainer:
         """Render view ``idx`` (filling ``stats``) and its loss as at iteration ``loss_it`` (appearance-corrected
         L1 when the model has one): ``(loss, terms)``, the terms detached, with the render's PSNR."""
         cam, gt = self.cameras[idx], self.images[idx]
+        render_config = self.render_config
+        if self.config.random_background:
+            render_config, gt = self._random_background(idx, loss_it, gt)
         with _stage("train.render"):
-            out = render(self.gaussians, cam, config=self.render_config, stats=stats, tile_lists=self.tile_lists)
+            out = render(self.gaussians, cam, config=render_config, stats=stats, tile_lists=self.tile_lists)
         with _stage("train.loss"):
             l1_pair = None
             if self.appearance is not None:
@@ -293,6 +307,19 @@ class Trainer:
             loss, terms = self.loss(out, gt, cam, idx, loss_it, l1_pair=l1_pair)
             terms["psnr"] = psnr(out["rgb"].detach(), gt)
         return loss, terms
+
+    def _random_background(self, idx: int, it: int, gt: torch.Tensor) -> tuple[RenderConfig, torch.Tensor]:
+        """``(render config, target)`` of view ``idx`` at iteration ``it`` on a random background colour, drawn from
+        ``(seed, it, idx)`` alone, so a resumed run draws the same colours; an alpha image's target is composited
+        again on it (``gt + (1 − α)(bg − scene background)``)."""
+        bg = np.random.default_rng([self.config.seed, it, idx]).random(3)
+        config = dataclasses.replace(self.render_config, background=tuple(float(c) for c in bg))
+        clear = self._transparency[idx]
+        if clear is not None:
+            shift = torch.tensor(bg - np.asarray(self.render_config.background), dtype=gt.dtype).to(gt.device,
+                                                                                                   non_blocking=True)
+            gt = gt + clear * shift
+        return config, gt
 
     def _trained_params(self) -> list[torch.Tensor]:
         params = list(self.gaussians.params.values())
