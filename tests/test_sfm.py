@@ -124,6 +124,19 @@ def test_cache_key_depends_on_inputs(synthetic):
     changed = dataclasses.replace(views[0], image=views[0].image.copy())
     changed.image[0, 0, 0] ^= 1
     assert cache_key([changed] + views[1:], SfmConfig()) != base
+    cam = views[0].camera
+    moved = dataclasses.replace(views[0], camera=dataclasses.replace(cam, t=np.asarray(cam.t) + [1e-3, 0.0, 0.0]))
+    assert cache_key([moved] + views[1:], SfmConfig()) != base
+
+
+def test_cache_key_survives_last_bit_pose_differences(synthetic):
+    """The same poses read on another machine may differ in the last bits; the carried cache must still match."""
+    scene, _ = synthetic
+    views = scene.train[:3]
+    cam = views[0].camera
+    ulp = dataclasses.replace(cam, R=np.nextafter(np.asarray(cam.R, np.float64), 2.0),
+                              t=np.nextafter(np.asarray(cam.t, np.float64), -2.0))
+    assert cache_key([dataclasses.replace(views[0], camera=ulp)] + views[1:], SfmConfig()) == cache_key(views, SfmConfig())
 
 
 def test_corrupt_cache_is_recomputed(synthetic, triangulated, tmp_path, caplog):

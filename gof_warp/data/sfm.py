@@ -58,13 +58,18 @@ CACHE_VERSION = 1  # bump when the pipeline changes what it computes for the sam
 
 
 # ------------------------------------------------------------------------------------------ cache keys
+CAMERA_DIGITS = 7  # decimals of the camera values in the cache key
 def _views_digest(views: list[View]) -> str:
+    """Digest of the views' names, cameras and image bytes. Cameras are rounded to ``CAMERA_DIGITS`` decimals: the
+    same poses read on another machine can differ in the last bits (the pose inversion's floating-point order), and
+    a cache carried with the scene must still be found there."""
     h = hashlib.sha256()
     for v in views:
         c = v.camera
         h.update(v.name.encode("utf-8") + b"\0")
-        h.update(np.ascontiguousarray(c.R, np.float64).tobytes() + np.ascontiguousarray(c.t, np.float64).tobytes())
-        h.update(np.array([c.fx, c.fy, c.cx, c.cy, c.width, c.height], np.float64).tobytes())
+        pose = np.concatenate([np.asarray(c.R, np.float64).ravel(), np.asarray(c.t, np.float64).ravel(),
+                               np.array([c.fx, c.fy, c.cx, c.cy, c.width, c.height], np.float64)])
+        h.update(np.round(pose, CAMERA_DIGITS).tobytes())
         h.update(hashlib.sha256(np.ascontiguousarray(v.image).tobytes()).digest())
     return h.hexdigest()
 
