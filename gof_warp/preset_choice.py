@@ -99,4 +99,5 @@ def choose_preset(scene_path) -> PresetChoice:
     points = "its SfM points" if plan.points is not None and len(plan.points) else \
         "points triangulated from the known poses"
     return PresetChoice("unbounded", f"opaque {fmt} images: the background is part of the scene; GOF's unbounded "
-                                     f"settings (lambda_d = 100) starting from {points}", fmt)
+                                     f"settings (lambda_d = 100) on a random background colour per view, starting "
+                                     f"from {points}", fmt)
