@@ -49,8 +49,9 @@ def main(argv=None) -> int:
                     help="tetra: the tetrahedral grid: 'delaunay' (official: Delaunay of the 3-sigma box corners and "
                          "centres, on the CPU) or 'octree' (a balanced octree sized by the Gaussians, on the model's "
                          "device; no Delaunay)")
-    ap.add_argument("--cell-factor", type=float, default=OctreeConfig.cell_factor,
-                    help="--grid octree: leaf side at most this times a Gaussian's 3-sigma box width (smaller: finer)")
+    ap.add_argument("--cell-factor", type=float, default=None,
+                    help="--grid octree: leaf side at most this times a Gaussian's 3-sigma box width (smaller: finer; "
+                         f"default {OctreeConfig.cell_factor})")
     ap.add_argument("--opacity-min", type=float, default=None, help="drop Gaussians below this opacity first")
     ap.add_argument("--corner-min-extent", type=float, default=None,
                     help="tetra: only the centre point for Gaussians whose 3-sigma extent is below this (world units)")
@@ -105,7 +106,8 @@ def extract_run(a, ranks, device) -> None:
                                        corner_min_extent=a.corner_min_extent,
                                        delaunay_workers=a.delaunay_workers, band=a.band,
                                        delaunay_processes=a.delaunay_processes, grid=a.grid,
-                                       octree=OctreeConfig(cell_factor=a.cell_factor)))
+                                       octree=OctreeConfig() if a.cell_factor is None else
+                                       OctreeConfig(cell_factor=a.cell_factor)))
     if a.resolution:
         cfg.cubes_resolution = a.resolution
         cfg.tsdf.resolution = a.resolution

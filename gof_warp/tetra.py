@@ -87,6 +87,9 @@ class TetraConfig:
             if asked:
                 raise GofError(f"{', '.join(asked)}: Delaunay-grid settings, but the grid is the octree (the "
                                "default); add --grid delaunay (TetraConfig.grid = 'delaunay') to use them")
+        elif self.octree != OctreeConfig():
+            raise GofError(f"octree settings ({self.octree}; --cell-factor) apply to the octree grid, but the grid "
+                           "is 'delaunay': drop them or use --grid octree (the default)")
 
     @classmethod
     def fast(cls, **overrides) -> TetraConfig:

@@ -93,6 +93,8 @@ def test_octree_grid_gives_the_closed_analytic_sphere():
         with pytest.raises(ValueError, match="--grid delaunay"):
             MeshConfig(tetra=TetraConfig(**delaunay_only)).validate()
         MeshConfig(tetra=TetraConfig(grid="delaunay", **delaunay_only)).validate()
+    with pytest.raises(ValueError, match="--grid octree"):  # octree settings on the Delaunay grid: not ignored
+        MeshConfig(tetra=TetraConfig(grid="delaunay", octree=OctreeConfig(cell_factor=0.3))).validate()
     with pytest.raises(ValueError, match="grid"):
         MeshConfig(tetra=TetraConfig(grid="voronoi")).validate()
 

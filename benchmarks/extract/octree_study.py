@@ -65,7 +65,7 @@ def main(argv=None):
     logging.basicConfig(level=logging.WARNING)
     gaussians, cameras, _, render_config = load_run(a.run, a.scene, a.device)
     gt = a.gt or (a.run / "scene" / "gt_mesh.ply" if (a.run / "scene" / "gt_mesh.ply").exists() else None)
-    settings = [] if a.no_delaunay else [("delaunay", TetraConfig())]
+    settings = [] if a.no_delaunay else [("delaunay", TetraConfig(grid="delaunay"))]
     settings += [(f"octree x{c:g}", TetraConfig(grid="octree", octree=OctreeConfig(cell_factor=c, depth=a.depth)))
                  for c in a.cell_factors]
     rows, reference = [], None
