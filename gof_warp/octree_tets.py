@@ -130,7 +130,6 @@ class Octree:
     refined: list = field(default_factory=list)
     leaves: list = field(default_factory=list)
     occupied: list = field(default_factory=list)
-    asked: list = field(default_factory=list)  # asked[l]: sorted keys of the cells asked for at level l
 
     @property
     def n_leaves(self) -> int:
@@ -172,6 +171,16 @@ def _asked_cells(centres: torch.Tensor, radii: torch.Tensor, lo: torch.Tensor, s
     return asked
 
 
+def root_cube(centres: torch.Tensor, radii: torch.Tensor) -> tuple[torch.Tensor, float]:
+    """``(lo [3], size)``: the cube around the boxes ``centres [N, 3] ± radii [N]`` (their bounding cube, 1 % larger)."""
+    if centres.shape[0] == 0:
+        raise GofError("no Gaussians to build the octree from")
+    bmin = (centres - radii[:, None]).min(dim=0).values
+    bmax = (centres + radii[:, None]).max(dim=0).values
+    size = float((bmax - bmin).max()) * 1.01
+    return (bmin + bmax) / 2 - size / 2, size
+
+
 def build_octree(centres, radii, *, depth: int, cell_factor: float = 1.0, lo=None, size: float | None = None
                  ) -> Octree:
     """The balanced octree asked for by boxes ``centres [N, 3] ± radii [N]`` (float64 tensors on one device).
@@ -181,12 +190,7 @@ def build_octree(centres, radii, *, depth: int, cell_factor: float = 1.0, lo=Non
     centres = centres.to(torch.float64)
     radii = radii.to(torch.float64)
     if lo is None or size is None:
-        if centres.shape[0] == 0:
-            raise GofError("no Gaussians to build the octree from")
-        bmin = (centres - radii[:, None]).min(dim=0).values
-        bmax = (centres + radii[:, None]).max(dim=0).values
-        size = float((bmax - bmin).max()) * 1.01
-        lo = (bmin + bmax) / 2 - size / 2
+        lo, size = root_cube(centres, radii)
     lo = torch.as_tensor(lo, dtype=torch.float64, device=device)
     if not (size > 0 and math.isfinite(size)):
         raise GofError(f"octree root cube must have a positive finite size, got {size!r}")
@@ -208,7 +212,7 @@ def tree_from_asked(asked: list, lo: torch.Tensor, size: float, depth: int) -> O
             parents.append(nb >> 1)
         if parents:
             refined[l - 1] = torch.unique(torch.cat([refined[l - 1], pack(torch.cat(parents))]))
-    tree = Octree(lo=lo, size=float(size), depth=depth, refined=refined, asked=asked)
+    tree = Octree(lo=lo, size=float(size), depth=depth, refined=refined)
     # leaves: children of refined nodes that are not refined; the root alone when nothing is refined
     children_of = _CHILDREN.to(device)
     tree.leaves = [torch.zeros(0, dtype=torch.int64, device=device) for _ in range(depth + 1)]

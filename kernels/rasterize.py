@@ -76,6 +76,18 @@ def pixel_state_init(start: int, done: int) -> PixelState:
 
 
 @wp.func
+def ndc_depth(t: float, settings: RasterSettings) -> float:
+    """GOF's NDC depth ``m(t) = far (t − near) / ((far − near) t)``."""
+    return settings.far * (t - settings.near) / ((settings.far - settings.near) * t)
+
+
+@wp.func
+def ndc_depth_slope(t: float, settings: RasterSettings) -> float:
+    """``m'(t) = far near / ((far − near) t²)``."""
+    return settings.far * settings.near / ((settings.far - settings.near) * t * t)
+
+
+@wp.func
 def distortion_depth(t: float, settings: RasterSettings) -> float:
     """The depth the distortion compares: GOF's NDC depth ``m(t) = far (t − near) / ((far − near) t)``
     (2DGS/GOF code), or ``t`` itself (the paper's formula). With ``linear_from = L > 0`` the NDC depth is
@@ -84,9 +96,8 @@ def distortion_depth(t: float, settings: RasterSettings) -> float:
     if settings.distortion_ndc != 0:
         L = settings.linear_from
         if L > 0.0 and t > L:
-            return settings.far * (L - settings.near) / ((settings.far - settings.near) * L) + settings.far * settings.near / (
-                (settings.far - settings.near) * L * L) * (t - L)
-        return settings.far * (t - settings.near) / ((settings.far - settings.near) * t)
+            return ndc_depth(L, settings) + ndc_depth_slope(L, settings) * (t - L)
+        return ndc_depth(t, settings)
     return t
 
 
@@ -94,10 +105,9 @@ def distortion_depth(t: float, settings: RasterSettings) -> float:
 def distortion_depth_grad(t: float, settings: RasterSettings) -> float:
     """``d f / d t`` of :func:`distortion_depth`."""
     if settings.distortion_ndc != 0:
-        tt = t
         if settings.linear_from > 0.0 and t > settings.linear_from:
-            tt = settings.linear_from
-        return settings.far * settings.near / ((settings.far - settings.near) * tt * tt)
+            return ndc_depth_slope(settings.linear_from, settings)
+        return ndc_depth_slope(t, settings)
     return 1.0
 
 

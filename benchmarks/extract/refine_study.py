@@ -14,7 +14,7 @@ import sys, time, json
 import numpy as np, torch, trimesh
 from pathlib import Path
 from gof_warp.run_folder import load_run
-from gof_warp.tetra import _checked_scales, frustum_mask, BOX_SIGMAS
+from gof_warp.tetra import _checked_scales, frustum_mask, BOX_SIGMAS, TetraConfig
 from gof_warp import octree_tets as ot
 from gof_warp.opacity_field import opacity_field, OpacityFieldConfig
 from gof_warp.marching import marching_tetrahedra
@@ -31,11 +31,10 @@ def field(p): return opacity_field(g, cams, p, config=fc, render_config=rc)
 def field1(p): return opacity_field(g, cams, p, render_config=rc)
 t0 = time.perf_counter()
 mu = g.means.detach(); s = _checked_scales(g.scales.detach(), mu.shape[0], mu.device)
-keep = frustum_mask(mu, cams, 0.02, 1e6)
+keep = frustum_mask(mu, cams, TetraConfig.near, TetraConfig.far)
 c = mu[keep].double(); r = (BOX_SIGMAS * s[keep].max(dim=1).values).double()
 depth = ot.MAX_DEPTH
-bmin = (c - r[:, None]).min(0).values; bmax = (c + r[:, None]).max(0).values
-size = float((bmax - bmin).max()) * 1.01; lo = (bmin + bmax) / 2 - size / 2
+lo, size = ot.root_cube(c, r)
 asked = ot._asked_cells(c, r, lo, size, depth, factor)
 level = 0.5
 prev_keys = prev_vals = None
@@ -49,7 +48,6 @@ def locate(tree, lat):
             kl = ot.pack(torch.floor(lat / u).long().clamp(min=0))
             lev[ot.contains(srt, kl)] = l
     return lev
-log = []
 for it in range(passes + 1):
     tree = ot.tree_from_asked(asked, lo, size, depth)
     pts, tets, keys = ot.octree_tetrahedra(tree, return_keys=True)
@@ -65,7 +63,7 @@ for it in range(passes + 1):
     (v, f), = marching_tetrahedra(pts, tets_v, torch.where(seen, vals, torch.ones_like(vals)), field1, levels=(level,), binary_steps=steps, oriented=True)
     info = dict(it=it, points=pts.shape[0], new_points=n_new, tets=tets_v.shape[0], faces=len(f), t=round(time.perf_counter()-t0,1))
     if it == passes:
-        log.append(info); print(json.dumps(info)); break
+        print(json.dumps(info)); break
     V = torch.as_tensor(v, device=pts.device).double(); F = torch.as_tensor(f, device=pts.device).long()
     tri = V[F]; cen = tri.mean(1)
     nrm = torch.linalg.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]); nrm = nrm / nrm.norm(dim=1, keepdim=True).clamp(min=1e-30)
@@ -77,7 +75,7 @@ for it in range(passes + 1):
     fq = field1(q).double()
     a, b = fq[:F.shape[0]], fq[F.shape[0]:]
     flag = ((a >= level) == (b >= level)) & (lev < depth) & (lev >= 0)
-    info["flagged"] = int(flag.sum()); log.append(info); print(json.dumps(info), flush=True)
+    info["flagged"] = int(flag.sum()); print(json.dumps(info), flush=True)
     if not flag.any(): break
     for l in torch.unique(lev[flag]).tolist():
         sel = flag & (lev == l); u = 1 << (depth - l)

@@ -59,6 +59,8 @@ CACHE_VERSION = 1  # bump when the pipeline changes what it computes for the sam
 
 # ------------------------------------------------------------------------------------------ cache keys
 CAMERA_DIGITS = 7  # decimals of the camera values in the cache key
+
+
 def _views_digest(views: list[View]) -> str:
     """Digest of the views' names, cameras and image bytes. Cameras are rounded to ``CAMERA_DIGITS`` decimals: the
     same poses read on another machine can differ in the last bits (the pose inversion's floating-point order), and
