@@ -14,7 +14,9 @@ The running median mixes views, and with the distortion term some views carry a 
 others' *at every visit* (a hard view, not an instability). So the monitor also keeps, per view, the
 median of that view's last ``view_window`` losses and reports the largest jump of a view's loss over its
 own median (``max_view_ratio``: a true spike, where training suddenly breaks on a view it fitted) and the
-spread of the per-view medians (``view_median_spread``: hardest view's median / overall median).
+spread of the per-view medians (``view_median_spread``: hardest view's median / overall median). The first
+``max_events`` per-view spikes are listed in ``view_spikes`` (iteration, view, ratio, terms), each with what the
+caller attaches to it (the trainer: which Gaussians sat right in front of that camera, :mod:`gof_warp.near_camera`).
 """
 
 from __future__ import annotations
@@ -46,7 +48,7 @@ class LossSpikeMonitor:
     """
 
     def __init__(self, window: int = 200, warmup: int = 1000, threshold: float = 10.0, min_history: int = 50,
-                 view_window: int = 8, view_min_history: int = 3):
+                 view_window: int = 8, view_min_history: int = 3, max_events: int = 20):
         if window < 10 or min_history < 1 or min_history > window or threshold <= 1 or not (
                 1 <= view_min_history <= view_window):
             raise ValueError(f"LossSpikeMonitor: need window >= 10, 1 <= min_history <= window, threshold > 1; got "
@@ -61,6 +63,9 @@ class LossSpikeMonitor:
         self.per_view: dict[str, deque[float]] = {}
         self.worst_view: SpikeRecord | None = None
         self.view_count_over = 0
+        self.max_events = max_events
+        self.events: list[dict] = []
+        self.last_view_spike: dict | None = None  # the event the last update added (None: it added none)
 
     def restart(self) -> None:
         """Forget the windows (the loss's definition changed, e.g. the regularisers switched on)."""
@@ -71,6 +76,7 @@ class LossSpikeMonitor:
         """Record one iteration's total loss; returns its ratio to the running median (None before
         there is enough history or during warm-up). Non-finite losses are the trainer's to stop on."""
         ratio = None
+        self.last_view_spike = None
         if iteration > self.warmup and len(self.recent) >= self.min_history:
             median = float(np.median(np.fromiter(self.recent, dtype=np.float64)))
             if median > 0:
@@ -88,6 +94,11 @@ class LossSpikeMonitor:
                 if median > 0:
                     r = loss / median
                     self.view_count_over += int(r > self.threshold)
+                    if r > self.threshold and len(self.events) < self.max_events:
+                        self.last_view_spike = {"iteration": iteration, "view": view, "ratio": round(r, 3),
+                                                "loss": round(float(loss), 6), "view_median": round(median, 6),
+                                                "terms": {k: round(float(x), 6) for k, x in (terms or {}).items()}}
+                        self.events.append(self.last_view_spike)
                     if self.worst_view is None or r > self.worst_view.ratio:
                         self.worst_view = SpikeRecord(r, iteration, view, loss, median, dict(terms or {}))
             own.append(float(loss))
@@ -113,13 +124,15 @@ class LossSpikeMonitor:
                 "max_view_ratio_at": None if v is None else {"iteration": v.iteration, "view": v.view,
                                                              "loss": round(v.loss, 6), "view_median": round(v.median, 6),
                                                              "terms": {k: round(x, 6) for k, x in v.terms.items()}},
-                "view_median_spread": None if spread is None else round(spread, 3)}
+                "view_median_spread": None if spread is None else round(spread, 3),
+                "view_spikes": [dict(e) for e in self.events]}
 
     def state_dict(self) -> dict:
         rec = lambda w: None if w is None else [w.ratio, w.iteration, w.view, w.loss, w.median, dict(w.terms)]  # noqa: E731
         return {"recent": list(self.recent), "count_over": self.count_over, "checked": self.checked,
                 "worst": rec(self.worst), "per_view": {k: list(d) for k, d in self.per_view.items()},
-                "worst_view": rec(self.worst_view), "view_count_over": self.view_count_over}
+                "worst_view": rec(self.worst_view), "view_count_over": self.view_count_over,
+                "events": [dict(e) for e in self.events]}
 
     def load_state_dict(self, state: dict) -> None:
         self.recent = deque((float(x) for x in state["recent"]), maxlen=self.window)
@@ -131,3 +144,4 @@ class LossSpikeMonitor:
         self.per_view = {str(k): deque((float(x) for x in d), maxlen=self.view_window)
                          for k, d in state.get("per_view", {}).items()}
         self.view_count_over = int(state.get("view_count_over", 0))
+        self.events = [dict(e) for e in state.get("events", [])]  # absent in checkpoints before the event list

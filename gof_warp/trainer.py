@@ -49,6 +49,7 @@ from .loss_monitor import LossSpikeMonitor
 from .losses import COMPILE_MODES, LossConfig, TrainingLoss
 from .metrics import image_metrics, psnr
 from .model import Gaussians
+from .near_camera import near_camera_census
 from .optim import OptimConfig, make_optimizer, update_learning_rate
 from .render import DensifyStats, RenderConfig, render
 from .scene import Scene
@@ -321,6 +322,16 @@ class Trainer:
             gt = gt + clear * shift
         return config, gt
 
+    def _near_census(self, view: str, spike_iteration: int) -> dict | None:
+        """:func:`near_camera_census` of the camera named ``view`` within a quarter of the scene extent, taken when
+        the spike is read back (``iteration``: up to ``SCALARS_FLUSH_EVERY`` iterations after the spike)."""
+        cam = next((c for c in self.cameras if c.name == view), None)
+        if cam is None:
+            return None
+        g = self.gaussians
+        census = near_camera_census(g.means, g.opacities, g.scales, cam, within=0.25 * self.scene.extent)
+        return {**census, "iteration": self.iteration, "spike_iteration": spike_iteration}
+
     def _trained_params(self) -> list[torch.Tensor]:
         params = list(self.gaussians.params.values())
         return params if self.appearance is None else params + list(self.appearance.parameters())
@@ -340,6 +351,8 @@ class Trainer:
                 self.spikes.restart()
             terms = {k: v for k, v in rec.values.items() if k != "psnr"}
             self.spikes.update(rec.iteration, total, rec.view, terms)
+            if self.spikes.last_view_spike is not None:  # what sits right in front of that camera now
+                self.spikes.last_view_spike["near_camera"] = self._near_census(rec.view, rec.iteration)
             last = {**rec.values, "num_gaussians": rec.num_gaussians}
             if rec.iteration % self.config.log_every == 0 or rec.iteration == self.config.iterations:
                 self.history.append({"iteration": rec.iteration, "elapsed_s": round(rec.elapsed_s, 3),

@@ -1,0 +1,95 @@
+"""Gaussians right in front of a training camera: the census a loss spike records."""
+
+import numpy as np
+import pytest
+import torch
+
+from gof_warp.camera import Camera
+from gof_warp.config import merge
+from gof_warp.data import load_scene
+from gof_warp.loss_monitor import LossSpikeMonitor
+from gof_warp.near_camera import centre_depths, near_camera_census
+from gof_warp.step_scalars import IterationScalars
+from gof_warp.synthetic import make_scene
+from gof_warp.trainer import TrainConfig, Trainer
+from test_train import TINY
+
+
+def _camera(centre, name="c") -> Camera:
+    """A 40×30 camera at ``centre`` looking along world +y (OpenCV axes: x right, y down, z forward)."""
+    c2w = np.eye(4)
+    c2w[:3, :3] = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]])  # columns: cam x, y, z in world
+    c2w[:3, 3] = centre
+    return Camera.from_c2w(c2w, fx=40.0, fy=40.0, cx=20.0, cy=15.0, width=40, height=30, name=name)
+
+
+def test_centre_depths_match_the_camera_projection_in_float64():
+    cam = _camera((0.5, -1.0, 0.2))
+    pts = np.random.default_rng(0).uniform(-3, 3, (500, 3))
+    z, inside = centre_depths(torch.tensor(pts, dtype=torch.float64), cam)
+    _, z_ref, inside_ref = cam.in_image(pts, near=0.0)
+    assert np.allclose(z.numpy(), z_ref, atol=1e-12)
+    assert np.array_equal(inside.numpy(), inside_ref)
+    assert 0 < inside_ref.sum() < len(pts)  # both kinds present: the test can fail
+
+
+def test_census_lists_the_nearest_centres_in_the_image_only():
+    cam = _camera((0.0, 0.0, 0.0))
+    means = torch.tensor([[0.0, 0.3, 0.0],   # 0.3 in front, image centre
+                          [0.1, 0.8, 0.0],   # 0.8 in front, in the image
+                          [0.0, 2.5, 0.0],   # beyond `within`
+                          [0.0, -0.3, 0.0],  # behind the camera
+                          [5.0, 0.5, 0.0]])  # in front but far outside the image
+    opac = torch.tensor([0.9, 0.5, 0.7, 0.8, 0.6])
+    scales = torch.tensor([[0.1, 0.2, 0.05], [0.01, 0.01, 0.02], [0.3, 0.3, 0.3], [1, 1, 1], [1, 1, 1.0]])
+    c = near_camera_census(means, opac, scales, cam, within=1.0)
+    assert c["count"] == 2
+    assert [n["depth"] for n in c["nearest"]] == [pytest.approx(0.3), pytest.approx(0.8)]
+    assert c["nearest"][0]["opacity"] == pytest.approx(0.9) and c["nearest"][0]["max_scale"] == pytest.approx(0.2)
+    assert near_camera_census(means, opac, scales, cam, within=1.0, top=1)["nearest"][0]["depth"] == pytest.approx(0.3)
+
+
+def test_monitor_lists_view_spikes_with_their_terms_and_keeps_them_in_its_state():
+    m = LossSpikeMonitor(warmup=0, max_events=2)
+    it = 0
+    for _ in range(5):
+        for v in ("a", "b"):
+            it += 1
+            m.update(it, 1.0, v, {"l1": 1.0})
+            assert m.last_view_spike is None
+    m.update(it + 1, 50.0, "a", {"l1": 2.0, "distortion": 0.5})
+    assert m.last_view_spike == {"iteration": it + 1, "view": "a", "ratio": 50.0, "loss": 50.0, "view_median": 1.0,
+                                 "terms": {"l1": 2.0, "distortion": 0.5}}
+    m.last_view_spike["near_camera"] = {"count": 3}  # what the trainer attaches
+    m.update(it + 2, 1.0, "b")
+    assert m.last_view_spike is None
+    m.update(it + 3, 80.0, "b")
+    m.update(it + 4, 90.0, "a")  # over max_events: counted, not listed
+    report = m.report()
+    assert [e["view"] for e in report["view_spikes"]] == ["a", "b"]
+    assert report["view_spikes"][0]["near_camera"] == {"count": 3}
+    assert report["view_count_over_threshold"] == 3
+    again = LossSpikeMonitor(warmup=0, max_events=2)
+    again.load_state_dict(m.state_dict())
+    assert again.report()["view_spikes"] == report["view_spikes"]
+
+
+def test_a_view_spike_in_training_records_what_sits_in_front_of_that_camera(tmp_path):
+    scene = load_scene(make_scene("default", tmp_path / "s", views=6, resolution=(32, 32), device="cpu"))
+    t = Trainer(scene, merge(TrainConfig(), TINY), tmp_path / "run", "cpu")
+    cam = t.cameras[2]
+    planted = torch.tensor(cam.center + 0.3 * cam.R[2], dtype=torch.float32)  # 0.3 in front, on the optical axis
+    with torch.no_grad():
+        t.gaussians.params["means"][0] = planted
+    t.spikes = LossSpikeMonitor(warmup=0)
+    for it in range(1, 6):  # a steady loss, then one visit of that view 40x higher
+        loss = 40.0 if it == 5 else 1.0
+        t._pending.add(IterationScalars(it, cam.name, len(t.gaussians), False, 0.0, {}),
+                       {"total": torch.tensor(loss), "l1": torch.tensor(loss)})
+    t._drain()
+    (event,) = t.spikes.report()["view_spikes"]
+    assert event["iteration"] == 5 and event["view"] == cam.name and event["ratio"] == pytest.approx(40.0)
+    near = event["near_camera"]
+    assert near["nearest"][0]["depth"] == pytest.approx(0.3, abs=1e-5) and near["count"] >= 1
+    assert near["within"] == pytest.approx(0.25 * scene.extent) and near["spike_iteration"] == 5
+    assert t._near_census("no such view", spike_iteration=0) is None
