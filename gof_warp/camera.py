@@ -206,6 +206,14 @@ class Camera(Intrinsics):
             v = self.fy * pc[:, 1] / z + self.cy
         return np.stack([u, v], axis=1), z
 
+    def project_tensor(self, points):
+        """:meth:`project` of a torch tensor ``points [N, 3]`` on its device, in its dtype: ``(u [N], v [N], z [N])``.
+        Where ``z <= 0`` the projection divides by 1 instead (finite, meaningless: test ``z`` first)."""
+        pc = points @ points.new_tensor(self.R).T + points.new_tensor(self.t)
+        z = pc[:, 2]
+        zs = z.where(z > 0, z.new_ones(()))
+        return self.fx * pc[:, 0] / zs + self.cx, self.fy * pc[:, 1] / zs + self.cy, z
+
     def in_image(self, points: np.ndarray, near: float = 0.0):
         """:meth:`project` plus ``inside [N]`` bool: in front of the camera (``depth > near``) and within the image
         (``0 <= u < width``, ``0 <= v < height``). Returns ``(uv, depth, inside)``."""

@@ -22,13 +22,7 @@ from .camera import Camera
 def centre_depths(means: torch.Tensor, camera: Camera) -> tuple[torch.Tensor, torch.Tensor]:
     """``(depth [N], in_image [N] bool)`` of centres ``means [N, 3]``: camera-space ``z`` and whether the centre is
     in front of the camera (``z > 0``) and projects inside the image (``0 <= u < width``, ``0 <= v < height``)."""
-    R = torch.as_tensor(camera.R, dtype=means.dtype, device=means.device)
-    t = torch.as_tensor(camera.t, dtype=means.dtype, device=means.device)
-    pc = means @ R.T + t
-    z = pc[:, 2]
-    zs = torch.where(z > 0, z, torch.ones_like(z))
-    u = camera.fx * pc[:, 0] / zs + camera.cx
-    v = camera.fy * pc[:, 1] / zs + camera.cy
+    u, v, z = camera.project_tensor(means)
     inside = (z > 0) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
     return z, inside
 

@@ -138,13 +138,7 @@ def frustum_mask(points: torch.Tensor, cameras: Sequence[Camera], near: float, f
     """``[P]`` bool: the point projects into some camera's image ``[0, W] × [0, H]`` with ``near <= z <= far``."""
     keep = torch.zeros(points.shape[0], dtype=torch.bool, device=points.device)
     for cam in cameras:
-        R = torch.as_tensor(cam.R, dtype=points.dtype, device=points.device)
-        t = torch.as_tensor(cam.t, dtype=points.dtype, device=points.device)
-        pc = points @ R.T + t
-        z = pc[:, 2]
-        zs = torch.where(z > 0, z, torch.ones_like(z))
-        u = cam.fx * pc[:, 0] / zs + cam.cx
-        v = cam.fy * pc[:, 1] / zs + cam.cy
+        u, v, z = cam.project_tensor(points)
         keep |= (z >= near) & (z <= far) & (u >= 0) & (u <= cam.width) & (v >= 0) & (v <= cam.height)
     return keep
 

@@ -109,3 +109,19 @@ def test_lens_cameras_validate_like_cameras_and_cameras_compare_by_identity():
         LensCamera(fx=1.0, fy=1.0, cx=0.0, cy=0.0, width=2, height=2, k2=float("nan"))
     a, b = look_at([1.0, 0, 0], [0, 0, 0]), look_at([1.0, 0, 0], [0, 0, 0])
     assert a != b and a == a and len({a, b}) == 2  # views with equal poses stay distinct
+
+
+def test_project_tensor_matches_project_in_float64_and_stays_finite_behind_the_camera():
+    import torch
+
+    cam = look_at(np.array([1.0, -3.0, 0.5]), np.zeros(3), fx=50.0, width=64, height=48)
+    pts = np.random.default_rng(1).uniform(-4, 4, (300, 3))
+    uv, z = cam.project(pts)
+    u, v, zt = cam.project_tensor(torch.tensor(pts, dtype=torch.float64))
+    front = z > 0
+    assert 0 < front.sum() < len(pts)  # points on both sides of the camera
+    assert np.allclose(zt.numpy(), z, atol=1e-12)
+    assert np.allclose(u.numpy()[front], uv[front, 0], atol=1e-9) and np.allclose(v.numpy()[front], uv[front, 1], atol=1e-9)
+    assert torch.isfinite(u).all() and torch.isfinite(v).all()
+    u32, _, _ = cam.project_tensor(torch.tensor(pts, dtype=torch.float32))
+    assert u32.dtype == torch.float32
