@@ -329,7 +329,8 @@ class Trainer:
         if cam is None:
             return None
         g = self.gaussians
-        census = near_camera_census(g.means, g.opacities, g.scales, cam, within=0.25 * self.scene.extent)
+        census = near_camera_census(g.means, g.opacities, g.scales, cam, within=0.25 * self.scene.extent,
+                                    min_opacity=self.render_config.alpha_min)
         return {**census, "iteration": self.iteration, "spike_iteration": spike_iteration}
 
     def _trained_params(self) -> list[torch.Tensor]:

@@ -43,10 +43,12 @@ def test_census_lists_the_nearest_centres_in_the_image_only():
     opac = torch.tensor([0.9, 0.5, 0.7, 0.8, 0.6])
     scales = torch.tensor([[0.1, 0.2, 0.05], [0.01, 0.01, 0.02], [0.3, 0.3, 0.3], [1, 1, 1], [1, 1, 1.0]])
     c = near_camera_census(means, opac, scales, cam, within=1.0)
-    assert c["count"] == 2
+    assert c["count"] == c["visible"] == 2
     assert [n["depth"] for n in c["nearest"]] == [pytest.approx(0.3), pytest.approx(0.8)]
     assert c["nearest"][0]["opacity"] == pytest.approx(0.9) and c["nearest"][0]["max_scale"] == pytest.approx(0.2)
     assert near_camera_census(means, opac, scales, cam, within=1.0, top=1)["nearest"][0]["depth"] == pytest.approx(0.3)
+    faint = near_camera_census(means, opac, scales, cam, within=1.0, min_opacity=0.6)  # the 0.8-deep one renders nothing
+    assert (faint["count"], faint["visible"]) == (2, 1) and [n["depth"] for n in faint["nearest"]] == [pytest.approx(0.3)]
 
 
 def test_monitor_lists_view_spikes_with_their_terms_and_keeps_them_in_its_state():
