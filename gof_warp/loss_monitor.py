@@ -45,15 +45,18 @@ class LossSpikeMonitor:
         warmup: iterations before which nothing is recorded (the issue's "after iteration 1,000").
         threshold: a ratio above this counts as a spike.
         min_history: ratios are recorded only once the window holds this many losses.
+        view_window, view_min_history: the same two for each view's own losses.
+        max_events: how many per-view spikes ``view_spikes`` lists (all are counted).
     """
 
     def __init__(self, window: int = 200, warmup: int = 1000, threshold: float = 10.0, min_history: int = 50,
                  view_window: int = 8, view_min_history: int = 3, max_events: int = 20):
         if window < 10 or min_history < 1 or min_history > window or threshold <= 1 or not (
-                1 <= view_min_history <= view_window):
-            raise ValueError(f"LossSpikeMonitor: need window >= 10, 1 <= min_history <= window, threshold > 1; got "
-                             f"window={window}, min_history={min_history}, threshold={threshold}, view_window={view_window}, "
-                             f"view_min_history={view_min_history}")
+                1 <= view_min_history <= view_window) or max_events < 0:
+            raise ValueError(f"LossSpikeMonitor: need window >= 10, 1 <= min_history <= window, threshold > 1, "
+                             f"1 <= view_min_history <= view_window, max_events >= 0; got window={window}, "
+                             f"min_history={min_history}, threshold={threshold}, view_window={view_window}, "
+                             f"view_min_history={view_min_history}, max_events={max_events}")
         self.window, self.warmup, self.threshold, self.min_history = window, warmup, threshold, min_history
         self.recent: deque[float] = deque(maxlen=window)
         self.worst: SpikeRecord | None = None

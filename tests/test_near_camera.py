@@ -71,6 +71,8 @@ def test_monitor_lists_view_spikes_with_their_terms_and_keeps_them_in_its_state(
     assert [e["view"] for e in report["view_spikes"]] == ["a", "b"]
     assert report["view_spikes"][0]["near_camera"] == {"count": 3}
     assert report["view_count_over_threshold"] == 3
+    with pytest.raises(ValueError, match="max_events"):
+        LossSpikeMonitor(max_events=-1)
     again = LossSpikeMonitor(warmup=0, max_events=2)
     again.load_state_dict(m.state_dict())
     assert again.report()["view_spikes"] == report["view_spikes"]
