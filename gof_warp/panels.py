@@ -10,6 +10,8 @@ composed into one labelled picture (library code; the run loading and the CLI ar
   pixels (near = bright yellow, far = dark purple), composited on the background by the rendered alpha.
 * **rendered normal**: :func:`colorize_normal`, the renderer's normal map turned to world space, colour
   ``(n + 1) / 2``.
+* **distortion** (optional, the loss-spike pictures): :func:`colorize_distortion`, the per-pixel distortion term's map
+  (how far apart along the ray the pixel's weight lies), square root of its share of the image's maximum.
 * **shaded mesh**: :func:`shade_mesh` — the mesh ray cast with Warp's BVH from the same camera, lit by a
   headlight plus ambient light; faces seen from behind (inside-out parts, holes into the interior) are
   tinted red.
@@ -45,7 +47,7 @@ MAX_WIDTH = 2000
 DEPTH_PERCENTILES = (2.0, 98.0)  # robust depth range: ignores a few stray near/far pixels
 COVERED_ALPHA = 0.5  # a pixel is "covered" by the Gaussians (for the depth range) above this alpha
 COLUMN_TITLES = {"photo": "photo", "render": "Gaussian render", "depth": "median depth", "normal": "rendered normal",
-                 "mesh": "shaded mesh"}
+                 "distortion": "distortion (sqrt)", "mesh": "shaded mesh"}
 # Viridis sampled at 0, 1/4, 1/2, 3/4, 1 (far → near); linear in between is close enough for a preview.
 _DEPTH_ANCHORS = np.array([[0.267, 0.005, 0.329], [0.229, 0.322, 0.546], [0.128, 0.567, 0.551],
                            [0.369, 0.789, 0.383], [0.993, 0.906, 0.144]], np.float32)
@@ -178,13 +180,26 @@ def colorize_depth(depth: np.ndarray, alpha: np.ndarray, background=BACKGROUND) 
     if not valid.any():
         return np.broadcast_to(np.round(bg * 255).astype(np.uint8), depth.shape + (3,)).copy()
     lo, hi = np.percentile(depth[valid], DEPTH_PERCENTILES)
-    x = 1.0 - np.clip((depth - lo) / max(float(hi - lo), 1e-12), 0.0, 1.0)  # 1 = near
-    pos = x * (len(_DEPTH_ANCHORS) - 1)
-    i = np.minimum(pos.astype(np.int64), len(_DEPTH_ANCHORS) - 2)
-    t = (pos - i)[..., None]
-    col = _DEPTH_ANCHORS[i] * (1 - t) + _DEPTH_ANCHORS[i + 1] * t
+    col = _viridis(1.0 - np.clip((depth - lo) / max(float(hi - lo), 1e-12), 0.0, 1.0))  # 1 = near
     a = np.where(depth > 0, alpha, 0.0)[..., None]
     return np.round(np.clip(col * a + bg * (1 - a), 0, 1) * 255).astype(np.uint8)
+
+
+def _viridis(x: np.ndarray) -> np.ndarray:
+    """``[...]`` values in ``[0, 1]`` → ``[..., 3]`` float colours (the depth map's ramp: 1 = bright yellow)."""
+    pos = np.clip(x, 0.0, 1.0) * (len(_DEPTH_ANCHORS) - 1)
+    i = np.minimum(pos.astype(np.int64), len(_DEPTH_ANCHORS) - 2)
+    t = (pos - i)[..., None]
+    return _DEPTH_ANCHORS[i] * (1 - t) + _DEPTH_ANCHORS[i + 1] * t
+
+
+def colorize_distortion(distortion: np.ndarray) -> np.ndarray:
+    """``[H, W]`` per-pixel distortion (≥ 0) → ``[H, W, 3]`` uint8: viridis of ``sqrt(d / max d)`` (an all-zero map
+    is dark)."""
+    d = np.clip(np.nan_to_num(np.asarray(distortion, np.float64)), 0.0, None)
+    top = float(d.max()) if d.size else 0.0
+    x = np.sqrt(d / top) if top > 0 else np.zeros_like(d)
+    return np.round(np.clip(_viridis(x), 0, 1) * 255).astype(np.uint8)
 
 
 def colorize_normal(normal_cam: np.ndarray, alpha: np.ndarray, camera: Camera, background=BACKGROUND) -> np.ndarray:
@@ -199,7 +214,7 @@ def colorize_normal(normal_cam: np.ndarray, alpha: np.ndarray, camera: Camera, b
 
 
 def render_columns(gaussians, camera: Camera, render_config=None) -> dict[str, np.ndarray]:
-    """``{"render", "depth", "normal"}`` uint8 ``[H, W, 3]`` images of the Gaussians seen by ``camera``."""
+    """``{"render", "depth", "normal", "distortion"}`` uint8 ``[H, W, 3]`` images of the Gaussians seen by ``camera``."""
     import torch
 
     from .render import render
@@ -210,7 +225,8 @@ def render_columns(gaussians, camera: Camera, render_config=None) -> dict[str, n
     alpha = out["alpha"].cpu().numpy()
     return {"render": np.round(rgb * 255).astype(np.uint8),
             "depth": colorize_depth(out["median_depth"].cpu().numpy(), alpha),
-            "normal": colorize_normal(out["normal"].cpu().numpy(), alpha, camera)}
+            "normal": colorize_normal(out["normal"].cpu().numpy(), alpha, camera),
+            "distortion": colorize_distortion(out["distortion"].cpu().numpy())}
 
 
 # --------------------------------------------------------------------------------------- panel layout
@@ -268,8 +284,9 @@ def _resize(image: np.ndarray, width: int, height: int) -> np.ndarray:
 
 
 def view_panels(gaussians, cameras: list[Camera], *, photos: list | None = None, mesh=None, render_config=None,
-                path=None, labels: list[str] | None = None, max_width: int = MAX_WIDTH, device=None) -> Panels:
-    """One row per camera: photo | Gaussian render | median depth | rendered normal | shaded mesh.
+                path=None, labels: list[str] | None = None, max_width: int = MAX_WIDTH, device=None,
+                distortion: bool = False) -> Panels:
+    """One row per camera: photo | Gaussian render | median depth | rendered normal | [distortion |] shaded mesh.
 
     Args:
         gaussians: :class:`~gof_warp.model.Gaussians` (rendered on their own device).
@@ -281,6 +298,7 @@ def view_panels(gaussians, cameras: list[Camera], *, photos: list | None = None,
         labels: one text per row (default: the camera names).
         max_width: cameras (and photos) are scaled down so the picture is at most this wide.
         device: Warp device for the mesh ray casting (default: the Gaussians' device).
+        distortion: add the distortion map's column.
     Returns:
         :class:`Panels`.
     """
@@ -289,7 +307,7 @@ def view_panels(gaussians, cameras: list[Camera], *, photos: list | None = None,
     if photos is not None and len(photos) != len(cameras):
         raise ValueError(f"view_panels: {len(photos)} photos for {len(cameras)} cameras")
     columns = ["photo"] if photos is not None else []
-    columns += ["render", "depth", "normal"] + (["mesh"] if mesh is not None else [])
+    columns += ["render", "depth", "normal"] + (["distortion"] if distortion else []) + (["mesh"] if mesh is not None else [])
     scale = fit_scale(len(columns), [c.width for c in cameras], max_width)
     cams = [c if scale == 1.0 else c.scaled(scale) for c in cameras]
     width, height, boxes = panel_layout(columns, [(c.width, c.height) for c in cams])

@@ -15,7 +15,10 @@ list), with the columns
   too) with the run's render settings.
 
 Training also writes ``RUN/pictures/views_it<N>.png`` (the same panels and views) for the model at each of
-its ``snapshot_iterations`` (:func:`snapshot_pictures_or_warning`).
+its ``snapshot_iterations`` (:func:`snapshot_pictures_or_warning`), and for each loss spike it lists (a view's loss
+more than 10× that view's own median, ``metrics.json`` ``loss_spikes.view_spikes``) ``RUN/pictures/spike_it<N>_<view>.png``:
+that view's photo, render, depth, normal and distortion map when the spike was read back
+(:func:`spike_picture_or_warning`).
 
 This module finds what to draw — the run's Gaussians, cameras, render settings, the views to show and their
 photos — and holds the CLI. Library code (``train`` and ``extract`` call :func:`pictures_or_warning`).
@@ -54,6 +57,7 @@ from .panels import (  # noqa: F401 - the drawing lives in panels; re-exported f
     _resize,
     _warp_device,
     colorize_depth,
+    colorize_distortion,
     colorize_normal,
     fit_scale,
     panel_layout,
@@ -264,6 +268,34 @@ def snapshot_pictures_or_warning(trainer, record: dict | None = None, *, views: 
     except Exception as e:  # noqa: BLE001 - any failure of a convenience output
         log.warning("could not write the picture of the snapshot at iteration %d: %s", iteration, e)
         return []
+
+
+def spike_picture_name(iteration: int, view: str) -> str:
+    """``spike_it<N>_<view>.png``: the picture of the loss spike of ``view`` at iteration ``N`` in ``RUN/pictures``
+    (characters other than letters, digits, ``-``, ``_`` and ``.`` in the view's name become ``_``)."""
+    safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in str(view))
+    return f"spike_it{int(iteration)}_{safe}.png"
+
+
+def spike_picture_or_warning(trainer, event: dict) -> list[Path]:
+    """``RUN/pictures/spike_it<N>_<view>.png`` for one listed loss spike of a :class:`~gof_warp.trainer.Trainer`
+    (``event``: an entry of ``loss_spikes.view_spikes``): one row, photo | render | median depth | rendered normal |
+    distortion, of the trainer's current model (drawn when the spike was read back, a few iterations after it).
+    Records the picture's name in ``event["picture"]``. A failure only logs a warning and returns ``[]``."""
+    view, iteration = str(event.get("view", "")), int(event.get("iteration", trainer.iteration))
+    path = Path(trainer.out_dir) / "pictures" / spike_picture_name(iteration, view)
+    try:
+        idx = next(i for i, c in enumerate(trainer.cameras) if c.name == view)
+        photo = np.round(trainer.images[idx].detach().clamp(0, 1).cpu().numpy() * 255).astype(np.uint8)
+        label = (f"{view} (train): loss {event.get('ratio')}x its median at iteration {iteration}, drawn at "
+                 f"{trainer.iteration}")
+        view_panels(trainer.gaussians, [trainer.cameras[idx]], photos=[photo], render_config=trainer.render_config,
+                    path=path, labels=[label], distortion=True)
+    except Exception as e:  # noqa: BLE001 - any failure of a convenience output
+        log.warning("could not write the picture of the loss spike of view %r at iteration %d: %s", view, iteration, e)
+        return []
+    event["picture"] = f"pictures/{path.name}"
+    return [path]
 
 
 def pictures_or_warning(run_dir, **kwargs) -> list[Path]:

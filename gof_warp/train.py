@@ -136,6 +136,15 @@ def _snapshot_pictures(trainer, record: dict) -> None:
         log.info("wrote %s", p)
 
 
+def _spike_pictures(trainer, event: dict) -> None:
+    """The trainer's loss-spike callback: ``RUN/pictures/spike_it<N>_<view>.png`` (a failure only warns)."""
+    from .pictures import spike_picture_or_warning
+
+    for p in spike_picture_or_warning(trainer, event):
+        log.info("loss spike on view %s at iteration %s (%sx its median): wrote %s", event.get("view"),
+                 event.get("iteration"), event.get("ratio"), p)
+
+
 def _run(a) -> int:
     from .data import load_scene
     from .distributed import rank_device, ranks_from_environment
@@ -191,7 +200,8 @@ def _run(a) -> int:
     try:
         with TrainingProgress(cfg.iterations, start=trainer.iteration, quiet=a.quiet or not ranks.is_main) as progress:
             metrics = trainer.run(progress=_on_iteration(progress, viewer, a.viewer_every, trainer),
-                                  on_snapshot=None if a.no_pictures else _snapshot_pictures)
+                                  on_snapshot=None if a.no_pictures else _snapshot_pictures,
+                                  on_spike=None if a.no_pictures else _spike_pictures)
         if not ranks.is_main:
             ranks.barrier()  # wait for rank 0's evaluation and writes: leaving earlier can abort the whole job
             return 0

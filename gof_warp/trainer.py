@@ -200,6 +200,7 @@ class Trainer:
         self.warmup_s: float | None = None  # the last _warm_up's time (not training time)
         self.resumed_from: Path | None = None  # the checkpoint resume() loaded
         self.spikes = LossSpikeMonitor()
+        self._spikes_read: list[dict] = []  # the listed spikes the last _drain read back (for run's on_spike)
         # tile lists sized without waiting for the GPU each iteration (on the CPU there is nothing to overlap)
         self.tile_lists = (TileListSizer(config.tile_list_margin)
                            if self.device.type == "cuda" and config.tile_list_margin else None)
@@ -341,6 +342,7 @@ class Trainer:
         """Read the queued iterations' terms back (one copy), stop on a non-finite loss, feed the spike monitor
         and the history; returns the newest iteration's values (empty when nothing was queued)."""
         last = {}
+        self._spikes_read = []
         for rec in self._pending.flush():
             total = rec.values["total"]
             if not math.isfinite(total):
@@ -354,6 +356,7 @@ class Trainer:
             self.spikes.update(rec.iteration, total, rec.view, terms)
             if self.spikes.last_view_spike is not None:  # what sits right in front of that camera now
                 self.spikes.last_view_spike["near_camera"] = self._near_census(rec.view, rec.iteration)
+                self._spikes_read.append(self.spikes.last_view_spike)
             last = {**rec.values, "num_gaussians": rec.num_gaussians}
             if rec.iteration % self.config.log_every == 0 or rec.iteration == self.config.iterations:
                 self.history.append({"iteration": rec.iteration, "elapsed_s": round(rec.elapsed_s, 3),
@@ -362,11 +365,14 @@ class Trainer:
 
     # ------------------------------------------------------------------ the run
     def run(self, progress: Callable[[int, dict], None] | None = None,
-            on_snapshot: Callable[["Trainer", dict], None] | None = None) -> dict:
+            on_snapshot: Callable[["Trainer", dict], None] | None = None,
+            on_spike: Callable[["Trainer", dict], None] | None = None) -> dict:
         """Train to ``config.iterations``, checkpointing; then evaluate and write the outputs.
 
         ``on_snapshot(trainer, record)`` is called after each snapshot is written (:meth:`write_snapshot`), e.g.
         to draw its picture; its time is not counted as training time, and it must not change the model.
+        ``on_spike(trainer, event)`` likewise for each per-view loss spike the monitor lists (``event``: its entry of
+        ``loss_spikes.view_spikes``, which the callback may annotate), when the spike is read back (rank 0 only).
 
         Ctrl-C during training stops at the end of the current iteration: a checkpoint of that iteration is
         written (atomically, like every checkpoint) and :class:`TrainingInterrupted` is raised; the final
@@ -378,7 +384,7 @@ class Trainer:
         if self.iteration < cfg.iterations:
             self._warm_up()
         with deferred_interrupt() as interrupted:
-            last = self._train_loop(progress, interrupted, on_snapshot)
+            last = self._train_loop(progress, interrupted, on_snapshot, on_spike)
         train_time = self.elapsed
         if not self.ranks.is_main:  # rank 0 writes the run folder
             return {"iterations": cfg.iterations, "train_time_s": round(train_time, 3), "rank": self.ranks.rank}
@@ -435,7 +441,7 @@ class Trainer:
             torch.cuda.synchronize(self.device)
         self.warmup_s = time.perf_counter() - t
 
-    def _train_loop(self, progress, interrupted: Callable[[], bool], on_snapshot=None) -> dict:
+    def _train_loop(self, progress, interrupted: Callable[[], bool], on_snapshot=None, on_spike=None) -> dict:
         """Iterate to ``config.iterations`` (history, progress, snapshots, checkpoints); the last step's terms."""
         cfg = self.config
         t0 = time.perf_counter() - self.elapsed
@@ -451,6 +457,11 @@ class Trainer:
                     or it in snapshot_at or checkpoint_due):
                 last = self._drain()  # waits for the GPU: the time now includes the queued work
                 self.elapsed = time.perf_counter() - t0
+                if self._spikes_read and on_spike is not None and self.ranks.is_main:
+                    t_spike = time.perf_counter()
+                    for event in self._spikes_read:
+                        on_spike(self, event)
+                    t0 += time.perf_counter() - t_spike  # not training time
             if progress is not None:
                 progress(it, {**last, "num_gaussians": len(self.gaussians),
                               "its_per_s": it / self.elapsed if self.elapsed > 0 else math.nan})

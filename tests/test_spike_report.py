@@ -1,5 +1,7 @@
 """Gaussians right in front of a training camera: the census a loss spike records."""
 
+import json
+
 import numpy as np
 import pytest
 import torch
@@ -97,3 +99,48 @@ def test_a_view_spike_in_training_records_what_sits_in_front_of_that_camera(tmp_
     assert near["nearest"][0]["depth"] == pytest.approx(0.3, abs=1e-5) and near["count"] >= 1
     assert near["within"] == pytest.approx(0.25 * scene.extent) and near["spike_iteration"] == 5
     assert t._near_census("no such view", spike_iteration=0) is None
+
+
+def test_distortion_colours_run_from_dark_to_bright_and_an_empty_map_is_dark():
+    from gof_warp.panels import colorize_distortion
+
+    d = np.array([[0.0, 0.01, 0.25, 1.0]])
+    c = colorize_distortion(d).astype(int)
+    brightness = c.sum(axis=-1)[0]
+    assert np.all(np.diff(brightness) > 0)  # viridis brightens with the value
+    assert tuple(c[0, -1]) == tuple(np.round(np.array([0.993, 0.906, 0.144]) * 255).astype(int))  # the maximum
+    assert np.array_equal(colorize_distortion(np.zeros((2, 3))), np.broadcast_to(c[0, 0], (2, 3, 3)))
+
+
+def test_training_draws_a_picture_of_each_listed_spike(tmp_path):
+    from gof_warp.pictures import spike_picture_name, spike_picture_or_warning
+
+    scene = load_scene(make_scene("default", tmp_path / "s", views=6, resolution=(32, 32), device="cpu"))
+    t = Trainer(scene, merge(TrainConfig(), TINY), tmp_path / "run", "cpu")
+    class Listing(LossSpikeMonitor):  # lists iterations 5, 11 and 19 as spikes (a 24-iteration run has none)
+        def update(self, iteration, loss, view="", terms=None):
+            ratio = super().update(iteration, loss, view, terms)
+            if iteration in (5, 11, 19):
+                self.last_view_spike = {"iteration": iteration, "view": view, "ratio": 12.0, "terms": dict(terms)}
+                self.events.append(self.last_view_spike)
+            return ratio
+
+    t.spikes = Listing()
+    seen = []
+
+    def on_spike(trainer, event):
+        seen.append(event["iteration"])
+        spike_picture_or_warning(trainer, event)
+
+    metrics = t.run(on_spike=on_spike)
+    listed = metrics["loss_spikes"]["view_spikes"]
+    assert seen == [e["iteration"] for e in listed] == [5, 11, 19]  # each listed spike once, in order
+    for e in listed:
+        assert e["near_camera"]["spike_iteration"] == e["iteration"]
+        assert e["picture"] == "pictures/" + spike_picture_name(e["iteration"], e["view"])
+        assert (tmp_path / "run" / e["picture"]).is_file()
+    saved = json.loads((tmp_path / "run" / "metrics.json").read_text())["loss_spikes"]["view_spikes"]
+    assert [e.get("picture") for e in saved] == [e["picture"] for e in listed]
+    # an event naming no training view: a warning, no picture, no exception
+    assert spike_picture_or_warning(t, {"view": "nope", "iteration": 3, "ratio": 2.0}) == []
+    assert spike_picture_name(7, "a/b c") == "spike_it7_a_b_c.png"
