@@ -77,6 +77,7 @@ FLAT_TARGET = 0.95
 PATCH_SIZE = 0.1  # ground patches of 10 x 10 cm in metric scenes (1 unit = 1 m)
 PATCH_MISSING_LIMIT = 0.1  # a patch "fails" with more than 10 % of its GT ground samples missing
 PATCH_MIN_SAMPLES = 16  # patches with fewer seen-ground samples (cut by footprints, edges) are not reported
+PATCHES_LISTED = 50  # incomplete patches listed by centre in the report (worst first)
 GROUND_SAMPLES_PER_PATCH = 100  # seen-ground sampling density for the patch statistics
 ON_PLANE_FRACTION = 1e-5  # of the diagonal: a GT sample this close to the plane is a ground sample
 
@@ -301,12 +302,17 @@ def ground_metrics(pred_pts, gt_pts, gt_ground_pts, ground: Ground, *, tau: floa
     frac = np.bincount(inv.ravel(), weights=covered.astype(np.float64), minlength=len(keys)) / np.maximum(counts, 1)
     rep = counts >= min_samples
     worst = int(np.argmin(np.where(rep, frac, np.inf))) if rep.any() else None
+    short = np.flatnonzero(rep & (1.0 - frac > PATCH_MISSING_LIMIT))
+    short = short[np.argsort(frac[short], kind="stable")][:PATCHES_LISTED]
     out.update(
         patches=int(rep.sum()),
         patches_over_limit=int(np.sum(rep & (1.0 - frac > PATCH_MISSING_LIMIT))),
         missing_limit=PATCH_MISSING_LIMIT,
         worst_patch_completeness=float(frac[worst]) if worst is not None else None,
         worst_patch_center=(lo + (keys[worst] + 0.5) * patch).tolist() if worst is not None else None,
+        # the patches over the limit, worst first (at most PATCHES_LISTED): where the ground is incomplete
+        patches_over_limit_list=[{"center": (lo + (keys[i] + 0.5) * patch).tolist(), "completeness": float(frac[i])}
+                                 for i in short.tolist()],
         ground_completeness=float(covered.mean()) if len(covered) else None,
     )
     out["patch_target_met"] = bool(rep.any() and out["patches_over_limit"] == 0)

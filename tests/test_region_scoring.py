@@ -66,6 +66,7 @@ def test_exact_flat_ground_scores_one_and_the_ground_metrics_pass():
     assert rep["metrics"]["fscore"] == [1.0] and rep["floor"]["metrics"]["fscore"][0] > 0.999
     g = rep["ground"]
     assert g["patches"] > 100 and g["patches_over_limit"] == 0 and g["worst_patch_completeness"] == 1.0
+    assert g["patches_over_limit_list"] == []
     assert g["flat_target_met"] and g["patch_target_met"] and g["flat_fraction"] == 1.0
 
 
@@ -79,6 +80,12 @@ def test_hole_in_the_seen_ground_fails_patch_completeness():
                         gt_samples=GROUND_SAMPLES)
     g = rep["ground"]
     assert not g["patch_target_met"] and g["patches_over_limit"] >= 4 and g["worst_patch_completeness"] < 0.2
+    # every listed incomplete patch lies in or at the hole (its 10-cm patches overlap x 0.1..0.5, y -0.4..0), worst first
+    listed = g["patches_over_limit_list"]
+    assert len(listed) == g["patches_over_limit"]
+    assert all(0.1 - 0.1 <= e["center"][0] <= 0.5 + 0.1 and -0.4 - 0.1 <= e["center"][1] <= 0.0 + 0.1 for e in listed)
+    assert [e["completeness"] for e in listed] == sorted(e["completeness"] for e in listed)
+    assert listed[0]["completeness"] == g["worst_patch_completeness"]
     assert rep["floor"]["ground"]["patch_target_met"]
     assert g["flat_target_met"]  # what is there is flat
 
