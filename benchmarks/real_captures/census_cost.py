@@ -1,6 +1,6 @@
 """CUDA check of the loss-spike census (tests/test_spike_report.py's trainer case, on the GPU) and its cost at 190k
-Gaussians. Run on the GPU machine from the repository root (the output below is what results/s12_census_cost_h200.json
-holds):   python3 benchmarks/real_captures/census_cost.py
+Gaussians. Run on the GPU machine from the repository root; its recorded output is
+results/s12_census_cost_h200.json:   python3 benchmarks/real_captures/census_cost.py
 """
 import sys, time, torch
 sys.path.insert(0, "tests")
