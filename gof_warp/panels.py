@@ -213,8 +213,9 @@ def colorize_normal(normal_cam: np.ndarray, alpha: np.ndarray, camera: Camera, b
     return np.round(np.clip(col, 0, 1) * 255).astype(np.uint8)
 
 
-def render_columns(gaussians, camera: Camera, render_config=None) -> dict[str, np.ndarray]:
-    """``{"render", "depth", "normal", "distortion"}`` uint8 ``[H, W, 3]`` images of the Gaussians seen by ``camera``."""
+def render_columns(gaussians, camera: Camera, render_config=None, distortion: bool = False) -> dict[str, np.ndarray]:
+    """``{"render", "depth", "normal"}`` (and ``"distortion"`` when asked) uint8 ``[H, W, 3]`` images of the Gaussians
+    seen by ``camera``."""
     import torch
 
     from .render import render
@@ -223,10 +224,12 @@ def render_columns(gaussians, camera: Camera, render_config=None) -> dict[str, n
         out = render(gaussians, camera, config=render_config)
     rgb = out["rgb"].clamp(0, 1).cpu().numpy()
     alpha = out["alpha"].cpu().numpy()
-    return {"render": np.round(rgb * 255).astype(np.uint8),
-            "depth": colorize_depth(out["median_depth"].cpu().numpy(), alpha),
-            "normal": colorize_normal(out["normal"].cpu().numpy(), alpha, camera),
-            "distortion": colorize_distortion(out["distortion"].cpu().numpy())}
+    tiles = {"render": np.round(rgb * 255).astype(np.uint8),
+             "depth": colorize_depth(out["median_depth"].cpu().numpy(), alpha),
+             "normal": colorize_normal(out["normal"].cpu().numpy(), alpha, camera)}
+    if distortion:
+        tiles["distortion"] = colorize_distortion(out["distortion"].cpu().numpy())
+    return tiles
 
 
 # --------------------------------------------------------------------------------------- panel layout
@@ -320,7 +323,7 @@ def view_panels(gaussians, cameras: list[Camera], *, photos: list | None = None,
     labels = labels or [c.name for c in cameras]
     mesh_device = device if device is not None else getattr(gaussians, "device", None)
     for r, cam in enumerate(cams):
-        tiles = render_columns(gaussians, cam, render_config)
+        tiles = render_columns(gaussians, cam, render_config, distortion=distortion)
         if photos is not None:
             p = photos[r]
             tiles["photo"] = (np.full((cam.height, cam.width, 3), np.round(np.asarray(BACKGROUND) * 255), np.uint8)

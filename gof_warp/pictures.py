@@ -285,7 +285,9 @@ def spike_picture_or_warning(trainer, event: dict) -> list[Path]:
     view, iteration = str(event.get("view", "")), int(event.get("iteration", trainer.iteration))
     path = Path(trainer.out_dir) / "pictures" / spike_picture_name(iteration, view)
     try:
-        idx = next(i for i, c in enumerate(trainer.cameras) if c.name == view)
+        idx = trainer.view_index(view)
+        if idx is None:
+            raise GofError(f"no training view is called {view!r}")
         photo = np.round(trainer.images[idx].detach().clamp(0, 1).cpu().numpy() * 255).astype(np.uint8)
         label = (f"{view} (train): loss {event.get('ratio')}x its median at iteration {iteration}, drawn at "
                  f"{trainer.iteration}")

@@ -302,11 +302,12 @@ def ground_metrics(pred_pts, gt_pts, gt_ground_pts, ground: Ground, *, tau: floa
     frac = np.bincount(inv.ravel(), weights=covered.astype(np.float64), minlength=len(keys)) / np.maximum(counts, 1)
     rep = counts >= min_samples
     worst = int(np.argmin(np.where(rep, frac, np.inf))) if rep.any() else None
-    short = np.flatnonzero(rep & (1.0 - frac > PATCH_MISSING_LIMIT))
+    over = rep & (1.0 - frac > PATCH_MISSING_LIMIT)
+    short = np.flatnonzero(over)
     short = short[np.argsort(frac[short], kind="stable")][:PATCHES_LISTED]
     out.update(
         patches=int(rep.sum()),
-        patches_over_limit=int(np.sum(rep & (1.0 - frac > PATCH_MISSING_LIMIT))),
+        patches_over_limit=int(over.sum()),
         missing_limit=PATCH_MISSING_LIMIT,
         worst_patch_completeness=float(frac[worst]) if worst is not None else None,
         worst_patch_center=(lo + (keys[worst] + 0.5) * patch).tolist() if worst is not None else None,

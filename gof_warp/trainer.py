@@ -323,15 +323,19 @@ class Trainer:
             gt = gt + clear * shift
         return config, gt
 
+    def view_index(self, name: str) -> int | None:
+        """Index in ``cameras``/``images`` of the training view called ``name`` (None: no such view)."""
+        return next((i for i, c in enumerate(self.cameras) if c.name == name), None)
+
     def _near_census(self, view: str, spike_iteration: int) -> dict | None:
         """:func:`near_camera_census` of the camera named ``view`` within a quarter of the scene extent, taken when
         the spike is read back (``iteration``: up to ``SCALARS_FLUSH_EVERY`` iterations after the spike)."""
-        cam = next((c for c in self.cameras if c.name == view), None)
-        if cam is None:
+        idx = self.view_index(view)
+        if idx is None:
             return None
         g = self.gaussians
-        census = near_camera_census(g.means, g.opacities, g.scales, cam, within=0.25 * self.scene.extent,
-                                    min_opacity=self.render_config.alpha_min)
+        census = near_camera_census(g.means, g.opacities, g.scales, self.cameras[idx],
+                                    within=0.25 * self.scene.extent, min_opacity=self.render_config.alpha_min)
         return {**census, "iteration": self.iteration, "spike_iteration": spike_iteration}
 
     def _trained_params(self) -> list[torch.Tensor]:
