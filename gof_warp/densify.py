@@ -29,6 +29,14 @@ Rules (GOF_REFERENCE §4; defaults in :class:`DensifyConfig`):
   Children have radius 0 (never seen) until the next step.
 * Opacity reset every 3000 iterations while ``it < 15 000``: filtered opacity ``← min(o_f, 0.01)``,
   the parameter's Adam moments zeroed (GOF ``reset_opacity``).
+* After densification GOF never prunes again, so Gaussians the loss drives transparent after ``stop_iter`` stay,
+  and so does a floater in front of a camera. Optional (off by default, GOF's schedule):
+  ``late_prune_interval > 0`` keeps densification's prune (transparent, or larger than ``max_world_scale·E``)
+  going every that many iterations until ``filter_3d_until_iter``; ``near_camera_fraction = f > 0`` makes each
+  such prune also remove the Gaussians that a training camera's rays meet nearer than ``f`` × the depth of the
+  nearest initial (SfM) point that camera sees (``gof_warp.near_camera``): nothing the photos triangulated lies
+  that close. Measured on colmap_can: every per-view loss spike after 15k was such a Gaussian (opaque, 0.2–0.6
+  in front of the camera, its centre often beside the image) or one that had grown past ``0.1·E`` (scale 4).
 * Optional budget ``max_gaussians``: growth stops at the budget; when there are more candidates than
   room, the highest-scoring ones (score = metric / its threshold) are kept. The budget is checked
   against the count *before* this step's prune; room freed by the prune is used at the next step.
@@ -52,6 +60,7 @@ All parameter/optimizer changes go through :func:`gof_warp.optim.replace_params`
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
 import torch
@@ -89,6 +98,12 @@ class DensifyConfig:
     filter_3d_interval: int = 100  # recompute φ every this many it for stop_iter < it < filter_3d_until_iter
     filter_3d_until_iter: int = 29_900  # GOF: iterations − 100
     seed: int = 0  # clone/split sampling
+    # after densification (it >= stop_iter) GOF never prunes again; > 0: every this many iterations (while
+    # it < filter_3d_until_iter) prune as densification does, σ(o) < min_opacity or max scale > max_world_scale·E
+    late_prune_interval: int = 0
+    # > 0 (needs initial points and late_prune_interval): each late prune also removes the Gaussians whose centre
+    # lies in a training camera's image nearer than this fraction of the nearest initial point it sees
+    near_camera_fraction: float = 0.0
 
     def __post_init__(self):
         if self.metric not in METRICS:
@@ -99,6 +114,13 @@ class DensifyConfig:
             raise GofError("DensifyConfig: intervals must be >= 1")
         if self.split_children < 1 or self.split_scale_divisor <= 0:
             raise GofError("DensifyConfig: split_children must be >= 1 and split_scale_divisor > 0")
+        if self.late_prune_interval < 0:
+            raise GofError(f"DensifyConfig.late_prune_interval must be >= 0 (0: off), got {self.late_prune_interval}")
+        if not 0.0 <= self.near_camera_fraction < 1.0:
+            raise GofError("DensifyConfig.near_camera_fraction must be in [0, 1) (0: off), got "
+                           f"{self.near_camera_fraction}")
+        if self.near_camera_fraction > 0 and self.late_prune_interval == 0:
+            raise GofError("DensifyConfig.near_camera_fraction acts at the late prunes: set late_prune_interval > 0")
 
 
 @dataclass
@@ -117,6 +139,8 @@ class DensifyReport:
     num_pruned: int = 0  # Gaussians removed by the prune (split parents not counted)
     abs_threshold: float | None = None  # threshold applied to M̄ (Q for metric="gof")
     opacity_reset: bool = False
+    late_pruned: bool = False  # a prune after densification ran (late_prune_interval)
+    num_near_camera: int = 0  # of num_pruned: Gaussians in front of a camera (near_camera_fraction)
     filter_3d_due: bool = False  # the trainer should recompute the 3D filter now (GOF schedule)
 
 
@@ -227,6 +251,8 @@ class Densifier:
         self.stats: _Stats | None = None
         self.generator: torch.Generator | None = None
         self.history: list[tuple[int, int]] = []
+        # Gaussians the late prunes removed, by reason (each counted once, in this order)
+        self.late_pruned = {"transparent": 0, "too_large": 0, "near_camera": 0}
 
     # ------------------------------------------------------------------ hooks
     def update_sh_degree(self, iteration: int, gaussians: Gaussians) -> int:
@@ -271,10 +297,18 @@ class Densifier:
         """Forget the statistics (sized lazily at the next :meth:`after_backward` when ``n`` is None)."""
         self.stats = None if n is None else _Stats.zeros(n, device)
 
-    def step(self, iteration: int, gaussians: Gaussians, optimizer, extent: float) -> DensifyReport:
+    def late_prune_due(self, iteration: int) -> bool:
+        """Whether :meth:`step` prunes at ``iteration`` after densification (``late_prune_interval``)."""
+        cfg = self.config
+        return (cfg.late_prune_interval > 0 and cfg.stop_iter <= iteration < cfg.filter_3d_until_iter
+                and iteration % cfg.late_prune_interval == 0)
+
+    def step(self, iteration: int, gaussians: Gaussians, optimizer, extent: float,
+             near_camera: Callable[[], torch.Tensor] | None = None) -> DensifyReport:
         """Densify/prune and reset opacities when the schedule says so (call after backward, before
         ``optimizer.step()``). Replaced parameters have no ``.grad``, so Adam skips them this
-        iteration, as in GOF."""
+        iteration, as in GOF. ``near_camera()`` (``[N]`` bool, called only at a late prune): the Gaussians in
+        front of a camera (``near_camera_fraction``)."""
         cfg = self.config
         n0 = len(gaussians)
         report = DensifyReport(iteration=iteration, num_before=n0, num_after=n0)
@@ -286,10 +320,32 @@ class Densifier:
             if iteration % cfg.opacity_reset_interval == 0 or at_start:
                 reset_opacity(gaussians, optimizer, cfg.opacity_reset_value)
                 report.opacity_reset = True
+        elif self.late_prune_due(iteration):
+            self._late_prune(gaussians, optimizer, extent, near_camera, report)
         report.filter_3d_due = report.densified or (
             iteration % cfg.filter_3d_interval == 0 and cfg.stop_iter < iteration < cfg.filter_3d_until_iter)
         report.num_after = len(gaussians)
         return report
+
+    def _late_prune(self, gaussians, optimizer, extent: float, near_camera, report: DensifyReport) -> None:
+        cfg = self.config
+        with torch.no_grad():
+            transparent = gaussians.raw_opacities < cfg.min_opacity
+            too_large = gaussians.raw_scales.max(dim=1).values > cfg.max_world_scale * extent
+            mask = transparent | too_large
+            if near_camera is not None:
+                near = near_camera()
+                report.num_near_camera = int((near & ~mask).sum())
+                mask |= near
+            report.num_pruned = int(mask.sum())
+            n_transparent = int(transparent.sum())
+        report.late_pruned = True
+        self.late_pruned["transparent"] += n_transparent
+        self.late_pruned["too_large"] += report.num_pruned - report.num_near_camera - n_transparent
+        self.late_pruned["near_camera"] += report.num_near_camera
+        if report.num_pruned and report.num_pruned < len(gaussians):
+            replace_params(gaussians, optimizer, keep=~mask)
+            self.stats = None
 
     # ------------------------------------------------------------------ the densification step
     def _densify_and_prune(self, iteration, gaussians, optimizer, extent, report: DensifyReport) -> None:
@@ -341,11 +397,13 @@ class Densifier:
         """Statistics, sampler state and history (for checkpoints)."""
         gen = None if self.generator is None else (str(self.generator.device), self.generator.get_state())
         return {"config": asdict(self.config), "history": list(self.history),
-                "stats": None if self.stats is None else asdict(self.stats), "generator": gen}
+                "stats": None if self.stats is None else asdict(self.stats), "generator": gen,
+                "late_pruned": dict(self.late_pruned)}
 
     def load_state_dict(self, state: dict) -> None:
         self.history = [tuple(h) for h in state["history"]]
         self.stats = None if state["stats"] is None else _Stats(**state["stats"])
+        self.late_pruned = dict(state.get("late_pruned", self.late_pruned))  # older checkpoints: none
         if state["generator"] is not None:
             device, gstate = state["generator"]
             self.generator = torch.Generator(device=device)

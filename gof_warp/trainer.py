@@ -49,7 +49,8 @@ from .loss_monitor import LossSpikeMonitor
 from .losses import COMPILE_MODES, LossConfig, TrainingLoss
 from .metrics import image_metrics, psnr
 from .model import Gaussians
-from .near_camera import near_camera_census
+from .near_camera import (in_front_of_cameras, near_camera_bounds, near_camera_census, near_ray_census,
+                          stack_cameras)
 from .optim import OptimConfig, make_optimizer, update_learning_rate
 from .render import DensifyStats, RenderConfig, render
 from .scene import Scene
@@ -150,14 +151,16 @@ class TrainConfig:
             raise ConfigError(f"compile_loss must be one of {COMPILE_MODES}, got {self.compile_loss!r}")
 
 
-def initial_gaussians(scene: Scene, cfg: ModelConfig, seed: int, device) -> tuple[Gaussians, dict]:
-    """The first Gaussians (:func:`gof_warp.init_points.initial_point_cloud` decides where) and what was used."""
+def initial_gaussians(scene: Scene, cfg: ModelConfig, seed: int, device) -> tuple[Gaussians, dict, np.ndarray | None]:
+    """The first Gaussians (:func:`gof_warp.init_points.initial_point_cloud` decides where), what was used, and the
+    scene's or triangulated points among them (``[P, 3]``; None for a random start)."""
     points, colours, info = initial_point_cloud(scene, cfg.init, random_points=cfg.random_init_points,
                                                 init_box=cfg.init_box, background=cfg.background_points, seed=seed)
     log.info("initial points: %d from %s%s", info["points"], info["source"],
              f" + {info['background_points']} background" if info.get("background_points") else "")
+    measured = None if info["source"] == "random" else points[:info["points"]]
     return Gaussians.from_points(points, colours, sh_degree=cfg.sh_degree, init_opacity=cfg.init_opacity,
-                                 device=device), info
+                                 device=device), info, measured
 
 
 def _image_tensor(image: np.ndarray, device) -> torch.Tensor:
@@ -209,7 +212,8 @@ class Trainer:
         self._stack: list[int] = []
         self._pending = PendingScalars()  # iterations whose loss terms are still on the device
         torch.manual_seed(config.seed)
-        self.gaussians, self.init_info = initial_gaussians(scene, config.model, config.seed, self.device)
+        self.gaussians, self.init_info, init_points = initial_gaussians(scene, config.model, config.seed, self.device)
+        self._in_front = self._near_camera_rule(init_points)
         if config.model.use_filter_3d:
             update_filter_3d(self.gaussians, self.cameras, near=self.render_config.near)
         self.optimizer = make_optimizer(self.gaussians, config.optim, scene.extent)
@@ -255,7 +259,7 @@ class Trainer:
         with torch.no_grad(), _stage("train.densify"):
             if self.densifier.densify_due(it):
                 self.ranks.reduce_densify_stats(self.densifier.stats)
-            report = self.densifier.step(it, g, self.optimizer, self.scene.extent)
+            report = self.densifier.step(it, g, self.optimizer, self.scene.extent, near_camera=self._in_front)
             if len(g) == 0:
                 raise TrainingError(f"every Gaussian was pruned at iteration {it}: check the scene's near plane "
                                     "(render.near), background colour and densify.min_opacity")
@@ -323,20 +327,47 @@ class Trainer:
             gt = gt + clear * shift
         return config, gt
 
+    def _near_camera_rule(self, points: np.ndarray | None) -> Callable[[], torch.Tensor] | None:
+        """``densify.near_camera_fraction``'s test as a callable for the densifier (None when off): the Gaussians
+        that a training camera's rays meet nearer than that fraction of its nearest initial point."""
+        fraction = self.config.densify.near_camera_fraction
+        if fraction <= 0:
+            return None
+        if points is None or len(points) == 0:  # e.g. the unbounded preset's auto start fell back to random
+            log.warning("densify.near_camera_fraction is off for this run: it bounds each camera by its nearest SfM "
+                        "or triangulated point, and this run starts from random points")
+            self.init_info["near_camera_prune"] = "off: no initial points"
+            return None
+        stack = stack_cameras(self.cameras, self.device)
+        bounds = near_camera_bounds(torch.tensor(points, dtype=torch.float64), self.cameras, fraction).to(self.device)
+        log.info("near-camera prune: %d cameras, bounds %.3g–%.3g (fraction %g of the nearest initial point)",
+                 len(self.cameras), float(bounds.min()), float(bounds.max()), fraction)
+        self.init_info["near_camera_prune"] = {"fraction": fraction, "bound_min": round(float(bounds.min()), 4),
+                                               "bound_max": round(float(bounds.max()), 4)}
+        rc = self.render_config
+
+        def in_front() -> torch.Tensor:
+            g = self.gaussians
+            return in_front_of_cameras(g.means, g.quats, g.scales, g.opacities, stack, bounds, near=rc.near,
+                                       alpha_min=rc.alpha_min, alpha_max=rc.alpha_max)
+        return in_front
+
     def view_index(self, name: str) -> int | None:
         """Index in ``cameras``/``images`` of the training view called ``name`` (None: no such view)."""
         return next((i for i, c in enumerate(self.cameras) if c.name == name), None)
 
     def _near_census(self, view: str, spike_iteration: int) -> dict | None:
-        """:func:`near_camera_census` of the camera named ``view`` within a quarter of the scene extent, taken when
-        the spike is read back (``iteration``: up to ``SCALARS_FLUSH_EVERY`` iterations after the spike)."""
+        """:func:`near_camera_census` (centres) and :func:`near_ray_census` (``"rays"``: what its rays meet) of the
+        camera named ``view`` within a quarter of the scene extent, taken when the spike is read back (``iteration``: up to ``SCALARS_FLUSH_EVERY`` iterations after the spike)."""
         idx = self.view_index(view)
         if idx is None:
             return None
-        g = self.gaussians
-        census = near_camera_census(g.means, g.opacities, g.scales, self.cameras[idx],
-                                    within=0.25 * self.scene.extent, min_opacity=self.render_config.alpha_min)
-        return {**census, "iteration": self.iteration, "spike_iteration": spike_iteration}
+        g, rc, within = self.gaussians, self.render_config, 0.25 * self.scene.extent
+        census = near_camera_census(g.means, g.opacities, g.scales, self.cameras[idx], within=within,
+                                    min_opacity=rc.alpha_min)
+        rays = near_ray_census(g.means, g.quats, g.scales, g.opacities, self.cameras[idx], within=within,
+                               near=rc.near, alpha_min=rc.alpha_min, alpha_max=rc.alpha_max)
+        return {**census, "rays": rays, "iteration": self.iteration, "spike_iteration": spike_iteration}
 
     def _trained_params(self) -> list[torch.Tensor]:
         params = list(self.gaussians.params.values())
@@ -407,6 +438,8 @@ class Trainer:
             "final_train_psnr": round(last.get("psnr", float("nan")), 3) if last else None,
             "test": self.evaluate(),
             "loss_spikes": self.spikes.report(),
+            # Gaussians removed after densification (densify.late_prune_interval; None: off, GOF's schedule)
+            "late_pruned": dict(self.densifier.late_pruned) if cfg.densify.late_prune_interval else None,
             # calls, exact measurements, overflows (renders that dropped entries: see kernels.binning.TileListSizer)
             "tile_lists": None if self.tile_lists is None else self.tile_lists.stats(),
             "loss_compiled": self.loss.compiled is not None, "loss_compile_fallback": self.loss.fallback_reason,

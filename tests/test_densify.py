@@ -322,3 +322,37 @@ def test_state_dict_roundtrip():
     other.load_state_dict(dens.state_dict())
     assert other.history == dens.history and torch.equal(other.stats.grad, dens.stats.grad)
     assert torch.equal(torch.randn(3, generator=other.generator), torch.randn(3, generator=dens.generator))
+
+
+def test_late_prune_runs_after_densification_only_on_its_interval_and_with_the_near_camera_mask():
+    cfg = DensifyConfig(stop_iter=100, interval=10, late_prune_interval=50, filter_3d_until_iter=300)
+    d = Densifier(cfg)
+    gs = _gaussians(8)
+    opt = _stepped_optimizer(gs)
+    with torch.no_grad():
+        gs.params["opacity_logits"][[1, 5]] = _logit(0.01)  # transparent: below min_opacity 0.05
+        gs.params["log_scales"][3, 0] = math.log(0.11 * EXTENT)  # grown past max_world_scale·E = 0.1·E
+        gs.params["log_scales"][4, 0] = math.log(0.09 * EXTENT)  # large, within it
+    near = torch.zeros(8, dtype=torch.bool)
+    near[[5, 6]] = True  # 5 is transparent as well: counted once, as transparent
+    calls = []
+    def in_front():
+        calls.append(1)
+        return near[:len(gs)]
+    for it in (120, 149, 301):  # off the interval, and past filter_3d_until_iter
+        r = d.step(it, gs, opt, EXTENT, near_camera=in_front)
+        assert not r.late_pruned and len(gs) == 8
+    assert not calls
+    r = d.step(150, gs, opt, EXTENT, near_camera=in_front)
+    assert r.late_pruned and r.num_pruned == 4 and r.num_near_camera == 1 and r.num_after == 4
+    assert _ids(gs) == [0, 2, 4, 7]
+    assert d.late_pruned == {"transparent": 2, "too_large": 1, "near_camera": 1}
+    again = Densifier(cfg)
+    again.load_state_dict(d.state_dict())
+    assert again.late_pruned == d.late_pruned
+    check_optimizer_state(gs, opt)
+    assert not Densifier(DensifyConfig(stop_iter=100)).late_prune_due(150)  # off by default: GOF never prunes late
+    for bad in ({"late_prune_interval": -1}, {"near_camera_fraction": 1.5},
+                {"near_camera_fraction": 0.25}):  # the last: no late prunes to act at
+        with pytest.raises(GofError):
+            DensifyConfig(**bad)

@@ -144,3 +144,134 @@ def test_training_draws_a_picture_of_each_listed_spike(tmp_path):
     # an event naming no training view: a warning, no picture, no exception
     assert spike_picture_or_warning(t, {"view": "nope", "iteration": 3, "ratio": 2.0}) == []
     assert spike_picture_name(7, "a/b c") == "spike_it7_a_b_c.png"
+
+
+def _ray_census_f64(means, quats, scales, opac, cam, within, near, alpha_min, alpha_max, nx):
+    """Brute force with the float64 reference renderer's ray–Gaussian quantities (tests/reference_render)."""
+    from reference_render import RefCamera, _ray_gaussian, f64
+    from gof_warp.model import quat_to_rotmat
+
+    rc = RefCamera(cam)
+    ny = max(1, round(nx * cam.height / cam.width))
+    px = (torch.arange(nx, dtype=torch.float64) + 0.5) * cam.width / nx
+    py = (torch.arange(ny, dtype=torch.float64) + 0.5) * cam.height / ny
+    yy, xx = torch.meshgrid(py, px, indexing="ij")
+    rays = torch.stack([(xx - cam.cx) / cam.fx, (yy - cam.cy) / cam.fy, torch.ones_like(xx)], -1).reshape(-1, 3)
+    mu_v = rc.to_camera(f64(means))
+    R_v = rc.R @ quat_to_rotmat(torch.nn.functional.normalize(f64(quats), dim=1))
+    t, d2, _ = _ray_gaussian(mu_v[None], R_v, f64(scales), rays)
+    alpha = torch.clamp(f64(opac) * torch.exp(-0.5 * d2), max=alpha_max)
+    hit = (t > near) & (t <= within) & (alpha >= alpha_min) & (mu_v[:, 2] > near)[None]
+    alpha = torch.where(hit, alpha, torch.zeros_like(alpha))
+    return hit, alpha, t
+
+
+def test_ray_census_matches_the_float64_reference_on_random_gaussians():
+    from gof_warp.near_camera import near_ray_census
+
+    cam = _camera((0.0, 0.0, 0.0))
+    gen = torch.Generator().manual_seed(3)
+    n = 25
+    depth = torch.rand(n, generator=gen) * 2.0 + 0.15  # world +y is the view direction; some nearer than `near`
+    means = torch.stack([(torch.rand(n, generator=gen) - 0.5) * 1.6 * depth, depth,
+                         (torch.rand(n, generator=gen) - 0.5) * 1.2 * depth], 1).double()
+    quats = torch.randn(n, 4, generator=gen).double()
+    scales = (torch.rand(n, 3, generator=gen) * 0.06 + 0.01).double()
+    opac = torch.rand(n, generator=gen).double()
+    kw = dict(within=1.5, near=0.2, alpha_min=1 / 255, alpha_max=0.99)
+    got = near_ray_census(means, quats, scales, opac, cam, rays_across=16, top=n, **kw)
+    hit, alpha, t = _ray_census_f64(means, quats, scales, opac, cam, nx=16, **kw)
+    assert got["rays"] == hit.shape[0] == 16 * 12
+    assert 0.05 < got["covered"] < 1.0  # some rays meet nothing near: the test can fail both ways
+    assert got["covered"] == pytest.approx(float(hit.any(1).double().mean()), abs=1e-4)
+    assert got["near_alpha"] == pytest.approx(float((1 - torch.prod(1 - alpha, 1)).mean()), abs=1e-5)
+    counts = hit.sum(0)
+    order = torch.argsort(alpha.sum(0), descending=True)
+    order = order[counts[order] > 0]
+    assert len(got["contributors"]) == len(order) > 3
+    for c, i in zip(got["contributors"], order.tolist()):
+        assert c["coverage"] == pytest.approx(float(counts[i]) / hit.shape[0], abs=1e-4)
+        assert c["mean_alpha"] == pytest.approx(float(alpha[:, i].sum() / counts[i]), abs=1e-4)
+        assert c["t_mean"] == pytest.approx(float(t[hit[:, i], i].mean()), abs=1e-4)
+        assert c["opacity"] == pytest.approx(float(opac[i]), abs=1e-4)
+
+
+def test_ray_census_sees_a_wide_gaussian_whose_centre_lies_beside_the_image():
+    from gof_warp.near_camera import near_ray_census
+
+    cam = _camera((0.0, 0.0, 0.0))  # 40x30, fx 40: the image spans x/z in [-0.5, 0.5]
+    means = torch.tensor([[1.2, 0.5, 0.0],    # centre at x/z = 2.4: outside the image; a wide flat disc
+                          [0.0, 0.1, 0.0],    # centre nearer than the near plane: culled, as the renderer does
+                          [0.0, 3.0, 0.0]])   # far beyond `within`
+    quats = torch.tensor([[1.0, 0, 0, 0]] * 3)
+    scales = torch.tensor([[1.0, 0.01, 1.0], [0.5, 0.5, 0.5], [2.0, 0.01, 2.0]])  # world y thin: faces the camera
+    opac = torch.tensor([0.8, 0.9, 0.9])
+    centres = near_camera_census(means, opac, scales, cam, within=1.0)
+    assert [n["depth"] for n in centres["nearest"]] == [pytest.approx(0.1)]  # it misses the wide one
+    rays = near_ray_census(means, quats, scales, opac, cam, within=1.0, rays_across=20)
+    assert rays["covered"] == 1.0 and len(rays["contributors"]) == 1
+    (c,) = rays["contributors"]
+    assert not c["in_image"] and c["depth"] == pytest.approx(0.5) and c["t_mean"] == pytest.approx(0.5, abs=1e-3)
+    assert c["coverage"] == 1.0 and 0.3 < c["mean_alpha"] <= 0.8
+    assert near_ray_census(means, quats, scales, opac, cam, within=0.4, rays_across=20)["covered"] == 0.0
+
+
+def test_near_camera_bounds_from_the_nearest_point_each_camera_sees():
+    from gof_warp.near_camera import near_camera_bounds
+
+    cams = [_camera((0.0, 0.0, 0.0), "a"), _camera((0.0, 5.0, 0.0), "b"), _camera((0.0, 0.0, 9.0), "c")]
+    pts = torch.tensor([[0.0, 2.0, 0.0], [0.1, 3.0, 0.1], [0.0, 8.0, 0.0]], dtype=torch.float64)
+    # a sees the points at depths 2, 3, 8; b sees only the one 3 ahead; c's image holds none of them
+    assert near_camera_bounds(pts, cams, 0.5).tolist() == pytest.approx([1.0, 1.5, 0.0])
+
+
+def test_gaussians_in_front_of_cameras_match_the_float64_ray_test_per_camera():
+    from gof_warp.near_camera import in_front_of_cameras, stack_cameras
+
+    cams = [_camera((0.0, 0.0, 0.0), "a"), _camera((0.3, 1.0, 0.0), "b"), _camera((0.0, 0.0, 2.0), "c")]
+    bounds = torch.tensor([1.2, 0.8, 0.1])  # c's bound is below the near plane: nothing counts in front of it
+    gen = torch.Generator().manual_seed(5)
+    n = 300
+    means = torch.stack([torch.rand(n, generator=gen) * 3 - 1.5, torch.rand(n, generator=gen) * 4 - 0.5,
+                         torch.rand(n, generator=gen) * 3 - 1.0], 1).double()
+    quats = torch.randn(n, 4, generator=gen).double()
+    scales = (torch.rand(n, 3, generator=gen) * 0.08 + 0.01).double()
+    opac = torch.rand(n, generator=gen).double()
+    got = in_front_of_cameras(means, quats, scales, opac, stack_cameras(cams, dtype=torch.float64), bounds,
+                              rays_across=16, chunk=50)
+    want = torch.zeros(n, dtype=torch.bool)
+    for cam, b in zip(cams, bounds.tolist()):
+        if b > 0.2:
+            hit, _, _ = _ray_census_f64(means, quats, scales, opac, cam, b, 0.2, 1 / 255, 0.99, 16)
+            want |= hit.any(0)
+    assert 5 < int(want.sum()) < n and torch.equal(got, want)
+    # the wide disc beside the image of the census test above is in front of camera a; nothing is beyond a bound
+    wide = in_front_of_cameras(torch.tensor([[1.2, 0.5, 0.0], [0.0, 1.5, 0.0]]), torch.tensor([[1.0, 0, 0, 0]] * 2),
+                               torch.tensor([[1.0, 0.01, 1.0], [0.3, 0.3, 0.3]]), torch.tensor([0.8, 0.9]),
+                               stack_cameras(cams[:1]), torch.tensor([1.0]), rays_across=20)
+    assert wide.tolist() == [True, False]
+
+
+def test_the_trainer_removes_a_gaussian_planted_in_front_of_a_camera_at_a_late_prune(tmp_path):
+    scene = load_scene(make_scene("default", tmp_path / "s", views=6, resolution=(32, 32), device="cpu"))
+    late = {"densify": {**TINY["densify"], "late_prune_interval": 2, "near_camera_fraction": 0.5}}
+    off = Trainer(scene, merge(merge(TrainConfig(), TINY), late), tmp_path / "r0", "cpu")  # random start
+    assert off._in_front is None and off.init_info["near_camera_prune"] == "off: no initial points"
+    scene.points = np.random.default_rng(0).uniform(-0.5, 0.5, (200, 3))  # points around the object
+    scene.point_colors = np.full((200, 3), 0.5)
+    cfg = merge(merge(TrainConfig(), TINY), {**late, "model": {**TINY["model"], "init": "sfm"}})
+    t = Trainer(scene, cfg, tmp_path / "run", "cpu")
+    cam = t.cameras[2]
+    nearest = min(float(z[inside].min()) for z, inside in [centre_depths(torch.tensor(scene.points), cam)])
+    with torch.no_grad():
+        t.gaussians.params["means"][0] = torch.tensor(cam.center + 0.2 * nearest * cam.R[2])  # well inside the bound
+        t.gaussians.params["means"][1] = torch.tensor(cam.center + 0.9 * nearest * cam.R[2])  # beyond it
+        t.gaussians.params["opacity_logits"][:2] = 4.0
+    assert t.init_info["near_camera_prune"]["fraction"] == 0.5
+    flagged = t._in_front()
+    assert flagged[0] and not flagged[1]
+    marker = t.gaussians.means[1].clone()
+    n = len(t.gaussians)
+    report = t.densifier.step(cfg.densify.stop_iter, t.gaussians, t.optimizer, scene.extent, near_camera=t._in_front)
+    assert report.late_pruned and report.num_near_camera >= 1 and len(t.gaussians) == n - report.num_pruned
+    assert not t._in_front().any() and (t.gaussians.means == marker).all(1).any()  # the far one stays

@@ -4,7 +4,7 @@
 # Each variant is `python -m gof_warp.train SCENE --resume` with its overrides (the preset `train` picks, plus
 # them) in /tmp/variants/NAME; at BUDGET_S it gets SIGINT (it checkpoints its iteration and stops) and the next
 # call resumes it. A variant whose metrics.json exists is done. Results: $OUT/variants/NAME/{metrics.json,
-# config.yaml,views.png} and $OUT/variants/summary.json. Runs share the GPU and the host: their times are not
+# config.yaml,views.png,spike_*.jpg} and $OUT/variants/summary.json. Runs share the GPU and the host: their times are not
 # comparable with runs that had it alone.
 set -u
 scene=$1; its=$2; budget=$3; shift 3
@@ -31,11 +31,20 @@ for spec in sys.argv[3:]:
     rows[v] = {"overrides": over, "test_psnr": d["test"]["psnr"], "test_ssim": d["test"].get("ssim"),
                "test_per_image": [round(x["psnr"], 2) for x in d["test"]["per_image"]],
                "train_psnr": d.get("final_train_psnr"), "gaussians": d["num_gaussians"], "time_s": d["train_time_s"],
-               "loss_spikes": d.get("loss_spikes")}
+               "loss_spikes": d.get("loss_spikes"), "late_pruned": d.get("late_pruned")}
     (R / v).mkdir(exist_ok=True)
     for f in ("metrics.json", "config.yaml", "pictures/views.png"):
         if (run / f).is_file():
             shutil.copy(run / f, R / v / Path(f).name)
+    try:  # the spike pictures, as JPEG at most 1600 px wide (the PNGs of a 720x1280 capture are several MB each)
+        from PIL import Image
+        for png in sorted((run / "pictures").glob("spike_*.png"))[:12]:
+            im = Image.open(png).convert("RGB")
+            if im.width > 1600:
+                im = im.resize((1600, round(im.height * 1600 / im.width)))
+            im.save(R / v / (png.stem + ".jpg"), quality=85)
+    except ImportError:
+        pass
 (R / "summary.json").write_text(json.dumps(rows, indent=1))
 for v, r in rows.items():
     print(v, {k: r.get(k) for k in ("test_psnr", "train_psnr", "gaussians", "time_s", "state")})
