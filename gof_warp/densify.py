@@ -101,8 +101,8 @@ class DensifyConfig:
     # after densification (it >= stop_iter) GOF never prunes again; > 0: every this many iterations (while
     # it < filter_3d_until_iter) prune as densification does, σ(o) < min_opacity or max scale > max_world_scale·E
     late_prune_interval: int = 0
-    # > 0 (needs initial points and late_prune_interval): each late prune also removes the Gaussians whose centre
-    # lies in a training camera's image nearer than this fraction of the nearest initial point it sees
+    # > 0 (needs initial points and late_prune_interval): each late prune also removes the Gaussians that a training
+    # camera's rays meet nearer than this fraction of the nearest initial point it sees
     near_camera_fraction: float = 0.0
 
     def __post_init__(self):

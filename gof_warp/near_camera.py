@@ -64,10 +64,22 @@ def near_camera_census(means: torch.Tensor, opacities: torch.Tensor, scales: tor
     return {"within": float(within), "count": int(near.sum()), "visible": int(idx.numel()), "nearest": nearest}
 
 
+_PROJECT_CHUNK = 65536  # Gaussians projected into every camera at once by in_front_of_cameras
+
+
 def _alpha_reach(alpha_min: float, alpha_max: float) -> float:
     """``k``: wherever ``α = min(alpha_max, o·exp(−d²/2)) ≥ alpha_min`` can hold (``o ≤ 1``), ``d ≤ k``, so the
     ray's peak ``t*`` lies within ``k·σ_max`` of the centre."""
     return math.sqrt(2.0 * math.log(max(alpha_max, 1e-12) / alpha_min)) if alpha_min > 0 else math.inf
+
+
+def _near_candidates(z: torch.Tensor, reach: torch.Tensor, opacities: torch.Tensor, near: float, within,
+                     alpha_min: float) -> torch.Tensor:
+    """Bool mask of the Gaussians whose rays' peaks can lie at depth ``(near, within]`` with ``α ≥ alpha_min``:
+    centre depth ``z > near`` (the renderer culls the rest), ``z − reach ≤ within`` (``reach = k·σ_max``,
+    :func:`_alpha_reach`) and opacity ``≥ alpha_min``. Shapes broadcast: ``z`` ``[N]`` or ``[C, N]``, ``reach`` and
+    ``opacities`` ``[N]``, ``within`` a float or ``[C, 1]``."""
+    return (z > near) & (z - reach <= within) & (opacities >= alpha_min)
 
 
 def _ray_grid(k: torch.Tensor, rays_across: int, dtype) -> torch.Tensor:
@@ -135,8 +147,7 @@ def near_ray_census(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tens
         mu = means @ cam["R"][0].T + cam["t"][0]
         s_max = scales.max(dim=1).values
         reach = _alpha_reach(alpha_min, alpha_max)
-        idx = torch.nonzero((mu[:, 2] > near) & (mu[:, 2] - reach * s_max <= within)
-                            & (opacities >= alpha_min)).flatten()
+        idx = torch.nonzero(_near_candidates(mu[:, 2], reach * s_max, opacities, near, within, alpha_min)).flatten()
         rays = _ray_grid(cam["k"][0], rays_across, dt)
         log_clear = torch.zeros(rays.shape[0], device=means.device, dtype=dt)
         hit_any = torch.zeros(rays.shape[0], device=means.device, dtype=torch.bool)
@@ -154,11 +165,11 @@ def near_ray_census(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tens
         n_rays = rays.shape[0]
         order = torch.argsort(a_sum, descending=True)[:top]
         order = order[count[order] > 0]
-        _, inside = centre_depths(means, camera)
+        _, inside = centre_depths(means[idx[order]], camera)  # only the listed ones
         contributors = []
-        for j in order.tolist():
+        for rank, j in enumerate(order.tolist()):
             i = int(idx[j])
-            contributors.append({"depth": round(float(mu[i, 2]), 4), "in_image": bool(inside[i]),
+            contributors.append({"depth": round(float(mu[i, 2]), 4), "in_image": bool(inside[rank]),
                                  "t_mean": round(float(t_sum[j] / count[j]), 4),
                                  "opacity": round(float(opacities[i]), 4), "max_scale": round(float(s_max[i]), 4),
                                  "coverage": round(float(count[j]) / n_rays, 4),
@@ -208,10 +219,11 @@ def in_front_of_cameras(means: torch.Tensor, quats: torch.Tensor, scales: torch.
         b = bounds.to(device=means.device, dtype=dt)
         reach = _alpha_reach(alpha_min, alpha_max) * scales.max(dim=1).values
         pairs = []
-        for lo in range(0, means.shape[0], 65536):
-            z = torch.einsum("cj,nj->cn", cameras["R"][:, 2], means[lo:lo + 65536]) + cameras["t"][:, 2:3]
-            cand = (z > near) & (z - reach[None, lo:lo + 65536] <= b[:, None]) & (b[:, None] > near) \
-                & (opacities[None, lo:lo + 65536] >= alpha_min)
+        for lo in range(0, means.shape[0], _PROJECT_CHUNK):
+            hi = lo + _PROJECT_CHUNK
+            z = torch.einsum("cj,nj->cn", cameras["R"][:, 2], means[lo:hi]) + cameras["t"][:, 2:3]
+            cand = _near_candidates(z, reach[lo:hi], opacities[lo:hi], near, b[:, None], alpha_min)
+            cand &= b[:, None] > near
             c, i = torch.nonzero(cand, as_tuple=True)
             pairs.append((c, i + lo))
         if not pairs:

@@ -358,7 +358,8 @@ class Trainer:
 
     def _near_census(self, view: str, spike_iteration: int) -> dict | None:
         """:func:`near_camera_census` (centres) and :func:`near_ray_census` (``"rays"``: what its rays meet) of the
-        camera named ``view`` within a quarter of the scene extent, taken when the spike is read back (``iteration``: up to ``SCALARS_FLUSH_EVERY`` iterations after the spike)."""
+        camera named ``view`` within a quarter of the scene extent, taken when the spike is read back
+        (``iteration``: up to ``SCALARS_FLUSH_EVERY`` iterations after the spike)."""
         idx = self.view_index(view)
         if idx is None:
             return None
