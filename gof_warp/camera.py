@@ -113,14 +113,18 @@ class Camera(Intrinsics):
         t: ``[3]`` world-to-camera translation.
         fx, fy, cx, cy, width, height: the :class:`Intrinsics` (pixels; pixel centres at ``i + 0.5``).
         name: image name (file stem), for messages and outputs.
+        near: depth (world units) in front of which this camera photographed nothing, e.g. a fraction of its
+            nearest SfM point (``RenderConfig.near_from_points``); the renderer clips at the larger of it and
+            ``RenderConfig.near``. 0 (default): unknown, ``RenderConfig.near`` alone.
 
-    ``R`` and ``t`` may be given by position; the intrinsics and ``name`` by keyword. Compared and hashed by
-    identity (two views may share intrinsics and pose).
+    ``R`` and ``t`` may be given by position; the intrinsics, ``name`` and ``near`` by keyword. Compared and hashed
+    by identity (two views may share intrinsics and pose).
     """
 
     R: np.ndarray
     t: np.ndarray
     name: str = ""
+    near: float = 0.0
 
     __eq__ = object.__eq__
     __hash__ = object.__hash__
@@ -136,6 +140,9 @@ class Camera(Intrinsics):
         object.__setattr__(self, "R", R)
         object.__setattr__(self, "t", t)
         super().__post_init__()
+        self._finite_numbers(("near",))
+        if self.near < 0:
+            raise SceneError(f"camera {self.name!r}: near must be >= 0, got {self.near}")
 
     # ------------------------------------------------------------------ constructors
     @classmethod
@@ -242,16 +249,17 @@ class Camera(Intrinsics):
         return self.resized(max(1, int(round(self.width * factor))), max(1, int(round(self.height * factor))))
 
     def to_dict(self) -> dict:
-        """Plain data (JSON-able): name, size, intrinsics, world-to-camera ``R``/``t``."""
-        return {"name": self.name, "width": self.width, "height": self.height, "fx": self.fx, "fy": self.fy,
-                "cx": self.cx, "cy": self.cy, "R": self.R.tolist(), "t": self.t.tolist()}
+        """Plain data (JSON-able): name, size, intrinsics, world-to-camera ``R``/``t``, and ``near`` when set."""
+        d = {"name": self.name, "width": self.width, "height": self.height, "fx": self.fx, "fy": self.fy,
+             "cx": self.cx, "cy": self.cy, "R": self.R.tolist(), "t": self.t.tolist()}
+        return {**d, "near": self.near} if self.near > 0 else d
 
     @classmethod
     def from_dict(cls, d: dict) -> "Camera":
         """Inverse of :meth:`to_dict`."""
         try:
             return cls(R=np.array(d["R"]), t=np.array(d["t"]), fx=d["fx"], fy=d["fy"], cx=d["cx"], cy=d["cy"],
-                       width=d["width"], height=d["height"], name=d.get("name", ""))
+                       width=d["width"], height=d["height"], name=d.get("name", ""), near=d.get("near", 0.0))
         except (KeyError, TypeError) as e:
             raise SceneError(f"camera record {d.get('name', '?') if isinstance(d, dict) else d!r} is incomplete: {e}") from None
 

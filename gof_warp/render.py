@@ -52,6 +52,11 @@ class RenderConfig:
         tile_cull: bin each Gaussian only into the screen tiles its projected ellipse meets (exact,
             conservative; same images and gradients, fewer list entries); False: every tile of its
             bounding rectangle (as 3DGS/GOF), for comparisons.
+        near_from_points: ``f > 0``: the trainer gives each camera (train and test) its own near plane, ``f`` × the
+            depth of the nearest initial (SfM or triangulated) point in its image (:attr:`Camera.near`; never
+            below ``near``), as NeRF's LLFF loader bounds rays by the SfM depths. A Gaussian closer to a camera
+            than anything the photos triangulated is then not drawn in that view, so it cannot cover it.
+            ``render()`` itself reads only the camera's ``near``. 0 (default, GOF): ``near`` for every camera.
     """
 
     near: float = 0.2
@@ -65,10 +70,13 @@ class RenderConfig:
     far: float = 100.0
     tile_cull: bool = True
     distortion_linear_from: float = 0.0
+    near_from_points: float = 0.0
 
     def validate(self) -> None:
         if not self.near > 0:
             raise ValueError(f"RenderConfig.near must be > 0, got {self.near}")
+        if not 0 <= self.near_from_points < 1:
+            raise ValueError(f"RenderConfig.near_from_points must be in [0, 1) (0: off), got {self.near_from_points}")
         if not 0 <= self.alpha_min <= self.alpha_max < 1:
             raise ValueError(f"RenderConfig needs 0 <= alpha_min <= alpha_max < 1, got {self.alpha_min}, {self.alpha_max}")
         if not 0 <= self.transmittance_min < 1:
@@ -93,12 +101,16 @@ class RenderConfig:
 
 def raster_settings_for(camera: Camera, config: RenderConfig, pixel_pad: float = 0.0):
     """The kernels' ``RasterSettings`` for ``camera``'s image under ``config`` (``pixel_pad``: see
-    ``gof_warp.kernels.render_types``; 0 for rendering pixel centres)."""
-    return make_raster_settings(camera.width, camera.height, config.near, config.alpha_min, config.alpha_max,
+    ``gof_warp.kernels.render_types``; 0 for rendering pixel centres). The clipping depth is the larger of
+    ``config.near`` and the camera's own ``near`` (:attr:`Camera.near`); the distortion's NDC depth keeps
+    ``config.near`` as its near plane, so a camera's clip does not change what the distortion weighs."""
+    near = max(config.near, getattr(camera, "near", 0.0))
+    return make_raster_settings(camera.width, camera.height, near, config.alpha_min, config.alpha_max,
                                 config.transmittance_min, config.k_max, config.background, config.tile_size,
                                 pixel_pad=pixel_pad, distortion=config.distortion, far=config.far,
                                 tile_cull=config.tile_cull,
-                                distortion_linear_from=config.distortion_linear_from)  # fmt: skip
+                                distortion_linear_from=config.distortion_linear_from,
+                                ndc_near=config.near)  # fmt: skip
 
 
 class DensifyStats:

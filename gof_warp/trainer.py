@@ -213,6 +213,7 @@ class Trainer:
         self._pending = PendingScalars()  # iterations whose loss terms are still on the device
         torch.manual_seed(config.seed)
         self.gaussians, self.init_info, init_points = initial_gaussians(scene, config.model, config.seed, self.device)
+        self._camera_near_planes(init_points)
         self._in_front = self._near_camera_rule(init_points)
         if config.model.use_filter_3d:
             update_filter_3d(self.gaussians, self.cameras, near=self.render_config.near)
@@ -326,6 +327,31 @@ class Trainer:
                                                                                                    non_blocking=True)
             gt = gt + clear * shift
         return config, gt
+
+    def _camera_near_planes(self, points: np.ndarray | None) -> None:
+        """``render.near_from_points``: give every train and test camera its own near plane (:attr:`Camera.near`),
+        that fraction of the depth of the nearest initial point in its image. The trainer's scene and ``cameras``
+        are replaced by copies holding them (the caller's scene is left as it was); ``cameras.json`` records
+        them, so extraction and pictures clip as training did."""
+        fraction = self.render_config.near_from_points
+        if fraction <= 0:
+            return
+        if points is None or len(points) == 0:
+            log.warning("render.near_from_points is off for this run: it needs SfM or triangulated points, and "
+                        "this run starts from random points")
+            self.init_info["camera_near"] = "off: no initial points"
+            return
+        views = self.scene.all_views
+        bounds = near_camera_bounds(torch.tensor(points, dtype=torch.float64), [v.camera for v in views], fraction)
+        placed = [dataclasses.replace(v, camera=dataclasses.replace(v.camera, near=float(b)))
+                  for v, b in zip(views, bounds.tolist())]
+        n = len(self.scene.train)
+        self.scene = dataclasses.replace(self.scene, train=placed[:n], test=placed[n:])
+        self.cameras = self.scene.train_cameras
+        clip = [max(self.render_config.near, c.near) for c in (v.camera for v in placed)]
+        log.info("per-camera near planes %.3g–%.3g (fraction %g of the nearest initial point; render.near %g)",
+                 min(clip), max(clip), fraction, self.render_config.near)
+        self.init_info["camera_near"] = {"fraction": fraction, "min": round(min(clip), 4), "max": round(max(clip), 4)}
 
     def _near_camera_rule(self, points: np.ndarray | None) -> Callable[[], torch.Tensor] | None:
         """``densify.near_camera_fraction``'s test as a callable for the densifier (None when off): the Gaussians

@@ -77,14 +77,14 @@ def pixel_state_init(start: int, done: int) -> PixelState:
 
 @wp.func
 def ndc_depth(t: float, settings: RasterSettings) -> float:
-    """GOF's NDC depth ``m(t) = far (t − near) / ((far − near) t)``."""
-    return settings.far * (t - settings.near) / ((settings.far - settings.near) * t)
+    """GOF's NDC depth ``m(t) = far (t − n) / ((far − n) t)``, ``n = settings.ndc_near``."""
+    return settings.far * (t - settings.ndc_near) / ((settings.far - settings.ndc_near) * t)
 
 
 @wp.func
 def ndc_depth_slope(t: float, settings: RasterSettings) -> float:
-    """``m'(t) = far near / ((far − near) t²)``."""
-    return settings.far * settings.near / ((settings.far - settings.near) * t * t)
+    """``m'(t) = far n / ((far − n) t²)``, ``n = settings.ndc_near``."""
+    return settings.far * settings.ndc_near / ((settings.far - settings.ndc_near) * t * t)
 
 
 @wp.func

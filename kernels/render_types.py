@@ -39,7 +39,8 @@ class RasterSettings:
     tiles_y: int
     pixel_pad: float  # bin a Gaussian into pixels within this many pixels of its box (0 = pixel centres)
     distortion_ndc: int  # 1: GOF's Σ w_i w_j (m_i − m_j)² on NDC depth m(t); 0: the paper's Σ w_i w_j |t_i − t_j|
-    far: float  # far plane of the NDC depth map m(t) = far (t − near) / ((far − near) t)
+    far: float  # far plane of the NDC depth map m(t) = far (t − ndc_near) / ((far − ndc_near) t)
+    ndc_near: float  # near plane of that map (GOF: 0.2); ``near`` above may clip further out for one camera
     linear_from: float  # > 0: m(t) continued by its tangent beyond this depth (0: GOF's m(t) everywhere)
     reduce_min_radius: int  # CUDA backward: warp-reduce the gradients of Gaussians at least this large (pixels)
     tile_cull: int  # 1: bin into the tiles the projected ellipse meets; 0: every tile of its bounding box
@@ -82,8 +83,13 @@ def make_raster_settings(
     far: float = 100.0,
     tile_cull: bool = True,
     distortion_linear_from: float = 0.0,
+    ndc_near: float | None = None,
 ) -> RasterSettings:
-    """``RasterSettings`` for a ``width`` × ``height`` image (defaults: GOF's, see ``RenderConfig``)."""
+    """``RasterSettings`` for a ``width`` × ``height`` image (defaults: GOF's, see ``RenderConfig``).
+
+    ``near`` is the clipping depth (culling and ``t* ≤ near``); ``ndc_near`` (default: ``near``) the near plane of
+    the distortion's NDC depth ``m(t)``, so a camera may clip further out without changing what the distortion
+    measures."""
     s = RasterSettings()
     s.near, s.alpha_min, s.alpha_max = float(near), float(alpha_min), float(alpha_max)
     s.transmittance_min, s.k_max = float(transmittance_min), float(k_max)
@@ -94,8 +100,11 @@ def make_raster_settings(
         raise ValueError(f"distortion must be 'gof' or 'paper', got {distortion!r}")
     s.distortion_ndc = 1 if distortion == "gof" else 0
     s.far = float(far)
-    if not (distortion_linear_from == 0.0 or distortion_linear_from > near):
-        raise ValueError(f"distortion_linear_from must be 0 (off) or beyond near {near}, got {distortion_linear_from}")
+    s.ndc_near = float(near if ndc_near is None else ndc_near)
+    if not 0.0 < s.ndc_near <= s.near:
+        raise ValueError(f"ndc_near must be in (0, near = {near}], got {ndc_near}")
+    if not (distortion_linear_from == 0.0 or distortion_linear_from > s.ndc_near):
+        raise ValueError(f"distortion_linear_from must be 0 (off) or beyond near {s.ndc_near}, got {distortion_linear_from}")
     s.linear_from = float(distortion_linear_from)
     s.reduce_min_radius = int(reduce_min_radius)
     s.tile_cull = 1 if tile_cull else 0

@@ -52,13 +52,14 @@ class RefConfig:
     distortion: str = "gof"  # "gof": Σ_{j<k} w_k w_j (m_k − m_j)² on NDC depth m; "paper": Σ 2 w_k w_j (t_k − t_j)
     far: float = 100.0
     distortion_linear_from: float = 0.0  # > 0: m(t) continued by its tangent beyond this depth ("gof" only)
+    ndc_near: float | None = None  # near plane of m(t) when it differs from the clipping depth ``near``
 
 
 def distortion_depth(t, config):
     """The depth the distortion compares: NDC ``m(t) = far (t − near)/((far − near) t)`` ("gof") or ``t``; with
     ``distortion_linear_from = L > 0``, ``m(L) + m'(L) (t − L)`` beyond ``L``."""
     if getattr(config, "distortion", "gof") == "gof":
-        n, fa = config.near, config.far
+        n, fa = getattr(config, "ndc_near", None) or config.near, config.far
         m = fa * (t - n) / ((fa - n) * t)
         L = getattr(config, "distortion_linear_from", 0.0)
         if L > 0:

@@ -15,7 +15,7 @@ import pytest
 import torch
 
 from gof_warp.render import DensifyStats, RenderConfig, rasterize
-from reference_render import OUTPUT_NAMES, make_camera, random_scene, reference_densify_stats, reference_render, weighted_loss
+from reference_render import OUTPUT_NAMES, RefConfig, make_camera, random_scene, reference_densify_stats, reference_render, weighted_loss
 
 GRAD_CONFIG = RenderConfig(alpha_min=0.0, transmittance_min=0.0, k_max=10.0)
 MARGIN_MIN = 1e-3  # pixels with a decision this close (relative) to its threshold get no loss weight
@@ -59,9 +59,16 @@ def _rel_err(g_warp, g_ref):
     return ((g_warp.double() - g_ref).norm() / g_ref.norm()).item()
 
 
-def _compare_gradients(outputs, config=GRAD_CONFIG):
+def _compare_gradients(outputs, config=GRAD_CONFIG, camera_near=0.0):
+    """``camera_near > 0``: the camera clips at that depth (:attr:`Camera.near`) while the distortion's NDC depth
+    keeps ``config.near``; the reference gets the same as ``near`` and ``ndc_near``."""
     cam, scene = _scene()
-    ref, ref_leaves = _forward(reference_render, scene, cam, torch.float64, config)
+    ref_config = config
+    if camera_near:
+        cam = dataclasses.replace(cam, near=camera_near)
+        ref_config = RefConfig(**{k: getattr(config, k) for k in RefConfig.__dataclass_fields__ if k != "ndc_near"})
+        ref_config = dataclasses.replace(ref_config, near=max(config.near, camera_near), ndc_near=config.near)
+    ref, ref_leaves = _forward(reference_render, scene, cam, torch.float64, ref_config)
     W = _weights(ref, outputs, seed=22)
     g_ref = _grads(weighted_loss(ref, W), ref_leaves)
     out, warp_leaves = _forward(rasterize, scene, cam, torch.float32, config)
@@ -84,6 +91,14 @@ def test_gradient_of_paper_form_distortion_matches_reference():
 def test_gradient_of_linear_far_distortion_matches_reference():
     """m(t) continued by its tangent beyond depth 2 (``distortion_linear_from``), Gaussians on both sides."""
     _compare_gradients(["distortion"], config=dataclasses.replace(GRAD_CONFIG, distortion_linear_from=2.0))
+
+
+def test_gradient_with_camera_near_plane():
+    """A camera clipping at depth 2.5 (``Camera.near``, the middle of the scene's Gaussians), the distortion's m(t)
+    still on ``render.near``: every output's gradient, and the clip really removes Gaussians."""
+    ref = _compare_gradients(["rgb", "alpha", "median_depth", "normal", "distortion"], camera_near=2.5)
+    full, _ = _forward(reference_render, _scene()[1], _scene()[0], torch.float64, GRAD_CONFIG)
+    assert (ref["alpha"] - full["alpha"]).abs().max() > 0.05
 
 
 def test_gradient_with_active_alpha_max_clamp():

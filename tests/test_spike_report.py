@@ -275,3 +275,40 @@ def test_the_trainer_removes_a_gaussian_planted_in_front_of_a_camera_at_a_late_p
     report = t.densifier.step(cfg.densify.stop_iter, t.gaussians, t.optimizer, scene.extent, near_camera=t._in_front)
     assert report.late_pruned and report.num_near_camera >= 1 and len(t.gaussians) == n - report.num_pruned
     assert not t._in_front().any() and (t.gaussians.means == marker).all(1).any()  # the far one stays
+
+
+def test_render_near_from_points_gives_every_camera_its_own_near_plane(tmp_path):
+    """``render.near_from_points``: each train and test camera clips at that fraction of its nearest initial point
+    (never below ``render.near``); a Gaussian planted nearer than that is not drawn in that view but is beyond it;
+    the planes reach ``cameras.json`` (what extraction and pictures read); off, with a warning, without points."""
+    from gof_warp.render import render
+    from gof_warp.run_folder import cameras_from_json
+
+    scene = load_scene(make_scene("default", tmp_path / "s", views=6, resolution=(32, 32), device="cpu"))
+    scene.test = scene.train[4:]
+    scene.train = scene.train[:4]
+    clip = {"render": {"near_from_points": 0.5}}
+    off = Trainer(scene, merge(merge(TrainConfig(), TINY), clip), tmp_path / "r0", "cpu")  # random start
+    assert off.init_info["camera_near"] == "off: no initial points" and all(c.near == 0 for c in off.cameras)
+    scene.points = np.random.default_rng(0).uniform(-0.5, 0.5, (200, 3))
+    scene.point_colors = np.full((200, 3), 0.5)
+    cfg = merge(merge(TrainConfig(), TINY), {**clip, "model": {**TINY["model"], "init": "sfm"}})
+    t = Trainer(scene, cfg, tmp_path / "run", "cpu")
+    assert all(v.camera.near == 0 for v in scene.all_views)  # the caller's scene is left as it was
+    for v in t.scene.all_views:
+        z, inside = centre_depths(torch.tensor(scene.points), v.camera)
+        assert v.camera.near == pytest.approx(0.5 * float(z[inside].min()), rel=1e-9)
+    assert t.cameras == t.scene.train_cameras and len(t.scene.test) == 2
+    assert t.init_info["camera_near"]["min"] == pytest.approx(min(c.near for c in t.cameras + t.scene.test_cameras), abs=1e-4)
+    cam = t.cameras[1]
+    with torch.no_grad():  # one opaque Gaussian, first in front of the camera's plane, then beyond it
+        t.gaussians.params["opacity_logits"][:] = -20.0
+        t.gaussians.params["opacity_logits"][0] = 4.0
+        t.gaussians.params["log_scales"][0] = float(np.log(0.05))
+        seen = []
+        for depth in (0.6 * cam.near, 1.5 * cam.near):
+            t.gaussians.params["means"][0] = torch.tensor(cam.center + depth * cam.R[2])
+            seen.append(float(render(t.gaussians, cam, config=t.render_config)["alpha"].max()))
+    assert seen[0] == 0.0 and seen[1] > 0.1, seen
+    t._write_static_files()
+    assert [c.near for c in cameras_from_json(tmp_path / "run" / "cameras.json")] == [c.near for c in t.cameras]
