@@ -144,7 +144,9 @@ def test_every_chosen_preset_is_a_shipped_config():
 
     for name in ("blender", "unbounded", "dtu"):
         assert name in PRESETS and preset_path(name).is_file()
-    assert resolve_config("unbounded", [], None).model.init == "auto"
+    unbounded = resolve_config("unbounded", [], None)
+    assert unbounded.model.init == "auto" and unbounded.render.near_from_points == 0.5
+    assert unbounded.densify.near_camera_fraction == 0.25 and unbounded.densify.late_prune_interval == 100
     assert resolve_config("dtu", [], None).model.init == "sfm"
     assert resolve_config("blender", [], None).model.init == "random"
 
