@@ -321,13 +321,13 @@ class Densifier:
                 reset_opacity(gaussians, optimizer, cfg.opacity_reset_value)
                 report.opacity_reset = True
         elif self.late_prune_due(iteration):
-            self._late_prune(gaussians, optimizer, extent, near_camera, report)
+            self._late_prune(iteration, gaussians, optimizer, extent, near_camera, report)
         report.filter_3d_due = report.densified or (
             iteration % cfg.filter_3d_interval == 0 and cfg.stop_iter < iteration < cfg.filter_3d_until_iter)
         report.num_after = len(gaussians)
         return report
 
-    def _late_prune(self, gaussians, optimizer, extent: float, near_camera, report: DensifyReport) -> None:
+    def _late_prune(self, iteration: int, gaussians, optimizer, extent: float, near_camera, report: DensifyReport) -> None:
         cfg = self.config
         with torch.no_grad():
             transparent = gaussians.raw_opacities < cfg.min_opacity
@@ -339,11 +339,16 @@ class Densifier:
                 mask |= near
             report.num_pruned = int(mask.sum())
             n_transparent = int(transparent.sum())
+        if report.num_pruned and report.num_pruned == len(gaussians):
+            raise GofError(f"the late prune at iteration {iteration} would remove all {len(gaussians)} Gaussians "
+                           f"({n_transparent} with opacity below densify.min_opacity = {cfg.min_opacity}, "
+                           f"{report.num_near_camera} in front of a camera): check the scene's near plane, "
+                           "densify.min_opacity and densify.near_camera_fraction")
         report.late_pruned = True
         self.late_pruned["transparent"] += n_transparent
         self.late_pruned["too_large"] += report.num_pruned - report.num_near_camera - n_transparent
         self.late_pruned["near_camera"] += report.num_near_camera
-        if report.num_pruned and report.num_pruned < len(gaussians):
+        if report.num_pruned:
             replace_params(gaussians, optimizer, keep=~mask)
             self.stats = None
 

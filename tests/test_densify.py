@@ -352,6 +352,11 @@ def test_late_prune_runs_after_densification_only_on_its_interval_and_with_the_n
     assert again.late_pruned == d.late_pruned
     check_optimizer_state(gs, opt)
     assert not Densifier(DensifyConfig(stop_iter=100)).late_prune_due(150)  # off by default: GOF never prunes late
+    with torch.no_grad():  # a late prune that would leave nothing says so (and leaves the model as it was)
+        gs.params["opacity_logits"][:] = _logit(0.01)
+    with pytest.raises(GofError, match="would remove all 4 Gaussians"):
+        d.step(200, gs, opt, EXTENT)
+    assert len(gs) == 4
     for bad in ({"late_prune_interval": -1}, {"near_camera_fraction": 1.5},
                 {"near_camera_fraction": 0.25}):  # the last: no late prunes to act at
         with pytest.raises(GofError):
