@@ -139,6 +139,25 @@ def parse_override(text: str) -> dict:
     return out
 
 
+def combine_overrides(overrides: list[str]) -> dict:
+    """``section.key=value`` texts as one nested mapping (a later text wins for the same key), for one :func:`merge`.
+
+    Merged together, settings that are checked against each other change together: ``densify.near_camera_fraction=0
+    densify.late_prune_interval=0`` works in either order, where merging one at a time would stop at the first."""
+    combined: dict = {}
+
+    def deep(dst, src):
+        for k, v in src.items():
+            if isinstance(v, dict) and isinstance(dst.get(k), dict):
+                deep(dst[k], v)
+            else:
+                dst[k] = v
+
+    for o in overrides:
+        deep(combined, parse_override(o))
+    return combined
+
+
 def load_yaml(path) -> dict:
     path = Path(path)
     try:

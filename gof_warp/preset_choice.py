@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import ConfigError, from_dict, load_yaml, merge, parse_override
+from .config import ConfigError, combine_overrides, from_dict, load_yaml, merge
 
 PRESETS = ("auto", "quick", "blender", "unbounded", "dtu", "tnt", "mipnerf360")
 
@@ -48,11 +48,10 @@ def resolve_config(config: str, overrides: list[str], iterations: int | None):
     from .trainer import TrainConfig
 
     cfg = from_dict(TrainConfig, load_yaml(preset_path(config)), f"config {config}")
-    for o in overrides:
-        cfg = merge(cfg, parse_override(o), f"override {o!r}")
+    combined = combine_overrides(overrides)
     if iterations is not None:
-        cfg = merge(cfg, {"iterations": iterations})
-    return cfg
+        combined["iterations"] = iterations
+    return merge(cfg, combined, "overrides " + " ".join(overrides)) if combined else cfg
 
 
 ALPHA_PROBE_VIEWS = 3

@@ -76,3 +76,21 @@ def test_exponent_notation_without_a_dot_is_a_number():
     assert merge(TrainConfig(), parse_override("loss.lambda_normal=5E+1")).loss.lambda_normal == 50.0
     with pytest.raises(ConfigError, match="expected a number"):
         merge(TrainConfig(), parse_override("loss.lambda_normal=1e"))
+
+
+def test_overrides_checked_against_each_other_apply_in_either_order():
+    """The trainer's overrides are merged together, then checked: the unbounded preset's near-camera prune needs the
+    late prune, and turning both off works whichever comes first (one at a time, the first one was refused)."""
+    from gof_warp.errors import GofError
+    from gof_warp.preset_choice import resolve_config
+
+    both = ["densify.near_camera_fraction=0", "densify.late_prune_interval=0"]
+    for overrides in (both, both[::-1]):
+        cfg = resolve_config("unbounded", overrides, 123)
+        assert cfg.densify.late_prune_interval == 0 and cfg.densify.near_camera_fraction == 0.0
+        assert cfg.iterations == 123
+    with pytest.raises(GofError, match="near_camera_fraction"):  # one alone is still checked
+        resolve_config("unbounded", ["densify.late_prune_interval=0"], None)
+    assert resolve_config("quick", ["loss.lambda_normal=0.1", "loss.lambda_normal=0.2"], None).loss.lambda_normal == 0.2
+    with pytest.raises(ConfigError, match="densify.max_gausians"):
+        resolve_config("quick", ["loss.lambda_normal=0.1", "densify.max_gausians=5"], None)
