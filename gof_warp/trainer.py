@@ -483,7 +483,8 @@ class Trainer:
         would otherwise land in the first iterations' time; reported apart as ``warmup_s``), and compiles both
         graphs of a compiled loss (``compile_loss``; a failure there makes ``"auto"`` fall back to the eager
         loss, and the pass is repeated). It changes nothing that training reads: no optimiser step, no
-        densification statistics kept, no random numbers drawn, and the gradients it leaves are cleared, so a run with it is bitwise the run without it."""
+        densification statistics kept, no random numbers drawn, and the gradients it leaves are cleared, so a run with it is bitwise the run without it.
+        With several ranks it ends at a barrier, so that every rank's clock starts when all are ready."""
         t = time.perf_counter() if started is None else started
         it = self.iteration + 1
         regularised = max(it, self.config.loss.regularization_from_iter)  # the regularisers' kernels too
@@ -503,6 +504,9 @@ class Trainer:
             self.appearance_optimizer.zero_grad(set_to_none=True)
         if self.device.type == "cuda":
             torch.cuda.synchronize(self.device)
+        # the ranks start the clock together: the first collective also sets up NCCL's communicators, which in the
+        # first step would count that and the ranks' different start-up times as training time
+        self.ranks.barrier()
         self.warmup_s = time.perf_counter() - t
 
     def _train_loop(self, progress, interrupted: Callable[[], bool], on_snapshot=None, on_spike=None) -> dict:

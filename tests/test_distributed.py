@@ -1,10 +1,12 @@
 """Data-parallel training over processes (gloo on the CPU): two processes give the one-process result, the
 ranks' checksum catches a model that drifted, and bad splits are refused."""
 
+import functools
 import os
 import subprocess
 import sys
 import tempfile
+import time
 
 import numpy as np
 import pytest
@@ -124,3 +126,29 @@ def test_rank_zero_rows_reach_every_rank_and_different_points_are_refused():
     result = _spawn_two(_other_points)
     assert result["tets1"] == result["tets0"] == np.arange(12).reshape(3, 4).tolist()
     assert all("evaluates other points" in result[r] for r in (0, 1)), result
+
+
+def _late_rank_one(scene_dir, ranks, result):
+    """Rank 1 starts training 3 s after rank 0; rank 0 reports its warm-up and training times."""
+    from gof_warp.config import merge
+    from gof_warp.data import load_scene
+    from gof_warp.trainer import TrainConfig, Trainer
+
+    cfg = merge(TrainConfig(), {"iterations": 4, "views_per_step": 2, "checkpoint_every": 0,
+                                "model": {"init": "random", "random_init_points": 100}})
+    with tempfile.TemporaryDirectory() as out:
+        trainer = Trainer(load_scene(scene_dir), cfg, out, "cpu", ranks=ranks)
+        if ranks.rank == 1:
+            time.sleep(3.0)
+        metrics = trainer.run()
+    if ranks.is_main:
+        result["warmup_s"], result["train_time_s"] = trainer.warmup_s, metrics["train_time_s"]
+
+
+def test_the_clock_starts_when_every_rank_is_ready(scene):
+    """The warm-up ends at a barrier: a rank that starts late (or NCCL setting up its communicators at the first
+    collective) is waited for before the clock starts, not inside the first step's all-reduce."""
+    result = _spawn_two(functools.partial(_late_rank_one, str(scene)))
+    assert result[0] == result[1] == "same", result
+    assert result["warmup_s"] > 2.5, result  # rank 0 waited for rank 1 in its warm-up
+    assert result["train_time_s"] < result["warmup_s"], result  # ... and not in its timed steps
