@@ -15,7 +15,7 @@ t0=$(date +%s)
 python3 -m gof_warp.synthetic --preset garden --resolution $RES --views $SCENE_VIEWS --out $W/scene --device $DEV --quiet \
   || { echo "scene generation failed"; exit 1; }
 echo "scene at $(( $(date +%s) - t0 )) s"
-COMMON=($W/scene --iterations "$IT" --no-pictures --quiet checkpoint_every=0 "views_per_step=$VIEWS" model.init=random
+COMMON=($W/scene --iterations "$IT" --no-pictures --quiet checkpoint_every=0 log_every=25 "views_per_step=$VIEWS" model.init=random
         "model.random_init_points=$N" densify.stop_iter=0 densify.near_camera_fraction=0 densify.late_prune_interval=0
         loss.regularization_from_iter=0)
 for n in $GPUS; do
@@ -39,9 +39,14 @@ for g in gpus:
                                           "views_per_step", "gpu_peak_allocated_mb", "gpu_peak_warp_pool_mb")}
         rows[g]["test_psnr"] = d["test"]["psnr"]
         rows[g]["ms_per_step"] = round(1000 * d["train_time_s"] / int(it), 2)
+        h = {r["iteration"]: r["elapsed_s"] for r in d["history"]}  # every 25 steps: the rate past the first 25
+        if 25 in h and int(it) in h and int(it) > 25:
+            rows[g]["ms_per_step_after_25"] = round(1000 * (h[int(it)] - h[25]) / (int(it) - 25), 2)
 base = rows.get("1", {}).get("train_time_s")
 for g, r in rows.items():
     r["speedup_vs_1"] = round(base / r["train_time_s"], 3) if base else None
+    b25, r25 = rows.get("1", {}).get("ms_per_step_after_25"), r.get("ms_per_step_after_25")
+    r["speedup_after_25_vs_1"] = round(b25 / r25, 3) if b25 and r25 else None
 import subprocess
 try:
     gpu = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"], capture_output=True, text=True).stdout
@@ -51,7 +56,8 @@ result = {"what": "data-parallel steps at a fixed model size (benchmarks/distrib
           "scene": f"synthetic garden, {res.replace(' ', 'x')}, {sv} train views", "gaussians": int(n),
           "steps": int(it), "views_per_step": int(views), "gpus": gpu.strip().splitlines(), "runs": rows}
 (out / "dp_steady.json").write_text(json.dumps(result, indent=1))
-print(" | ".join(f"{g} GPU: {r['ms_per_step']} ms/step x{r['speedup_vs_1']}" for g, r in rows.items()))
+print(" | ".join(f"{g} GPU: {r['ms_per_step']} ms/step x{r['speedup_vs_1']}, past step 25 "
+                 f"{r.get('ms_per_step_after_25')} x{r['speedup_after_25_vs_1']}" for g, r in rows.items()))
 PY
 done
 for f in $W/g*.log; do echo "== $f"; tail -n 3 "$f"; done
