@@ -12,12 +12,15 @@ everywhere, so every rank makes the same decisions and holds identical Gaussians
 compares a checksum of the parameters across ranks every ``checksum_every`` steps and stops on a mismatch.
 Rank 0 alone writes the run folder (checkpoints load on any number of ranks: they hold one model).
 
-Extraction (``torchrun --nproc_per_node N -m gof_warp.extract RUN``) shares out the views of every opacity-field
-evaluation the same way (:meth:`Ranks.reduce_field`: the minimum over the ranks is exact, so every rank holds the
-one-process field bit for bit); rank 0 alone runs the Delaunay and broadcasts the tetrahedra
-(:meth:`Ranks.broadcast_rows`), every rank then marches the same grid in lockstep (each search step is one
-field evaluation, checked to be of the same points everywhere: :meth:`Ranks.check_same_points`) and rank 0
-writes the mesh.
+Extraction (``torchrun --nproc_per_node N -m gof_warp.extract RUN``) shares out the views of the opacity field
+at the grid points the same way (:meth:`Ranks.reduce_field`: the minimum over the ranks is exact, so every rank
+holds the one-process field bit for bit; the ranks' points are checked to be the same:
+:meth:`Ranks.check_same_points`). Every rank builds the same octree grid, or rank 0 alone runs the Delaunay and
+broadcasts the tetrahedra (:meth:`Ranks.broadcast_rows`). The marching and its binary search are then split by
+space: rank ``r`` marches its consecutive share of the tetrahedra (:meth:`Ranks.my_range`), evaluating the field
+at its own crossing edges over every view, and rank 0 joins the pieces by their edge keys
+(:meth:`Ranks.gather_to_main`, :func:`gof_warp.marching.merge_keyed_pieces`) into the one-process mesh and writes
+it.
 
 A single process is the same code with ``Ranks.single()`` (every collective a no-op).
 """
@@ -57,6 +60,20 @@ class Ranks:
     def my_views(self, views: list[int]) -> list[int]:
         """This rank's share of one step's views (every ``world``-th, from ``rank``)."""
         return views[self.rank :: self.world]
+
+    def my_range(self, n: int) -> tuple[int, int]:
+        """This rank's consecutive share ``[start, end)`` of ``n`` items (the ranks' shares in rank order tile
+        ``[0, n)``; sizes differ by at most one)."""
+        return n * self.rank // self.world, n * (self.rank + 1) // self.world
+
+    def gather_to_main(self, obj):
+        """Every rank's ``obj`` (picklable, e.g. numpy arrays) on rank 0 as a list in rank order; None on the
+        other ranks. Single process: ``[obj]``."""
+        if not self.active:
+            return [obj]
+        out = [None] * self.world if self.is_main else None
+        torch.distributed.gather_object(obj, out, dst=0)
+        return out
 
     def sum_gradients(self, params: list[torch.Tensor]) -> None:
         """Sum ``.grad`` of ``params`` over the ranks, in place (parameters without a gradient, e.g. just

@@ -30,7 +30,7 @@ from .camera import Camera
 from .distributed import Ranks
 from .errors import GofError, ModelError
 from .io_utils import atomic_path
-from .marching import compact_mesh
+from .marching import compact_mesh, marching_tetrahedra, merge_keyed_pieces
 from .opacity_field import OpacityFieldConfig, opacity_field
 from .render import RenderConfig
 from .tetra import TetraConfig, grid_points, level_band, octree_grid_from_gaussians, tetrahedralize
@@ -222,6 +222,27 @@ def _octree_grid(gaussians, cameras, config: MeshConfig, field_fn, timer: StageT
     return points, values, (tets if tets.shape[0] else None), counts
 
 
+def _march(points, tets, values, gaussians, cameras, config: MeshConfig, render_config, field_fn, ranks: Ranks) -> list:
+    """Marching tetrahedra with the binary search: one ``(vertices, faces)`` per level. With several ``ranks`` it is
+    split by space: each marches its consecutive share of ``tets`` and searches its own crossing edges with the
+    field over every view; rank 0 joins the pieces by edge key into the one-process mesh (the other ranks return
+    their pieces)."""
+    if not ranks.active:
+        return marching_tetrahedra(points, tets, values, field_fn, levels=config.levels,
+                                   binary_steps=config.binary_steps, oriented=True)
+    start, end = ranks.my_range(len(tets))
+
+    def own_field(x):  # this rank's points only: every view, no collective
+        return opacity_field(gaussians, cameras, x, config=config.field, render_config=render_config)
+
+    pieces = marching_tetrahedra(points, tets[start:end], values, own_field, levels=config.levels,
+                                 binary_steps=config.binary_steps, oriented=True, return_keys=True)
+    gathered = ranks.gather_to_main(pieces)
+    if not ranks.is_main:
+        return [(v, f) for v, f, _ in pieces]
+    return [merge_keyed_pieces([g[level] for g in gathered]) for level in range(len(config.levels))]
+
+
 def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = None, *,
                  render_config: RenderConfig | None = None, views=None, timer: StageTimer | None = None,
                  grid_cache: dict | None = None, ranks=None):
@@ -237,14 +258,16 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
             that differ only in search steps, levels or decimation build it once. ``timer.stages["grid_shared"]``
             says so, with the seconds the grid took when it was built.
         ranks: a :class:`~gof_warp.distributed.Ranks` of several processes (``torchrun``; every rank calls this
-            with the same model and cameras): each field evaluation is shared out by views among them, the
-            tetra path's Delaunay runs on rank 0 and is broadcast, and the post-processing (crop, components,
-            decimation) runs on rank 0 only; the other ranks return the raw marched meshes. TSDF fusion is not
-            shared out (every rank fuses every view).
+            with the same model and cameras). Tetra path: the field at the grid points is shared out by views, the
+            Delaunay runs on rank 0 and is broadcast (the octree grid is built alike on every rank), and the
+            marching with its search is split by space, each rank marching its share of the tetrahedra (the pieces
+            joined on rank 0 into the one-process mesh). Cubes: each field evaluation is shared out by views. The
+            post-processing (crop, components, decimation) runs on rank 0 only; the other ranks return their raw
+            meshes (their pieces, on the tetra path). TSDF fusion is not shared out (every rank fuses every view).
     Returns:
         list of ``(vertices [V, 3] float32, faces [F, 3] int32)``, one per ``config.levels``.
     """
-    from .marching import marching_cubes, marching_tetrahedra
+    from .marching import marching_cubes
     from .scene import View
 
     config = config or MeshConfig()
@@ -279,8 +302,11 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
             meshes = [(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int64)) for _ in config.levels]
         else:
             with timer("marching_tetrahedra"):
-                meshes = marching_tetrahedra(torch.as_tensor(points, device=gaussians.device), tets, values, field_fn,
-                                             levels=config.levels, binary_steps=config.binary_steps, oriented=True)
+                meshes = _march(torch.as_tensor(points, device=gaussians.device), tets, values, gaussians, cameras,
+                                config, render_config, field_fn, ranks)
+            if ranks.active:
+                counts["tetrahedra_per_rank"] = [b - a for a, b in (Ranks(rank=r, world=ranks.world).my_range(len(tets))
+                                                                    for r in range(ranks.world))]
         timer.stages["counts"] = counts
     elif config.method == "cubes":
         from .tsdf import scene_bounds

@@ -181,7 +181,8 @@ def _level_topology(points: wp.array, tets: TetSource, values: wp.array, level: 
 
 def marching_tetrahedra(points, tets, values=None, field: Field | None = None, *, levels: Sequence[float] = (0.5,),
                         binary_steps: int = 8, chunk_size: int = DEFAULT_CHUNK_TETS, field_input: str | None = None,
-                        device=None, oriented: bool = False, field_params=None) -> list[tuple[np.ndarray, np.ndarray]]:
+                        device=None, oriented: bool = False, field_params=None,
+                        return_keys: bool = False) -> list[tuple[np.ndarray, ...]]:
     """Marching tetrahedra on a tetrahedral grid, with binary search on the crossing edges.
 
     Args:
@@ -204,11 +205,14 @@ def marching_tetrahedra(points, tets, values=None, field: Field | None = None, *
             negative for the slivers a perturbed Delaunay leaves on cospherical points).
         field_params: the ``params`` argument of a Warp field function that takes one (a ``wp.struct``
             instance, a volume id, ...); ``None`` otherwise.
+        return_keys: also return each vertex's edge key ``i·P + j`` (``int64 [V]``, ascending: the vertices'
+            order), ``i < j`` the edge's point indices in ``points``: the pieces marched from parts of one grid's
+            tetrahedra then join into the whole grid's mesh (:func:`merge_keyed_pieces`).
 
     Returns:
-        one ``(vertices [V, 3] float32, faces [F, 3] int32)`` per level. Vertices are shared between faces
-        on the same tetrahedron edge; normals point from high to low values. Closed level sets inside the
-        grid give watertight meshes.
+        one ``(vertices [V, 3] float32, faces [F, 3] int32)`` per level (``(vertices, faces, keys)`` with
+        ``return_keys``). Vertices are shared between faces on the same tetrahedron edge; normals point from high
+        to low values. Closed level sets inside the grid give watertight meshes.
     """
     if field_input == "torch":
         import torch  # noqa: F401  (before the device rule: torch and Warp must agree)
@@ -231,13 +235,33 @@ def marching_tetrahedra(points, tets, values=None, field: Field | None = None, *
     tet_src = TetSource(tets, n_points, device)
     if n_points == 0 or tet_src.count == 0:
         log.warning("marching_tetrahedra: %d points, %d tetrahedra: returning empty meshes", n_points, tet_src.count)
-        return [_empty_mesh() for _ in levels]
+        return [(*_empty_mesh(), np.zeros(0, np.int64)) if return_keys else _empty_mesh() for _ in levels]
 
     with torch_stream(device):
-        return _marching_tetrahedra(pts, tet_src, vals, levels, call_field, steps, int(chunk_size), oriented)
+        return _marching_tetrahedra(pts, tet_src, vals, levels, call_field, steps, int(chunk_size), oriented,
+                                    return_keys)
 
 
-def _marching_tetrahedra(pts, tet_src, vals, levels, call_field, steps, chunk_size, oriented=False):
+def merge_keyed_pieces(pieces: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """One mesh from pieces that :func:`marching_tetrahedra` (``return_keys=True``) marched from consecutive parts of
+    one grid's tetrahedra: ``(vertices [V, 3] float32, faces [F, 3] int32)``.
+
+    A vertex on an edge that tetrahedra of several pieces share comes once (the same key); its position is taken
+    from the first piece that has it (the pieces computed it from the same bracket and field: the same value). The
+    vertices come in ascending key order and the faces piece after piece, so the parts ``tets[0:a], tets[a:b], …``
+    give exactly the mesh of ``tets`` marched at once."""
+    pieces = [p for p in pieces if len(p[2])]
+    if not pieces:
+        return _empty_mesh()
+    keys = np.concatenate([np.asarray(k, np.int64) for _, _, k in pieces])
+    verts = np.concatenate([np.asarray(v, np.float32) for v, _, _ in pieces])
+    unique, first, inverse = np.unique(keys, return_index=True, return_inverse=True)
+    offsets = np.cumsum([0] + [len(k) for _, _, k in pieces[:-1]])
+    faces = np.concatenate([inverse[np.asarray(f, np.int64) + o] for (_, f, _), o in zip(pieces, offsets)])
+    return verts[first], faces.astype(np.int32)
+
+
+def _marching_tetrahedra(pts, tet_src, vals, levels, call_field, steps, chunk_size, oriented=False, return_keys=False):
     device, n_points = pts.device, pts.shape[0]
     topo = [_level_topology(pts, tet_src, vals, lv, chunk_size, oriented) for lv in levels]
     sizes = [keys.shape[0] for _, keys in topo]
@@ -251,9 +275,9 @@ def _marching_tetrahedra(pts, tet_src, vals, levels, call_field, steps, chunk_si
         offset += n
     vertices = _refine(br, call_field, steps)
     meshes, offset = [], 0
-    for (corner_vertex, _), n, lv in zip(topo, sizes, levels):
+    for (corner_vertex, keys), n, lv in zip(topo, sizes, levels):
         faces = corner_vertex.numpy().reshape(-1, 3).astype(np.int32, copy=False)
-        meshes.append((vertices[offset : offset + n], faces))
+        meshes.append((vertices[offset : offset + n], faces) + ((keys.numpy(),) if return_keys else ()))
         log.info("marching_tetrahedra: level %g: %d vertices, %d faces", lv, n, faces.shape[0])
         offset += n
     return meshes

@@ -90,9 +90,10 @@ def test_views_are_shared_out_and_bad_splits_refused(scene, tmp_path):
 
 
 def test_two_processes_extract_the_one_process_mesh(scene, tmp_path):
-    """torchrun extraction: views shared out for every field evaluation, rank 0 writes; the mesh is the one-process
-    mesh exactly (the field's minimum over ranks is exact) on both grids: the octree (the default, built alike on
-    every rank) and the Delaunay grid (computed on rank 0 and broadcast)."""
+    """torchrun extraction: the grid points' field shared out by views (the minimum over ranks is exact), the marching
+    and its search split by space (each rank its share of the tetrahedra, joined by edge key on rank 0), rank 0
+    writes; the mesh is the one-process mesh exactly on both grids: the octree (the default, built alike on every
+    rank) and the Delaunay grid (computed on rank 0 and broadcast)."""
     import json
 
     import trimesh
@@ -112,6 +113,9 @@ def test_two_processes_extract_the_one_process_mesh(scene, tmp_path):
         assert np.array_equal(one.vertices, two.vertices) and np.array_equal(one.faces, two.faces), grid
         info = json.loads((tmp_path / f"two_{grid}.json").read_text())
         assert info["processes"] == 2 and stage in info["stages"], grid
+        counts = info["stages"]["counts"]  # the marching was split by space: each rank marched its share
+        assert len(counts["tetrahedra_per_rank"]) == 2 and sum(counts["tetrahedra_per_rank"]) == counts["tetrahedra"]
+        assert min(counts["tetrahedra_per_rank"]) > 0, grid
         if grid == "delaunay":
             assert info["stages"][stage]["substages"]["computed_on_rank"] == 0
 

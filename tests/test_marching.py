@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from gof_warp.camera import look_at
 from gof_warp.errors import GofError
-from gof_warp.marching import marching_cubes, marching_tetrahedra
+from gof_warp.marching import marching_cubes, marching_tetrahedra, merge_keyed_pieces
 from gof_warp.delaunay import delaunay, orient_and_drop_degenerate
 from gof_warp.tetra import (TetraConfig, filter_cells, level_band, tetra_points,
                             tetrahedral_grid)
@@ -197,6 +197,31 @@ def test_chunked_equals_unchunked(cloud):
                                     lambda x: gaussian_field(x.numpy()), binary_steps=2, device="cpu")
     np.testing.assert_array_equal(f3, f4)
     np.testing.assert_array_equal(v3, v4)
+
+
+def test_pieces_marched_apart_join_into_the_whole_mesh(cloud):
+    """Consecutive parts of the tetrahedra marched one by one (with their edge keys; each part searches only its own
+    crossing edges, as a rank does) and joined by key give the mesh of all of them at once, bit for bit, for every
+    level; an empty part, a part with no crossing and a one-part split included."""
+    points, tets = cloud
+    values = gaussian_field(points)
+    levels = (0.3, 0.5)
+    whole = marching_tetrahedra(points, tets, values, gaussian_field, levels=levels, binary_steps=3, device="cpu")
+    for cuts in ([0, len(tets)], [0, 0, 5, 1000, 2345, len(tets)], [0, len(tets) // 3, len(tets) // 2, len(tets)]):
+        parts = [marching_tetrahedra(points, tets[a:b], values, gaussian_field, levels=levels, binary_steps=3,
+                                     device="cpu", return_keys=True) for a, b in zip(cuts[:-1], cuts[1:])]
+        for level, (v, f) in enumerate(whole):
+            vm, fm = merge_keyed_pieces([p[level] for p in parts])
+            np.testing.assert_array_equal(fm, f)
+            np.testing.assert_array_equal(vm, v)
+    (v, f, keys), = marching_tetrahedra(points, tets, values, device="cpu", return_keys=True)
+    n = len(points)
+    assert keys.dtype == np.int64 and len(keys) == len(v) and np.all(np.diff(keys) > 0)
+    i, j = keys // n, keys % n  # each vertex lies on the segment of its edge
+    t = np.einsum("ij,ij->i", v - points[i], points[j] - points[i]) / np.einsum("ij,ij->i", points[j] - points[i],
+                                                                                  points[j] - points[i])
+    assert np.all(i < j) and np.all((t > -1e-5) & (t < 1 + 1e-5))
+    assert merge_keyed_pieces([])[0].shape == (0, 3)
 
 
 @pytest.mark.parametrize("n", [1, 12])
