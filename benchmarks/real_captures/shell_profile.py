@@ -26,11 +26,12 @@ def main():
     ap.add_argument("--ground", type=float, default=None, help="ground height (default: the scene.json entry)")
     ap.add_argument("--rays", type=int, default=300)
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--device", default="cpu", help="torch/Warp device of the field (default: cpu)")
     a = ap.parse_args()
     ground = a.ground
     if ground is None:
         ground = float(json.loads((Path(a.scene) / "scene.json").read_text())["ground"]["height"])
-    g, cams, _, rc = load_run(a.model, a.scene, "cpu")
+    g, cams, _, rc = load_run(a.model, a.scene, a.device)
     rng = np.random.default_rng(0)
     d = rng.normal(size=(20 * a.rays, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
