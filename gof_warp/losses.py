@@ -20,11 +20,6 @@
 The regularisers start at ``regularization_from_iter`` (GOF: 15 000, ``>=``). Setting a λ to 0
 switches a term off (and skips its computation) for ablations.
 
-Not GOF's: an optional flattening term ``λ_flat · L_flat`` on the Gaussians themselves (off by default),
-``L_flat = mean_k min_j s_kj / E`` — each Gaussian's smallest standard deviation over the scene extent
-``E`` (:func:`flatten_loss`; PGSR's scale-flattening term, made scale-free). It acts from the first
-iteration and once per step, whatever the number of views in the step.
-
 Images are channel-last ``[H, W, 3]`` floats in ``[0, 1]``, like the renderer's ``rgb``.
 """
 
@@ -61,15 +56,14 @@ class LossConfig:
     lambda_normal: float = 0.05
     regularization_from_iter: int = 15_000
     normal_form: str = "paper"  # "paper": Σ ω_i(1 − n_iᵀN); "gof": 1 − normalize(Σ ω_i n_i)ᵀN
-    lambda_flatten: float = 0.0  # not GOF's: λ_flat on mean_k min_j s_kj / E (flatten_loss), off by default
 
     def __post_init__(self):
         if self.normal_form not in NORMAL_FORMS:
             raise GofError(f"LossConfig.normal_form must be one of {NORMAL_FORMS}, got {self.normal_form!r}")
         if not 0.0 <= self.lambda_dssim <= 1.0:
             raise GofError(f"LossConfig.lambda_dssim must be in [0, 1], got {self.lambda_dssim}")
-        if self.lambda_distortion < 0 or self.lambda_normal < 0 or not self.lambda_flatten >= 0:
-            raise GofError("LossConfig: lambda_distortion, lambda_normal and lambda_flatten must be >= 0")
+        if self.lambda_distortion < 0 or self.lambda_normal < 0:
+            raise GofError("LossConfig: lambda_distortion and lambda_normal must be >= 0")
 
 
 def l1(img: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
@@ -85,24 +79,6 @@ def dssim(img: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
 def distortion_loss(distortion: torch.Tensor) -> torch.Tensor:
     """Mean of the renderer's per-pixel depth-distortion map ``[H, W]``."""
     return distortion.mean()
-
-
-def flatten_loss(log_scales: torch.Tensor, extent: float) -> torch.Tensor:
-    """``mean_k min_j exp(log_scales[k, j]) / extent``: the Gaussians' smallest standard deviations, scale-free.
-
-    Args:
-        log_scales: ``[N, 3]`` log standard deviations along each Gaussian's axes (``Gaussians.log_scales``).
-        extent: the scene extent ``E`` (> 0) the scales are measured against.
-    Returns:
-        a scalar; its gradient reaches only each Gaussian's smallest axis (0 for an empty model).
-    """
-    if not extent > 0:
-        raise GofError(f"flatten_loss: the scene extent must be > 0, got {extent}")
-    if log_scales.ndim != 2 or log_scales.shape[1] != 3:
-        raise GofError(f"flatten_loss: log_scales must be [N, 3], got {list(log_scales.shape)}")
-    if log_scales.shape[0] == 0:
-        return log_scales.sum()
-    return torch.exp(log_scales.min(dim=1).values).mean() / extent
 
 
 def depth_to_points(depth: torch.Tensor, camera: Camera) -> torch.Tensor:

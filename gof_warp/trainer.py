@@ -46,7 +46,7 @@ from .interrupts import TrainingInterrupted, deferred_interrupt  # noqa: F401 - 
 from .io_utils import ensure_writable_dir, write_json_atomic, write_text_atomic
 from .kernels.binning import TileListSizer
 from .loss_monitor import LossSpikeMonitor
-from .losses import COMPILE_MODES, LossConfig, TrainingLoss, flatten_loss
+from .losses import COMPILE_MODES, LossConfig, TrainingLoss
 from .metrics import image_metrics, psnr
 from .model import Gaussians
 from .near_camera import (in_front_of_cameras, near_camera_bounds, near_camera_census, near_ray_census,
@@ -255,8 +255,6 @@ class Trainer:
             for k, v in self._render_view(it, idx).items():  # this rank's mean over its views
                 terms[k] = v if k not in terms else terms[k] + v
         terms = terms if len(mine) == 1 else {k: v / len(mine) for k, v in terms.items()}
-        if cfg.loss.lambda_flatten > 0:
-            terms = self._flatten(terms)
         self.ranks.sum_gradients(self._trained_params())
         cam = self.cameras[mine[0]]  # the view the spike monitor files the loss under
         with torch.no_grad(), _stage("train.densify"):
@@ -291,17 +289,6 @@ class Trainer:
             with torch.no_grad():
                 self.densifier.after_backward(stats, it, scale=float(self.views_per_step))
         return terms
-
-    def _flatten(self, terms: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        """Back-propagate the flattening term (``loss.lambda_flatten``) once for the step, each rank its share (the
-        ranks' gradients are summed); ``terms`` with ``flatten`` added and counted into ``total``."""
-        lam = self.config.loss.lambda_flatten
-        with _stage("train.loss"):
-            flat = flatten_loss(self.gaussians.log_scales, self.scene.extent)
-        with _stage("train.backward"):
-            (flat * (lam / self.ranks.world)).backward()
-        flat = flat.detach()
-        return {**terms, "flatten": flat, "total": terms["total"] + lam * flat}
 
     def _new_stats(self, it: int) -> DensifyStats | None:
         """Densification statistics for one view of iteration ``it`` (None once they are no longer gathered)."""

@@ -7,8 +7,8 @@ from scipy.signal import convolve2d
 
 from gof_warp.camera import Camera
 from gof_warp.errors import GofError
-from gof_warp.losses import (LossConfig, depth_normal_consistency, depth_to_normal, distortion_loss, dssim,
-                             flatten_loss, l1, total_loss)
+from gof_warp.losses import (LossConfig, depth_normal_consistency, depth_to_normal, distortion_loss, dssim, l1,
+                             total_loss)
 
 TOL64 = 1e-10  # float64 torch vs float64 numpy: only summation-order rounding
 TOL_PLANE = 1e-9  # central differences of an exact plane lie in the plane: exact up to rounding
@@ -266,26 +266,3 @@ def test_compile_loss_config_values():
     assert merge(TrainConfig(), parse_override("compile_loss=auto")).compile_loss == "auto"
     with pytest.raises(ConfigError, match="compile_loss"):
         merge(TrainConfig(), parse_override("compile_loss=sometimes"))
-
-
-def test_flatten_loss_is_the_mean_smallest_scale_over_the_extent_and_moves_only_that_axis():
-    rng = np.random.default_rng(3)
-    log_s = rng.normal(-3.0, 1.0, size=(50, 3))
-    ref = np.mean(np.exp(log_s).min(axis=1)) / 2.5  # float64 numpy reference
-    t = torch.tensor(log_s, requires_grad=True)
-    value = flatten_loss(t, 2.5)
-    assert abs(float(value.detach()) - ref) < TOL64 * max(1.0, ref)
-    value.backward()
-    smallest = np.argmin(log_s, axis=1)
-    expected = np.zeros_like(log_s)
-    expected[np.arange(50), smallest] = np.exp(log_s[np.arange(50), smallest]) / (50 * 2.5)
-    np.testing.assert_allclose(t.grad.numpy(), expected, rtol=1e-12, atol=0)
-    assert float(flatten_loss(torch.zeros((0, 3)), 1.0)) == 0.0
-
-
-@pytest.mark.parametrize("bad", [dict(extent=0.0), dict(extent=float("nan")), dict(shape=(4, 2))])
-def test_flatten_loss_and_its_weight_refuse_nonsense(bad):
-    with pytest.raises(GofError):
-        flatten_loss(torch.zeros(bad.get("shape", (4, 3))), bad.get("extent", 1.0))
-    with pytest.raises(GofError, match="lambda_flatten"):
-        LossConfig(lambda_flatten=-1.0)
