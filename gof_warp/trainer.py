@@ -255,7 +255,8 @@ class Trainer:
             for k, v in self._render_view(it, idx).items():  # this rank's mean over its views
                 terms[k] = v if k not in terms else terms[k] + v
         terms = terms if len(mine) == 1 else {k: v / len(mine) for k, v in terms.items()}
-        self.ranks.sum_gradients(self._trained_params())
+        with _stage("train.all_reduce"):
+            self.ranks.sum_gradients(self._trained_params())
         cam = self.cameras[mine[0]]  # the view the spike monitor files the loss under
         with torch.no_grad(), _stage("train.densify"):
             if self.densifier.densify_due(it):

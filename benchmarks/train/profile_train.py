@@ -20,7 +20,10 @@ Measured:
   and the device time of the kernels it launched; the device's busy time per iteration (sum of kernel
   times) against the wall time (the rest is the GPU waiting for the host); the 25 costliest kernels.
 
-Writes ``DIR/profile.json`` and ``DIR/trace.json.gz`` (chrome://tracing / Perfetto).
+Writes ``DIR/profile.json`` and ``DIR/trace.json.gz`` (chrome://tracing / Perfetto). Under
+``torchrun --nproc_per_node N benchmarks/train/profile_train.py SCENE --start-iteration I ... views_per_step=V`` every
+rank profiles its own share of the data-parallel step (``train.all_reduce``: the gradients' sum over the ranks) into
+``DIR/rank<r>/``.
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ from pathlib import Path
 
 import torch
 
-STAGES = ("train.render", "train.loss", "train.backward", "train.densify", "train.optimizer")
+STAGES = ("train.render", "train.loss", "train.backward", "train.all_reduce", "train.densify", "train.optimizer")
 
 
 def _sync(device):
@@ -134,7 +137,9 @@ def main(argv=None) -> int:
     ap.add_argument("scene")
     ap.add_argument("--config", default="dtu")
     ap.add_argument("--ply", type=Path, default=None, help="start from this model (e.g. a trained run's point_cloud.ply)")
-    ap.add_argument("--start", type=int, default=20000, help="iteration to profile at")
+    ap.add_argument("--start-iteration", "--start", dest="start", type=int, default=20000,
+                    help="iteration to profile at (under torchrun spell it --start-iteration: torchrun's own parser "
+                         "takes --start for an abbreviation of its --start-method)")
     ap.add_argument("--iterations", type=int, default=300)
     ap.add_argument("--trace", type=int, default=30)
     ap.add_argument("--device", default="auto")
@@ -145,14 +150,18 @@ def main(argv=None) -> int:
 
     from gof_warp.data import load_scene
     from gof_warp.devices import resolve_device
+    from gof_warp.distributed import rank_device, ranks_from_environment
     from gof_warp.preset_choice import resolve_config
     from gof_warp.trainer import Trainer
 
+    ranks = ranks_from_environment()  # under torchrun: every rank profiles its own step, into DIR/rank<r>/
+    if ranks.active:
+        a.out = a.out / f"rank{ranks.rank}"
     a.out.mkdir(parents=True, exist_ok=True)
     cfg = resolve_config(a.config, a.overrides, None)
-    device = resolve_device(a.device)
+    device = rank_device(resolve_device(a.device), ranks)
     scene = load_scene(a.scene, cfg.data)
-    trainer = Trainer(scene, cfg, a.out / "run", device)
+    trainer = Trainer(scene, cfg, a.out / "run", device, ranks=ranks)
     if a.ply is not None:
         _with_model(trainer, a.ply)
     trainer.iteration = a.start
@@ -166,6 +175,7 @@ def main(argv=None) -> int:
         "num_gaussians": [n0, len(trainer.gaussians)], "image": [trainer.cameras[0].width, trainer.cameras[0].height],
         "device": torch.cuda.get_device_name(trainer.device) if trainer.device.type == "cuda" else platform.processor(),
         "torch": torch.__version__, "iterations": a.iterations, "wall_ms_per_it": round(wall * 1e3 / a.iterations, 3),
+        "processes": ranks.world, "rank": ranks.rank, "views_per_step": trainer.views_per_step,
     }
     result.update(profile(trainer, a.trace, a.out))
     sizer = getattr(trainer, "tile_lists", None)  # absent in code before the TileListSizer
@@ -174,6 +184,8 @@ def main(argv=None) -> int:
     print(json.dumps({k: v for k, v in result.items() if k != "top_kernels"}, indent=1))
     for k in result["top_kernels"][:12]:
         print(f"{k['ms_per_it']:8.3f} ms  x{k['calls_per_it']:<6} {k['name']}")
+    ranks.barrier()
+    ranks.close()
     return 0
 
 
