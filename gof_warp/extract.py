@@ -120,6 +120,7 @@ def extract_run(a, ranks, device) -> None:
     meshes = extract_mesh(gaussians, cameras, cfg, render_config=render_config, views=views, timer=timer,
                           ranks=ranks)
     total = time.perf_counter() - t0
+    per_rank = ranks.gather_to_main(rank_summary(ranks, device, timer.stages, total))  # every rank calls it
     if not ranks.is_main:
         return
     levels = cfg.levels if a.method != "tsdf" else (0.0,)
@@ -136,13 +137,24 @@ def extract_run(a, ranks, device) -> None:
     write_json_atomic(base.with_suffix(".json"), {
         "method": a.method, "binary_steps": a.binary_steps, "num_gaussians": len(gaussians),
         "num_views": len(cameras), "device": device, "processes": ranks.world, "total_time_s": round(total, 3),
-        "stages": timer.stages, "meshes": outputs})
+        "stages": timer.stages, "meshes": outputs, **({"ranks": per_rank} if ranks.active else {})})
     if not a.no_pictures:  # a picture per mesh; a failure only warns: the mesh is already written
         from .pictures import pictures_or_warning
 
         for o in outputs:
             for p in pictures_or_warning(run, mesh_path=o["path"], device=device, scene=a.scene):
                 print(f"wrote {p}")
+
+
+def rank_summary(ranks, device, stages: dict, total_s: float) -> dict:
+    """One rank's figures for ``<mesh>.json``: its device, wall time, and the peaks over its stages (host RSS; on
+    CUDA torch's allocation and Warp's pool) — each GPU's own memory, which rank 0's stages alone do not show."""
+    peaks = {}
+    for entry in stages.values():
+        for key in ("host_peak_rss_mb", "gpu_peak_allocated_mb", "gpu_warp_pool_high_mb"):
+            if isinstance(entry, dict) and key in entry:
+                peaks[key] = max(peaks.get(key, 0.0), entry[key])
+    return {"rank": ranks.rank, "device": str(device), "total_time_s": round(total_s, 3), **peaks}
 
 
 if __name__ == "__main__":
