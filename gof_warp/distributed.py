@@ -16,9 +16,11 @@ Extraction (``torchrun --nproc_per_node N -m gof_warp.extract RUN``) shares out 
 at the grid points the same way (:meth:`Ranks.reduce_field`: the minimum over the ranks is exact, so every rank
 holds the one-process field bit for bit; the ranks' points are checked to be the same:
 :meth:`Ranks.check_same_points`). Every rank builds the same octree grid, or rank 0 alone runs the Delaunay and
-broadcasts the tetrahedra (:meth:`Ranks.broadcast_rows`). The marching and its binary search are then split by
-space: rank ``r`` marches its consecutive share of the tetrahedra (:meth:`Ranks.my_range`), evaluating the field
-at its own crossing edges over every view, and rank 0 joins the pieces by their edge keys
+broadcasts the tetrahedra (:meth:`Ranks.broadcast_rows`). The marching is then split by space: rank ``r`` marches its
+consecutive share of the tetrahedra (:meth:`Ranks.my_range`). The binary search is split by views, as the grid
+points' field: every rank takes the union of the ranks' crossing edges (:meth:`Ranks.all_gather_objects`) and each
+search step evaluates its views at all their midpoints, the minimum reduced over the ranks (a search step's cost is
+mostly the per-view preparation of every Gaussian, not the points). Rank 0 joins the pieces by their edge keys
 (:meth:`Ranks.gather_to_main`, :func:`gof_warp.marching.merge_keyed_pieces`) into the one-process mesh and writes
 it.
 
@@ -73,6 +75,14 @@ class Ranks:
             return [obj]
         out = [None] * self.world if self.is_main else None
         torch.distributed.gather_object(obj, out, dst=0)
+        return out
+
+    def all_gather_objects(self, obj) -> list:
+        """Every rank's ``obj`` (picklable) on every rank, as a list in rank order. Single process: ``[obj]``."""
+        if not self.active:
+            return [obj]
+        out = [None] * self.world
+        torch.distributed.all_gather_object(out, obj)
         return out
 
     def sum_gradients(self, params: list[torch.Tensor]) -> None:

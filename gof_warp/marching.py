@@ -99,17 +99,20 @@ class _Brackets:
         return [self.x_in[a:b], self.x_out[a:b], self.f_in[a:b], self.f_out[a:b]]
 
 
-def _refine(br: _Brackets, call_field: FieldCaller | WarpField | None, steps: int) -> np.ndarray:
-    """Bisect every bracket ``steps`` times (one field call per step), then interpolate: ``[V, 3]`` numpy."""
+def _refine(br: _Brackets, call_field: FieldCaller | WarpField | None, steps: int, always_call: bool = False) -> np.ndarray:
+    """Bisect every bracket ``steps`` times (one field call per step; with no brackets none, unless
+    ``always_call``: then an empty call per step), then interpolate: ``[V, 3]`` numpy."""
     n = br.x_in.shape[0]
     device = br.x_in.device
-    if call_field is not None and n:
+    if call_field is not None and (n or always_call):
         x_mid = wp.empty(n, dtype=wp.vec3, device=device)
         for step in range(steps):
-            wp.launch(mt.bracket_midpoints, dim=n, inputs=[br.x_in, br.x_out], outputs=[x_mid], device=device)
+            if n:
+                wp.launch(mt.bracket_midpoints, dim=n, inputs=[br.x_in, br.x_out], outputs=[x_mid], device=device)
             f_mid = call_field(x_mid, f"binary search step {step}")
-            wp.launch(mt.update_brackets, dim=n, inputs=[x_mid, f_mid, br.level],
-                      outputs=[br.x_in, br.x_out, br.f_in, br.f_out], device=device)
+            if n:
+                wp.launch(mt.update_brackets, dim=n, inputs=[x_mid, f_mid, br.level],
+                          outputs=[br.x_in, br.x_out, br.f_in, br.f_out], device=device)
     vertices = wp.empty(n, dtype=wp.vec3, device=device)
     wp.launch(mt.interpolate_in_brackets, dim=n, inputs=[br.x_in, br.x_out, br.f_in, br.f_out, br.level],
               outputs=[vertices], device=device)
@@ -261,19 +264,69 @@ def merge_keyed_pieces(pieces: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray
     return verts[first], faces.astype(np.int32)
 
 
-def _marching_tetrahedra(pts, tet_src, vals, levels, call_field, steps, chunk_size, oriented=False, return_keys=False):
+def search_edges(points, values, keys: Sequence, field: Field, *, levels: Sequence[float] = (0.5,),
+                 binary_steps: int = 8, field_input: str | None = None, device=None) -> list[np.ndarray]:
+    """The search of :func:`marching_tetrahedra` on given crossing edges: the vertex of each edge key, per level.
+
+    Args:
+        points, values: the grid's ``[P, 3]`` points and ``[P]`` field values (as for :func:`marching_tetrahedra`).
+        keys: one ``int64`` array of edge keys ``i·P + j`` per level (as ``return_keys`` gives them), each edge
+            crossing its level (one endpoint ``>= level``, the other below).
+        field: the field for the search (a callable or a ``@wp.func``, see the module docstring).
+
+    It makes exactly ``binary_steps`` field calls, each with the midpoints of every level's edges together (also
+    when there are none), so a field that is a collective over processes (the opacity field with its views shared
+    out among ranks) is called alike on every rank that passes the same keys. Each vertex depends only on its edge
+    and the field there: the same keys give :func:`marching_tetrahedra`'s vertices bit for bit.
+
+    Returns:
+        ``[len(keys[l]), 3]`` float32 vertices per level, in the order of ``keys[l]``.
+    """
+    if field_input == "torch":
+        import torch  # noqa: F401  (before the device rule: torch and Warp must agree)
+    device = resolve_device(device)
+    levels = check_levels(levels)
+    steps = check_steps(binary_steps)
+    if len(keys) != len(levels):
+        raise GofError(f"search_edges: {len(keys)} key arrays for {len(levels)} levels")
+    pts = as_vec3_array(points, "points", device)
+    n_points = pts.shape[0]
+    vals = as_float_array(values, n_points, "values", device)
+    key_arrays = []
+    for k in keys:
+        k = np.asarray(k, np.int64).reshape(-1)
+        if len(k) and (k.min() < 0 or k.max() >= n_points * n_points):
+            raise GofError(f"search_edges: edge keys must lie in [0, P²) for P = {n_points} points")
+        key_arrays.append(wp.array(k, dtype=wp.int64, device=device))
+    call_field = make_field(field, None, field_input or field_kind(points), device) if steps > 0 else None
+    with torch_stream(device):
+        vertices = _search(pts, vals, key_arrays, levels, call_field, steps, always_call=True)
+    out, offset = [], 0
+    for k in key_arrays:
+        out.append(vertices[offset : offset + k.shape[0]])
+        offset += k.shape[0]
+    return out
+
+
+def _search(pts, vals, key_arrays, levels, call_field, steps, always_call=False) -> np.ndarray:
+    """Brackets from each level's edge keys, bisected together: the ``[ΣV, 3]`` vertices, level after level."""
     device, n_points = pts.device, pts.shape[0]
-    topo = [_level_topology(pts, tet_src, vals, lv, chunk_size, oriented) for lv in levels]
-    sizes = [keys.shape[0] for _, keys in topo]
+    sizes = [k.shape[0] for k in key_arrays]
     br = _Brackets.empty(sum(sizes), device)
     offset = 0
-    for (_, keys), lv, n in zip(topo, levels, sizes):
+    for keys, lv, n in zip(key_arrays, levels, sizes):
         if n:
             wp.launch(mt.init_edge_brackets, dim=n, inputs=[keys, wp.int64(n_points), pts, vals, lv],
                       outputs=br.outputs(offset, offset + n), device=device)
             br.level[offset : offset + n].fill_(lv)
         offset += n
-    vertices = _refine(br, call_field, steps)
+    return _refine(br, call_field, steps, always_call)
+
+
+def _marching_tetrahedra(pts, tet_src, vals, levels, call_field, steps, chunk_size, oriented=False, return_keys=False):
+    topo = [_level_topology(pts, tet_src, vals, lv, chunk_size, oriented) for lv in levels]
+    sizes = [keys.shape[0] for _, keys in topo]
+    vertices = _search(pts, vals, [keys for _, keys in topo], levels, call_field, steps)
     meshes, offset = [], 0
     for (corner_vertex, keys), n, lv in zip(topo, sizes, levels):
         faces = corner_vertex.numpy().reshape(-1, 3).astype(np.int32, copy=False)

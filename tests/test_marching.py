@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation
 
 from gof_warp.camera import look_at
 from gof_warp.errors import GofError
-from gof_warp.marching import marching_cubes, marching_tetrahedra, merge_keyed_pieces
+from gof_warp.marching import marching_cubes, marching_tetrahedra, merge_keyed_pieces, search_edges
 from gof_warp.delaunay import delaunay, orient_and_drop_degenerate
 from gof_warp.tetra import (TetraConfig, filter_cells, level_band, tetra_points,
                             tetrahedral_grid)
@@ -222,6 +222,39 @@ def test_pieces_marched_apart_join_into_the_whole_mesh(cloud):
                                                                                   points[j] - points[i])
     assert np.all(i < j) and np.all((t > -1e-5) & (t < 1 + 1e-5))
     assert merge_keyed_pieces([])[0].shape == (0, 3)
+
+
+def test_searching_given_edges_gives_the_marching_vertices(cloud):
+    """search_edges on the edge keys of an unsearched marching (as the ranks of a torchrun extraction search the union
+    of their pieces' edges) gives the vertices the marching's own search gives, bit for bit, level by level; it calls
+    the field once per step even with no edge at all (a collective field must be called alike on every rank)."""
+    points, tets = cloud
+    values = gaussian_field(points)
+    levels = (0.3, 0.5)
+    searched = marching_tetrahedra(points, tets, values, gaussian_field, levels=levels, binary_steps=3, device="cpu",
+                                   return_keys=True)
+    linear = marching_tetrahedra(points, tets, values, levels=levels, device="cpu", return_keys=True)
+    calls = []
+
+    def counting_field(x):
+        calls.append(len(x))
+        return gaussian_field(x)
+
+    got = search_edges(points, values, [k for _, _, k in linear], counting_field, levels=levels, binary_steps=3,
+                       device="cpu")
+    assert calls == [sum(len(k) for _, _, k in linear)] * 3  # every level's edges in one call a step
+    for (v, _, k), (v_lin, _, k_lin), g in zip(searched, linear, got):
+        np.testing.assert_array_equal(k_lin, k)
+        np.testing.assert_array_equal(g, v)
+        assert not np.array_equal(g, v_lin)  # the search moved the linear vertices
+    calls.clear()
+    empty = search_edges(points, values, [np.zeros(0, np.int64)] * 2, counting_field, levels=levels, binary_steps=3,
+                         device="cpu")
+    assert calls == [0, 0, 0] and [e.shape for e in empty] == [(0, 3), (0, 3)]
+    with pytest.raises(GofError, match="2 key arrays for 1 levels"):
+        search_edges(points, values, [k for _, _, k in linear], gaussian_field, levels=(0.5,), device="cpu")
+    with pytest.raises(GofError, match="edge keys must lie"):
+        search_edges(points, values, [np.array([-1])], gaussian_field, levels=(0.5,), device="cpu")
 
 
 @pytest.mark.parametrize("n", [1, 12])
