@@ -1,0 +1,61 @@
+#!/usr/bin/env bash
+# Whole trainings on 1, 2, ... GPUs of one host (issue 17): the synthetic garden at RES (SCENE_VIEWS train views, the
+# preset's test views) from SFM pseudo-SfM points (sweep_ground.pseudo_sfm: visible GT-surface points, 2 mm noise),
+# trained with CONFIG (garden_3k.yaml: the unbounded preset's schedule compressed 10x, densification and every
+# regulariser on) at VIEWS views a step: one GPU renders them one after another, n GPUs VIEWS/n each. The 1-GPU run
+# compiles Warp's kernels in its warm-up, outside its timed loop. Needs Warp staged, benchmarks/device_setup.sh
+# sourced, trimesh among the carried wheels. Writes $OUT/dp_whole.json (+ each run's metrics.json) and a table.
+#   GPUS="1 2 4" VIEWS=4 bash benchmarks/distributed/dp_whole.sh
+set -u
+export NCCL_NVLS_ENABLE=0 TORCH_SYMM_MEM_DISABLE_MULTICAST=1 NVSHMEM_DISABLE_NVLS=1  # never NVLink multicast
+GPUS=${GPUS:-"1 2 4"}; VIEWS=${VIEWS:-4}; RES=${RES:-"1024 768"}; SCENE_VIEWS=${SCENE_VIEWS:-48}; SFM=${SFM:-5000}
+CONFIG=${CONFIG:-benchmarks/distributed/garden_3k.yaml}; SEED=${SEED:-0}
+S=/tmp/dp_steady/scene; W=/tmp/dp_whole; rm -rf $W; mkdir -p $W "$OUT/dp_whole"
+t0=$(date +%s)
+if [ ! -f $S/transforms_train.json ]; then
+  python3 -m gof_warp.synthetic --preset garden --resolution $RES --views $SCENE_VIEWS --out $S --device cuda:0 --quiet \
+    || { echo "scene generation failed"; exit 1; }
+fi
+if [ ! -f $S/points3d.ply ]; then
+  python3 -c "import sys; from pathlib import Path; sys.path.insert(0, 'benchmarks/real_captures');
+from sweep_ground import pseudo_sfm; pseudo_sfm(Path('$S'), $SFM)" || { echo "pseudo-SfM failed"; exit 1; }
+fi
+echo "scene and points at $(( $(date +%s) - t0 )) s"
+ARGS=($S --config "$CONFIG" --no-pictures --quiet "views_per_step=$VIEWS" "seed=$SEED")
+for n in $GPUS; do
+  if [ "$n" = 1 ]; then
+    python3 -m gof_warp.train "${ARGS[@]}" --out $W/g1 > $W/g1.log 2>&1
+  else
+    python3 -m torch.distributed.run --standalone --nproc_per_node "$n" -m gof_warp.train "${ARGS[@]}" --out $W/g$n \
+      > $W/g$n.log 2>&1
+  fi
+  echo "$n GPU(s) rc $? at $(( $(date +%s) - t0 )) s: $(grep -h 'done:' $W/g$n.log)"
+  cp $W/g$n/metrics.json "$OUT/dp_whole/metrics_g$n.json" 2>/dev/null || tail -n 20 $W/g$n.log
+done
+python3 - "$OUT" "$GPUS" "$VIEWS" "$RES" "$SCENE_VIEWS" "$CONFIG" "$SEED" <<'PY'
+import json, subprocess, sys
+from pathlib import Path
+out, gpus, views, res, sv, config, seed = Path(sys.argv[1]), sys.argv[2].split(), *sys.argv[3:]
+rows = {}
+for g in gpus:
+    f = out / "dp_whole" / f"metrics_g{g}.json"
+    if not f.is_file():
+        continue
+    d = json.loads(f.read_text())
+    spikes = d.get("loss_spikes", {})
+    rows[g] = {"train_time_s": d["train_time_s"], "warmup_s": d.get("warmup_s"), "num_gaussians": d["num_gaussians"],
+               "test_psnr": d["test"]["psnr"], "test_ssim": d["test"].get("ssim"), "processes": d.get("processes"),
+               "largest_loss_ratio": spikes.get("max_ratio"), "gpu_peak_allocated_mb": d.get("gpu_peak_allocated_mb")}
+base = rows.get("1", {}).get("train_time_s")
+for r in rows.values():
+    r["speedup_vs_1"] = round(base / r["train_time_s"], 3) if base else None
+    r["psnr_minus_1gpu"] = round(r["test_psnr"] - rows["1"]["test_psnr"], 3) if "1" in rows else None
+gpu = subprocess.run(["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"], capture_output=True, text=True).stdout
+result = {"what": "whole trainings on 1..n GPUs (benchmarks/distributed/dp_whole.sh)", "config": config, "seed": int(seed),
+          "scene": f"synthetic garden, {res.replace(' ', 'x')}, {sv} train views", "views_per_step": int(views),
+          "gpus": gpu.strip().splitlines(), "runs": rows}
+(out / "dp_whole.json").write_text(json.dumps(result, indent=1))
+for g, r in rows.items():
+    print(f"{g} GPU(s): {r['train_time_s']} s x{r['speedup_vs_1']}, test PSNR {r['test_psnr']:.3f} "
+          f"({r['psnr_minus_1gpu']:+}), {r['num_gaussians']} Gaussians, largest loss ratio {r['largest_loss_ratio']}")
+PY
