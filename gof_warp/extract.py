@@ -34,6 +34,9 @@ def main(argv=None) -> int:
     ap.add_argument("--method", default="tetra", choices=METHODS)
     ap.add_argument("--levels", type=float, nargs="+", default=[0.5])
     ap.add_argument("--binary-steps", type=int, default=8)
+    ap.add_argument("--search-steps-per-call", type=int, default=MeshConfig.search_steps_per_call,
+                    help="tetra: bisection steps served by one opacity-field call (0, the default: chosen from the "
+                         "field's measured cost; the mesh is the same for any value)")
     ap.add_argument("--resolution", type=int, default=None, help="grid resolution for cubes/tsdf")
     ap.add_argument("--delaunay", default="scipy", choices=("scipy", "cgal", "auto"))
     ap.add_argument("--delaunay-workers", type=int, default=TetraConfig.delaunay_workers,
@@ -102,6 +105,7 @@ def extract_run(a, ranks, device) -> None:
         return
     cfg = MeshConfig(method=a.method, levels=tuple(a.levels), binary_steps=a.binary_steps,
                      min_component_faces=a.min_component_faces, max_faces=a.max_faces, max_error=a.max_error,
+                     search_steps_per_call=a.search_steps_per_call,
                      tetra=TetraConfig(backend=a.delaunay, opacity_min=a.opacity_min,
                                        corner_min_extent=a.corner_min_extent,
                                        delaunay_workers=a.delaunay_workers, band=a.band,

@@ -31,6 +31,7 @@ from .distributed import Ranks
 from .errors import GofError, ModelError
 from .io_utils import atomic_path
 from .marching import compact_mesh, marching_tetrahedra, merge_keyed_pieces, search_edges
+from .marching_inputs import MAX_STEPS_PER_CALL
 from .opacity_field import OpacityFieldConfig, opacity_field
 from .render import RenderConfig
 from .tetra import TetraConfig, grid_points, level_band, octree_grid_from_gaussians, tetrahedralize
@@ -56,6 +57,9 @@ class MeshConfig:
     tetra: TetraConfig = field(default_factory=TetraConfig)
     tsdf: TSDFConfig = field(default_factory=TSDFConfig)
     field: OpacityFieldConfig = field(default_factory=OpacityFieldConfig)
+    # tetra: bisection steps served by one opacity-field call (0: chosen from the field's measured cost, SearchPlanner;
+    # d >= 1 fixed). The mesh is the same for any value; only the number and size of the field calls change.
+    search_steps_per_call: int = 0
 
     def validate(self):
         if self.method not in METHODS:
@@ -66,6 +70,10 @@ class MeshConfig:
             raise GofError(f"binary_steps must be >= 0, got {self.binary_steps}")
         if self.max_faces is not None and not self.max_faces >= 4:
             raise GofError(f"max_faces must be >= 4, got {self.max_faces}")
+        if isinstance(self.search_steps_per_call, bool) or not isinstance(self.search_steps_per_call, int) \
+                or not 0 <= self.search_steps_per_call <= MAX_STEPS_PER_CALL:
+            raise GofError(f"search_steps_per_call must be an integer in [0, {MAX_STEPS_PER_CALL}] (0: automatic), "
+                           f"got {self.search_steps_per_call!r}")
         if self.max_error is not None and not self.max_error > 0:
             raise GofError(f"max_error must be > 0 (world units), got {self.max_error}")
         self.tetra.validate()
@@ -222,23 +230,84 @@ def _octree_grid(gaussians, cameras, config: MeshConfig, field_fn, timer: StageT
     return points, values, (tets if tets.shape[0] else None), counts
 
 
-def _march(points, tets, values, config: MeshConfig, field_fn, ranks: Ranks) -> list:
-    """Marching tetrahedra with the binary search: one ``(vertices, faces)`` per level. With several ``ranks`` the
+class SearchPlanner:
+    """How many bisection steps each opacity-field call of the search serves (``steps_per_call`` of
+    :func:`~gof_warp.marching.marching_tetrahedra`), from the field's own cost on this model and device.
+
+    A field call costs a fixed part ``F`` (every view preprocesses and bins every Gaussian) and a part per point
+    ``c`` (each point walks its tile's list in every view). ``d`` steps in one call evaluate ``2^d − 1`` points per
+    edge, so the remaining ``r`` steps cost ``⌈r / d⌉ (F + c E (2^d − 1))`` for ``E`` edges. ``F`` and ``c`` are fitted
+    from two calls that happen anyway: the field at the grid's ``P`` points (``grid_call``: points, seconds) and the
+    search's first call (one step, ``E`` points); every later call takes the ``d`` with the least predicted cost.
+    Many Gaussians and few edges (3M jittered Gaussians, 25k edges) make ``F`` dominate and ``d`` large; dense meshes
+    keep ``d = 1``. Without a usable grid sample (none, or ``P < 2E``) every call is one step. With several ranks each
+    rank's fit is gathered and the largest ``F`` and ``c`` used, so every rank makes the same calls. The vertices do
+    not depend on ``d``; ``decisions`` records the fit and the steps of each call."""
+
+    def __init__(self, field_fn, steps: int, device, ranks: Ranks, fixed: int = 0,
+                 grid_call: tuple[int, float] | None = None):
+        self._field, self.steps, self.ranks, self.fixed, self.grid_call = field_fn, steps, ranks, fixed, grid_call
+        self._device = torch.device(str(device))
+        self.timings: list[tuple[int, float]] = []  # (points, seconds) per search call
+        self.decisions: dict = {"steps_per_call": []}
+
+    def field(self, points):
+        """The field, timed (synchronised) per call."""
+        t0 = time.perf_counter()
+        out = self._field(points)
+        if self._device.type == "cuda":
+            torch.cuda.synchronize(self._device)
+        self.timings.append((int(len(points)), time.perf_counter() - t0))
+        return out
+
+    def __call__(self, n_edges: int, done: int) -> int:
+        d = self._choose(n_edges, done)
+        self.decisions["steps_per_call"].append(d)
+        return d
+
+    def _choose(self, n_edges: int, done: int) -> int:
+        if self.fixed:
+            return self.fixed
+        if done == 0 or n_edges == 0 or self.grid_call is None or self.grid_call[0] < 2 * n_edges:
+            return 1
+        if "fixed_s" not in self.decisions:
+            (p1, t1), (p2, t2) = self.timings[0], self.grid_call
+            c = max(0.0, (t2 - t1) / (p2 - p1))
+            f = max(0.0, t1 - c * p1)
+            every = self.ranks.all_gather_objects((f, c))  # the same plan on every rank
+            f, c = max(e[0] for e in every), max(e[1] for e in every)
+            self.decisions.update({"fixed_s": round(f, 4), "per_point_s": c, "edges": n_edges})
+        f, c, left = self.decisions["fixed_s"], self.decisions["per_point_s"], self.steps - done
+        return min(range(1, min(left, MAX_STEPS_PER_CALL) + 1),
+                   key=lambda d: (-(-left // d)) * (f + c * n_edges * ((1 << d) - 1)))
+
+
+def _march(points, tets, values, config: MeshConfig, field_fn, ranks: Ranks, counts: dict,
+           grid_call: tuple[int, float] | None = None) -> list:
+    """Marching tetrahedra with the binary search: one ``(vertices, faces)`` per level, the search's field calls
+    planned by :class:`SearchPlanner` from ``grid_call`` (points, seconds of the field at the grid points), recorded
+    in ``counts["search"]``. With several ``ranks`` the
     marching is split by space (each rank marches its consecutive share of ``tets``) and the search by views: every
     rank searches the union of the ranks' crossing edges with ``field_fn``, which evaluates its own views and
-    reduces the minimum over the ranks at each step. A step's cost is the per-view preparation of every Gaussian
-    (3M Gaussians, 48 views: ~7 s a step on one H100, whatever the number of edges), so sharing the views is what
-    divides it. Rank 0 joins the pieces by edge key into the one-process mesh; the other ranks return their pieces
-    with the searched vertices."""
+    reduces the minimum over the ranks at each call. A call's cost is mostly the per-view preparation of every
+    Gaussian (3M Gaussians, 48 views: ~7 s a call on one H100, whatever the number of edges), so sharing the views
+    is what divides it. Rank 0 joins the pieces by edge key into the one-process mesh; the other ranks return their
+    pieces with the searched vertices."""
+    plan = SearchPlanner(field_fn, config.binary_steps, points.device, ranks, fixed=config.search_steps_per_call,
+                         grid_call=grid_call)
     if not ranks.active:
-        return marching_tetrahedra(points, tets, values, field_fn, levels=config.levels,
-                                   binary_steps=config.binary_steps, oriented=True)
+        meshes = marching_tetrahedra(points, tets, values, plan.field, levels=config.levels,
+                                     binary_steps=config.binary_steps, oriented=True, steps_per_call=plan)
+        counts["search"] = {**plan.decisions, "calls": len(plan.timings)}
+        return meshes
     start, end = ranks.my_range(len(tets))
     pieces = marching_tetrahedra(points, tets[start:end], values, None, levels=config.levels, binary_steps=0,
                                  oriented=True, return_keys=True)
     every = ranks.all_gather_objects([k for _, _, k in pieces])  # each rank's edge keys, per level
     keys = [np.unique(np.concatenate([mine[level] for mine in every])) for level in range(len(config.levels))]
-    vertices = search_edges(points, values, keys, field_fn, levels=config.levels, binary_steps=config.binary_steps)
+    vertices = search_edges(points, values, keys, plan.field, levels=config.levels, binary_steps=config.binary_steps,
+                            steps_per_call=plan)
+    counts["search"] = {**plan.decisions, "calls": len(plan.timings)}
     pieces = [(vertices[level][np.searchsorted(keys[level], k)], f, k) for level, (_, f, k) in enumerate(pieces)]
     gathered = ranks.gather_to_main(pieces)
     if not ranks.is_main:
@@ -298,6 +367,7 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
         else:
             t_grid = time.perf_counter()
             points, values, tets, counts = _tetra_grid(gaussians, cameras, config, tc, field_fn, timer, ranks)
+            counts["grid_field_call"] = [counts["points"], timer.stages["opacity_field"]["time_s"]]
             if grid_cache is not None:
                 grid_cache[key] = {"points": points, "values": values, "tets": tets, "counts": counts,
                                    "built_s": round(time.perf_counter() - t_grid, 4)}
@@ -306,7 +376,7 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
         else:
             with timer("marching_tetrahedra"):
                 meshes = _march(torch.as_tensor(points, device=gaussians.device), tets, values, config, field_fn,
-                                ranks)
+                                ranks, counts, grid_call=tuple(counts["grid_field_call"]))
             if ranks.active:
                 counts["tetrahedra_per_rank"] = [b - a for a, b in (Ranks(rank=r, world=ranks.world).my_range(len(tets))
                                                                     for r in range(ranks.world))]

@@ -53,9 +53,9 @@ import warp.geometry
 
 from .errors import GofError
 from .kernels import marching_tets as mt
-from .marching_inputs import (FIELD_KINDS, Field, FieldCaller, TetSource, WarpField, as_float_array,  # noqa: F401
-                              as_vec3_array, check_finite, check_levels, check_steps, field_kind, make_field,
-                              resolve_device, torch_stream)
+from .marching_inputs import (FIELD_KINDS, Field, FieldCaller, StepsPerCall, TetSource, WarpField,  # noqa: F401
+                              as_float_array, as_vec3_array, check_finite, check_levels, check_steps,
+                              check_steps_per_call, field_kind, make_field, resolve_device, torch_stream)
 
 log = logging.getLogger(__name__)
 
@@ -99,20 +99,40 @@ class _Brackets:
         return [self.x_in[a:b], self.x_out[a:b], self.f_in[a:b], self.f_out[a:b]]
 
 
-def _refine(br: _Brackets, call_field: FieldCaller | WarpField | None, steps: int, always_call: bool = False) -> np.ndarray:
-    """Bisect every bracket ``steps`` times (one field call per step; with no brackets none, unless
-    ``always_call``: then an empty call per step), then interpolate: ``[V, 3]`` numpy."""
+def _refine(br: _Brackets, call_field: FieldCaller | WarpField | None, steps: int, always_call: bool = False,
+            steps_per_call: StepsPerCall = 1) -> np.ndarray:
+    """Bisect every bracket ``steps`` times, then interpolate: ``[V, 3]`` numpy. Each field call serves ``d`` steps
+    (``steps_per_call``: an int, or a function of the number of brackets and the steps done, asked before each
+    call): with ``d = 1`` the midpoints, with
+    ``d > 1`` every midpoint those ``d`` steps can visit (``2^d − 1`` per bracket), then the descent; the vertices
+    are the same either way. With no brackets no call is made, unless ``always_call``: then the same calls, empty."""
     n = br.x_in.shape[0]
     device = br.x_in.device
     if call_field is not None and (n or always_call):
-        x_mid = wp.empty(n, dtype=wp.vec3, device=device)
-        for step in range(steps):
-            if n:
-                wp.launch(mt.bracket_midpoints, dim=n, inputs=[br.x_in, br.x_out], outputs=[x_mid], device=device)
-            f_mid = call_field(x_mid, f"binary search step {step}")
-            if n:
-                wp.launch(mt.update_brackets, dim=n, inputs=[x_mid, f_mid, br.level],
-                          outputs=[br.x_in, br.x_out, br.f_in, br.f_out], device=device)
+        done = 0
+        while done < steps:
+            d = min(check_steps_per_call(steps_per_call(n, done) if callable(steps_per_call) else steps_per_call),
+                    steps - done)
+            what = f"binary search step {done}" if d == 1 else f"binary search steps {done}-{done + d - 1}"
+            if d == 1:
+                x_mid = wp.empty(n, dtype=wp.vec3, device=device)
+                if n:
+                    wp.launch(mt.bracket_midpoints, dim=n, inputs=[br.x_in, br.x_out], outputs=[x_mid], device=device)
+                f_mid = call_field(x_mid, what)
+                if n:
+                    wp.launch(mt.update_brackets, dim=n, inputs=[x_mid, f_mid, br.level],
+                              outputs=[br.x_in, br.x_out, br.f_in, br.f_out], device=device)
+            else:
+                m = (1 << d) - 1
+                nodes = wp.empty((n, m), dtype=wp.vec3, device=device)
+                if n:
+                    wp.launch(mt.bracket_tree_midpoints, dim=n, inputs=[br.x_in, br.x_out, d], outputs=[nodes],
+                              device=device)
+                f_nodes = call_field(nodes.flatten(), what)
+                if n:
+                    wp.launch(mt.descend_bracket_tree, dim=n, inputs=[nodes, f_nodes.reshape((n, m)), d, br.level],
+                              outputs=[br.x_in, br.x_out, br.f_in, br.f_out], device=device)
+            done += d
     vertices = wp.empty(n, dtype=wp.vec3, device=device)
     wp.launch(mt.interpolate_in_brackets, dim=n, inputs=[br.x_in, br.x_out, br.f_in, br.f_out, br.level],
               outputs=[vertices], device=device)
@@ -185,7 +205,7 @@ def _level_topology(points: wp.array, tets: TetSource, values: wp.array, level: 
 def marching_tetrahedra(points, tets, values=None, field: Field | None = None, *, levels: Sequence[float] = (0.5,),
                         binary_steps: int = 8, chunk_size: int = DEFAULT_CHUNK_TETS, field_input: str | None = None,
                         device=None, oriented: bool = False, field_params=None,
-                        return_keys: bool = False) -> list[tuple[np.ndarray, ...]]:
+                        return_keys: bool = False, steps_per_call: StepsPerCall = 1) -> list[tuple[np.ndarray, ...]]:
     """Marching tetrahedra on a tetrahedral grid, with binary search on the crossing edges.
 
     Args:
@@ -211,6 +231,10 @@ def marching_tetrahedra(points, tets, values=None, field: Field | None = None, *
         return_keys: also return each vertex's edge key ``i·P + j`` (``int64 [V]``, ascending: the vertices'
             order), ``i < j`` the edge's point indices in ``points``: the pieces marched from parts of one grid's
             tetrahedra then join into the whole grid's mesh (:func:`merge_keyed_pieces`).
+        steps_per_call: search steps served by one field call (an int ≥ 1, or a function
+            ``(crossing edges, steps done) -> int`` asked before each call; the last call takes what is left): ``d > 1`` evaluates every midpoint the next ``d`` steps can visit (``2^d − 1`` per
+            edge) in one call and descends through them, for a field whose cost per call outweighs its cost per
+            point (GOF's opacity field on many Gaussians and few edges). The vertices are the same bit for bit.
 
     Returns:
         one ``(vertices [V, 3] float32, faces [F, 3] int32)`` per level (``(vertices, faces, keys)`` with
@@ -242,7 +266,7 @@ def marching_tetrahedra(points, tets, values=None, field: Field | None = None, *
 
     with torch_stream(device):
         return _marching_tetrahedra(pts, tet_src, vals, levels, call_field, steps, int(chunk_size), oriented,
-                                    return_keys)
+                                    return_keys, steps_per_call)
 
 
 def merge_keyed_pieces(pieces: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
@@ -265,7 +289,8 @@ def merge_keyed_pieces(pieces: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray
 
 
 def search_edges(points, values, keys: Sequence, field: Field, *, levels: Sequence[float] = (0.5,),
-                 binary_steps: int = 8, field_input: str | None = None, device=None) -> list[np.ndarray]:
+                 binary_steps: int = 8, field_input: str | None = None, device=None,
+                 steps_per_call: StepsPerCall = 1) -> list[np.ndarray]:
     """The search of :func:`marching_tetrahedra` on given crossing edges: the vertex of each edge key, per level.
 
     Args:
@@ -274,8 +299,8 @@ def search_edges(points, values, keys: Sequence, field: Field, *, levels: Sequen
             crossing its level (one endpoint ``>= level``, the other below).
         field: the field for the search (a callable or a ``@wp.func``, see the module docstring).
 
-    It makes exactly ``binary_steps`` field calls, each with the midpoints of every level's edges together (also
-    when there are none), so a field that is a collective over processes (the opacity field with its views shared
+    It makes exactly the field calls of ``binary_steps`` steps at ``steps_per_call`` (as :func:`marching_tetrahedra`:
+    ``binary_steps`` calls at 1), each with the midpoints of every level's edges together (also when there are none), so a field that is a collective over processes (the opacity field with its views shared
     out among ranks) is called alike on every rank that passes the same keys. Each vertex depends only on its edge
     and the field there: the same keys give :func:`marching_tetrahedra`'s vertices bit for bit.
 
@@ -300,7 +325,8 @@ def search_edges(points, values, keys: Sequence, field: Field, *, levels: Sequen
         key_arrays.append(wp.array(k, dtype=wp.int64, device=device))
     call_field = make_field(field, None, field_input or field_kind(points), device) if steps > 0 else None
     with torch_stream(device):
-        vertices = _search(pts, vals, key_arrays, levels, call_field, steps, always_call=True)
+        vertices = _search(pts, vals, key_arrays, levels, call_field, steps, always_call=True,
+                           steps_per_call=steps_per_call)
     out, offset = [], 0
     for k in key_arrays:
         out.append(vertices[offset : offset + k.shape[0]])
@@ -308,7 +334,8 @@ def search_edges(points, values, keys: Sequence, field: Field, *, levels: Sequen
     return out
 
 
-def _search(pts, vals, key_arrays, levels, call_field, steps, always_call=False) -> np.ndarray:
+def _search(pts, vals, key_arrays, levels, call_field, steps, always_call=False, steps_per_call: StepsPerCall = 1
+            ) -> np.ndarray:
     """Brackets from each level's edge keys, bisected together: the ``[ΣV, 3]`` vertices, level after level."""
     device, n_points = pts.device, pts.shape[0]
     sizes = [k.shape[0] for k in key_arrays]
@@ -320,13 +347,14 @@ def _search(pts, vals, key_arrays, levels, call_field, steps, always_call=False)
                       outputs=br.outputs(offset, offset + n), device=device)
             br.level[offset : offset + n].fill_(lv)
         offset += n
-    return _refine(br, call_field, steps, always_call)
+    return _refine(br, call_field, steps, always_call, steps_per_call)
 
 
-def _marching_tetrahedra(pts, tet_src, vals, levels, call_field, steps, chunk_size, oriented=False, return_keys=False):
+def _marching_tetrahedra(pts, tet_src, vals, levels, call_field, steps, chunk_size, oriented=False, return_keys=False,
+                         steps_per_call: StepsPerCall = 1):
     topo = [_level_topology(pts, tet_src, vals, lv, chunk_size, oriented) for lv in levels]
     sizes = [keys.shape[0] for _, keys in topo]
-    vertices = _search(pts, vals, [keys for _, keys in topo], levels, call_field, steps)
+    vertices = _search(pts, vals, [keys for _, keys in topo], levels, call_field, steps, steps_per_call=steps_per_call)
     meshes, offset = [], 0
     for (corner_vertex, keys), n, lv in zip(topo, sizes, levels):
         faces = corner_vertex.numpy().reshape(-1, 3).astype(np.int32, copy=False)

@@ -30,8 +30,9 @@ Stable names (module, kind):
   ``opacity_min_over_view`` and its whole-walk reference ``opacity_min_over_view_whole`` (kernels).
 * marching tetrahedra: ``make_field_kernel``, ``field_params_type``, the kernels ``count_triangles``,
   ``write_triangle_edges``, ``write_slot_ids``, ``mark_run_starts``, ``scatter_vertex_ids``,
-  ``init_edge_brackets``, ``bracket_midpoints``, ``update_brackets``, ``interpolate_in_brackets``,
-  ``count_nonfinite`` and the funcs ``tet_case``, ``edge_key``; ``build_case_tables``.
+  ``init_edge_brackets``, ``bracket_midpoints``, ``update_brackets``, ``bracket_tree_midpoints``,
+  ``descend_bracket_tree``, ``interpolate_in_brackets``, ``count_nonfinite`` and the funcs ``tet_case``, ``edge_key``,
+  ``tree_node``; ``build_case_tables``.
 * 3D filter: ``nearest_seen_depth`` (kernel: the nearest depth at which any camera sees each centre).
 * TSDF: ``integrate_tsdf``, ``sample_grid_trilinear``; ray casting of meshes: ``cast_pinhole_rays``,
   ``shade_hits``, ``resolve_pixels``; lenses: ``distort_opencv``, ``undistort_remap``.
@@ -53,8 +54,9 @@ _MODULES = {
                       "opacity_min_over_view_whole"),
     "marching_tets": ("make_field_kernel", "field_params_type", "count_triangles", "write_triangle_edges",
                       "write_slot_ids", "mark_run_starts", "scatter_vertex_ids", "init_edge_brackets",
-                      "bracket_midpoints", "update_brackets", "interpolate_in_brackets", "count_nonfinite",
-                      "tet_case", "edge_key", "build_case_tables"),
+                      "bracket_midpoints", "update_brackets", "bracket_tree_midpoints", "descend_bracket_tree",
+                      "tree_node", "interpolate_in_brackets", "count_nonfinite", "tet_case", "edge_key",
+                      "build_case_tables"),
     "filter3d": ("nearest_seen_depth",),
     "tsdf": ("integrate_tsdf", "sample_grid_trilinear"),
     "raycast": ("cast_pinhole_rays", "shade_hits", "resolve_pixels"),

@@ -16,7 +16,9 @@ Pipeline (host code in :mod:`gof_warp.marching`):
    share the vertex, so the mesh is connected.
 4. :func:`init_edge_brackets` turns each edge key into a bracket ``[x_in, x_out]`` with
    ``f(x_in) >= level > f(x_out)``; :func:`bracket_midpoints` / :func:`update_brackets` halve it with
-   field values at the midpoints (the field is evaluated by the caller, in one batch per step);
+   field values at the midpoints (the field is evaluated by the caller, in one batch per step), or
+   :func:`bracket_tree_midpoints` / :func:`descend_bracket_tree` take several steps from one batch (every
+   midpoint those steps can visit: the same vertices, fewer and larger field calls);
    :func:`interpolate_in_brackets` puts the vertex at the linear zero of the final bracket.
 
 The field of step 4 is either host code filling a batch of values, or a user's ``@wp.func``
@@ -261,6 +263,75 @@ def update_brackets(
     else:
         x_out[v] = x_mid[v]
         f_out[v] = f_mid[v]
+
+
+@wp.func
+def tree_node(x_in: wp.array(dtype=wp.vec3), x_out: wp.array(dtype=wp.vec3), nodes: wp.array2d(dtype=wp.vec3),
+              v: int, k: int, n: int) -> wp.vec3:
+    """Position ``k`` of ``0 … n`` along bracket ``v``'s search tree: its ends (``x_in``, ``x_out``) or an inner node."""
+    if k == 0:
+        return x_in[v]
+    if k == n:
+        return x_out[v]
+    return nodes[v, k - 1]
+
+
+@wp.kernel
+def bracket_tree_midpoints(x_in: wp.array(dtype=wp.vec3), x_out: wp.array(dtype=wp.vec3), depth: int,
+                           nodes: wp.array2d(dtype=wp.vec3)):
+    """Every midpoint that ``depth`` bisection steps of bracket ``v`` can visit, in order along it:
+    ``nodes[v, k - 1]`` lies ``k / 2^depth`` of the way from ``x_in`` (``k = 1 … 2^depth − 1``). Each is computed as
+    :func:`bracket_midpoints` computes it, ``0.5 (a + b)`` of the two nodes that bracket it one level up, so
+    :func:`descend_bracket_tree` on the field at them reproduces ``depth`` steps of :func:`update_brackets` bit for bit.
+    """
+    v = wp.tid()
+    n = 1 << depth
+    span = n
+    for _level in range(depth):
+        half = span // 2
+        j = int(0)
+        while j < n:
+            a = tree_node(x_in, x_out, nodes, v, j, n)
+            b = tree_node(x_in, x_out, nodes, v, j + span, n)
+            nodes[v, j + half - 1] = 0.5 * (a + b)
+            j += span
+        span = half
+
+
+@wp.kernel
+def descend_bracket_tree(
+    nodes: wp.array2d(dtype=wp.vec3),
+    f_nodes: wp.array2d(dtype=wp.float32),
+    depth: int,
+    level: wp.array(dtype=wp.float32),
+    x_in: wp.array(dtype=wp.vec3),
+    x_out: wp.array(dtype=wp.vec3),
+    f_in: wp.array(dtype=wp.float32),
+    f_out: wp.array(dtype=wp.float32),
+):
+    """``depth`` bisection steps at once, from the field ``f_nodes`` at :func:`bracket_tree_midpoints`' nodes: each step
+    takes the middle node of the current bracket and replaces the end of the same side, as :func:`update_brackets`."""
+    v = wp.tid()
+    n = 1 << depth
+    lo = int(0)  # the x_in end, as a position 0 … n along the tree
+    hi = n  # the x_out end
+    fi = f_in[v]
+    fo = f_out[v]
+    for _step in range(depth):
+        mid = (lo + hi) // 2
+        fm = f_nodes[v, mid - 1]
+        if fm >= level[v]:
+            lo = mid
+            fi = fm
+        else:
+            hi = mid
+            fo = fm
+    xi = tree_node(x_in, x_out, nodes, v, lo, n)
+    xo = tree_node(x_in, x_out, nodes, v, hi, n)
+    x_in[v] = xi
+    x_out[v] = xo
+    f_in[v] = fi
+    f_out[v] = fo
 
 
 @wp.kernel

@@ -128,6 +128,42 @@ def test_no_gaussian_in_view_is_a_clear_error_on_the_octree_grid():
         extract_mesh(behind, _ring_cameras(n=4), MeshConfig())
 
 
+def test_search_planner_serves_many_steps_per_call_only_where_a_call_costs_more_than_its_points():
+    """SearchPlanner fits the field's fixed and per-point cost from the grid points' call and the search's first
+    call: a costly fixed part with few edges takes several steps a call, a per-point cost keeps one; a fixed setting,
+    no grid sample or a grid no larger than twice the edges keep what they say; the extraction's mesh is the same
+    bit for bit for any steps per call (the plan is recorded in the counts)."""
+    from gof_warp.distributed import Ranks
+    from gof_warp.extraction import SearchPlanner, StageTimer
+
+    def planned(grid_call, first_call, edges, fixed=0):
+        plan = SearchPlanner(lambda x: x, 8, "cpu", Ranks.single(), fixed=fixed, grid_call=grid_call)
+        plan.timings.append(first_call)
+        return [plan(edges, 0), plan(edges, 1)]
+
+    # 3M jittered Gaussians on one H100: ~7 s a call before any point, 2.4M grid points in 12.8 s, 25k edges
+    assert planned((2_400_000, 12.8), (25_000, 7.0), 25_000) == [1, 7]
+    # a dense mesh whose calls cost their points: one step a call
+    assert planned((550_000, 13.8), (72_000, 2.2), 72_000) == [1, 1]
+    assert planned(None, (25_000, 7.0), 25_000) == [1, 1]
+    assert planned((40_000, 12.8), (25_000, 7.0), 25_000) == [1, 1]
+    assert planned((2_400_000, 12.8), (25_000, 7.0), 25_000, fixed=3) == [3, 3]
+    with pytest.raises(ValueError, match="search_steps_per_call"):
+        MeshConfig(search_steps_per_call=13).validate()
+    cams = _ring_cameras()
+    meshes = {}
+    for per_call in (1, 3, 0):
+        timer = StageTimer("cpu")
+        meshes[per_call], = extract_mesh(_one_gaussian(), cams, MeshConfig(binary_steps=5, search_steps_per_call=per_call),
+                                         render_config=RenderConfig(alpha_min=0.0), timer=timer)
+        asked = timer.stages["counts"]["search"]["steps_per_call"]  # as asked before each call; the last takes what is left
+        assert asked == {1: [1] * 5, 3: [3, 3], 0: asked}[per_call] and (per_call == 3 or asked[0] == 1)
+        assert sum(min(d, 5 - sum(asked[:i])) for i, d in enumerate(asked)) == 5
+    for per_call in (3, 0):
+        np.testing.assert_array_equal(meshes[per_call][0], meshes[1][0])
+        np.testing.assert_array_equal(meshes[per_call][1], meshes[1][1])
+
+
 def test_empty_model_is_a_clear_error():
     empty = _one_gaussian().subset(np.zeros(1, bool))
     with pytest.raises(ValueError, match="no Gaussians"):

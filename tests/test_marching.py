@@ -257,6 +257,54 @@ def test_searching_given_edges_gives_the_marching_vertices(cloud):
         search_edges(points, values, [np.array([-1])], gaussian_field, levels=(0.5,), device="cpu")
 
 
+def test_several_steps_per_field_call_give_the_same_vertices(cloud):
+    """steps_per_call = d evaluates every midpoint the next d bisection steps can visit in one call and descends
+    through them: the same vertices bit for bit as one step per call, for any d (a last call with fewer steps
+    included) and for d chosen per call from the edge count and the steps done, with 2^d - 1 points per edge."""
+    points, tets = cloud
+    values = gaussian_field(points)
+    levels = (0.3, 0.5)
+    one = marching_tetrahedra(points, tets, values, gaussian_field, levels=levels, binary_steps=7, device="cpu")
+    edges = sum(len(v) for v, _ in one)
+    for per_call, calls in ((2, [3, 3, 3, 1]), (3, [7, 7, 1]), (7, [127]), (12, [127]),
+                            (lambda e, done: 4 if e == edges and done == 0 else 3, [15, 7])):
+        sizes = []
+
+        def counting_field(x):
+            sizes.append(len(x))
+            return gaussian_field(x)
+
+        got = marching_tetrahedra(points, tets, values, counting_field, levels=levels, binary_steps=7, device="cpu",
+                                  steps_per_call=per_call)
+        assert sizes == [edges * c for c in calls], per_call
+        for (v, f), (vg, fg) in zip(one, got):
+            np.testing.assert_array_equal(fg, f)
+            np.testing.assert_array_equal(vg, v)
+    for bad in (0, 13, 2.0, True, lambda e, done: 0):
+        with pytest.raises(GofError, match="steps_per_call must be an integer"):
+            marching_tetrahedra(points, tets, values, gaussian_field, device="cpu", steps_per_call=bad)
+
+
+def test_bracket_tree_nodes_and_descent_on_a_hand_made_edge():
+    """One edge from x_in = (0,0,0) to x_out = (8,0,0) and a field falling linearly from 1 to 0 along it (level
+    0.3, crossing at x = 5.6): the depth-3 nodes are x = 1 … 7 in order, and the descent keeps [5, 6]."""
+    from gof_warp.kernels import marching_tets as mt
+
+    x_in = wp.array([[0.0, 0.0, 0.0]], dtype=wp.vec3, device="cpu")
+    x_out = wp.array([[8.0, 0.0, 0.0]], dtype=wp.vec3, device="cpu")
+    nodes = wp.empty((1, 7), dtype=wp.vec3, device="cpu")
+    wp.launch(mt.bracket_tree_midpoints, dim=1, inputs=[x_in, x_out, 3], outputs=[nodes], device="cpu")
+    xs = nodes.numpy()[0]
+    np.testing.assert_array_equal(xs[:, 0], np.arange(1.0, 8.0))
+    f_nodes = wp.array((1.0 - xs[:, 0] / 8.0).astype(np.float32).reshape(1, 7), dtype=wp.float32, device="cpu")
+    f_in, f_out = wp.array([1.0], dtype=wp.float32, device="cpu"), wp.array([0.0], dtype=wp.float32, device="cpu")
+    level = wp.array([0.3], dtype=wp.float32, device="cpu")
+    wp.launch(mt.descend_bracket_tree, dim=1, inputs=[nodes, f_nodes, 3, level], outputs=[x_in, x_out, f_in, f_out],
+              device="cpu")
+    assert x_in.numpy()[0, 0] == 5.0 and x_out.numpy()[0, 0] == 6.0
+    assert f_in.numpy()[0] == np.float32(1 - 5 / 8) and f_out.numpy()[0] == np.float32(1 - 6 / 8)
+
+
 @pytest.mark.parametrize("n", [1, 12])
 def test_tetra_points_of_gaussians_pipeline(n):
     rng = np.random.default_rng(3)
