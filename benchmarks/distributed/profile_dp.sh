@@ -24,6 +24,7 @@ for n in $GPUS; do
   echo "$n GPU(s) rc $? at $(( $(date +%s) - t0 )) s"
   mkdir -p "$OUT/profile_dp/g$n"
   for r in $W/g$n/rank*; do cp "$r/profile.json" "$OUT/profile_dp/g$n/$(basename $r).json" 2>/dev/null; done
+  [ -f $W/g$n/profile.json ] && cp $W/g$n/profile.json "$OUT/profile_dp/g$n/rank0.json"  # one process: no rank folder
   [ "$n" = "${GPUS##* }" ] && cp $W/g$n/rank0/trace.json.gz "$OUT/profile_dp/g$n/rank0_trace.json.gz" 2>/dev/null
   tail -n 2 $W/g$n.log
 done
