@@ -34,9 +34,17 @@ def _train(cmd, env_extra=None):
     assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-4000:]
 
 
-def test_two_processes_train_the_one_process_model(scene, tmp_path):
-    one, two = tmp_path / "one", tmp_path / "two"
+@pytest.fixture(scope="module")
+def one_process_run(scene, tmp_path_factory):
+    """The one-process run of ARGS (the reference of the two-process training, and the model the extraction test
+    meshes)."""
+    one = tmp_path_factory.mktemp("one") / "run"
     _train([sys.executable, "-m", "gof_warp.train", str(scene), "--out", str(one), *ARGS])
+    return one
+
+
+def test_two_processes_train_the_one_process_model(scene, one_process_run, tmp_path):
+    one, two = one_process_run, tmp_path / "two"
     _train([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
             "-m", "gof_warp.train", str(scene), "--out", str(two), *ARGS])
     a, b = Gaussians.load_ply(one / "point_cloud.ply"), Gaussians.load_ply(two / "point_cloud.ply")
@@ -89,7 +97,7 @@ def test_views_are_shared_out_and_bad_splits_refused(scene, tmp_path):
         Trainer(load_scene(scene), cfg, tmp_path / "r", "cpu", ranks=Ranks(rank=0, world=2))
 
 
-def test_two_processes_extract_the_one_process_mesh(scene, tmp_path):
+def test_two_processes_extract_the_one_process_mesh(one_process_run, tmp_path):
     """torchrun extraction: the grid points' field shared out by views (the minimum over ranks is exact), the marching
     split by space (each rank its share of the tetrahedra, joined by edge key on rank 0), the search by views (every
     rank searches the union of the crossing edges over its views), rank 0 writes; the mesh is the one-process mesh exactly on both grids: the octree (the default, built alike on every
@@ -98,8 +106,7 @@ def test_two_processes_extract_the_one_process_mesh(scene, tmp_path):
 
     import trimesh
 
-    run = tmp_path / "run"
-    _train([sys.executable, "-m", "gof_warp.train", str(scene), "--out", str(run), *ARGS])
+    run = one_process_run
     for grid, stage in (("octree", "octree_grid"), ("delaunay", "delaunay+filter")):
         common = [str(run), "--grid", grid, "--binary-steps", "3", "--device", "cpu", "--no-pictures", "--quiet"]
         # this tiny model's few large Gaussians need cells finer than the default (0.4: ~330 faces; 0.2 took 3x longer)
