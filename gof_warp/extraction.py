@@ -332,8 +332,9 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
         ranks: a :class:`~gof_warp.distributed.Ranks` of several processes (``torchrun``; every rank calls this
             with the same model and cameras). Tetra path: the field at the grid points is shared out by views, the
             Delaunay runs on rank 0 and is broadcast (the octree grid is built alike on every rank), and the
-            marching with its search is split by space, each rank marching its share of the tetrahedra (the pieces
-            joined on rank 0 into the one-process mesh). Cubes: each field evaluation is shared out by views. The
+            marching is split by space, each rank marching its share of the tetrahedra (the pieces joined on rank 0
+            into the one-process mesh), and the binary search by views (every rank searches every crossing edge
+            over its views, the minimum reduced per field call). Cubes: each field evaluation is shared out by views. The
             post-processing (crop, components, decimation) runs on rank 0 only; the other ranks return their raw
             meshes (their pieces, on the tetra path). TSDF fusion is not shared out (every rank fuses every view).
     Returns:
