@@ -35,8 +35,8 @@ def main(argv=None) -> int:
     ap.add_argument("--levels", type=float, nargs="+", default=[0.5])
     ap.add_argument("--binary-steps", type=int, default=8)
     ap.add_argument("--search-steps-per-call", type=int, default=MeshConfig.search_steps_per_call,
-                    help="tetra: bisection steps served by one opacity-field call (0, the default: chosen from the "
-                         "field's measured cost; the mesh is the same for any value)")
+                    help="tetra: bisection steps served by one opacity-field call (0, the default: on a GPU chosen from "
+                         "the field's measured cost, on the CPU one; the mesh is the same for any value)")
     ap.add_argument("--resolution", type=int, default=None, help="grid resolution for cubes/tsdf")
     ap.add_argument("--delaunay", default="scipy", choices=("scipy", "cgal", "auto"))
     ap.add_argument("--delaunay-workers", type=int, default=TetraConfig.delaunay_workers,

@@ -57,8 +57,8 @@ class MeshConfig:
     tetra: TetraConfig = field(default_factory=TetraConfig)
     tsdf: TSDFConfig = field(default_factory=TSDFConfig)
     field: OpacityFieldConfig = field(default_factory=OpacityFieldConfig)
-    # tetra: bisection steps served by one opacity-field call (0: chosen from the field's measured cost, SearchPlanner;
-    # d >= 1 fixed). The mesh is the same for any value; only the number and size of the field calls change.
+    # tetra: bisection steps served by one opacity-field call (0: on CUDA chosen from the field's measured cost,
+    # SearchPlanner, on the CPU one; d >= 1 fixed). The mesh is the same for any value; only the calls change.
     search_steps_per_call: int = 0
 
     def validate(self):
@@ -240,8 +240,10 @@ class SearchPlanner:
     from two calls that happen anyway: the field at the grid's ``P`` points (``grid_call``: points, seconds) and the
     search's first call (one step, ``E`` points); every later call takes the ``d`` with the least predicted cost.
     Many Gaussians and few edges (3M jittered Gaussians, 25k edges) make ``F`` dominate and ``d`` large; dense meshes
-    keep ``d = 1``. Without a usable grid sample (none, or ``P < 2E``) every call is one step. With several ranks each
-    rank's fit is gathered and the largest ``F`` and ``c`` used, so every rank makes the same calls. The vertices do
+    keep ``d = 1``. Without a usable grid sample (none, or ``P < 2E``) or a usable fit (``c <= 0`` or ``F <= 0``: on the
+    CPU, forked workers make the times noisy) every call is one step. After the first call of several steps the fit
+    is made again from the search's own two calls, and the calls left follow it. With several ranks each rank's fit
+    is gathered and the largest ``F`` and ``c`` used, so every rank makes the same calls. The vertices do
     not depend on ``d``; ``decisions`` records the fit and the steps of each call."""
 
     def __init__(self, field_fn, steps: int, device, ranks: Ranks, fixed: int = 0,
@@ -270,16 +272,29 @@ class SearchPlanner:
             return self.fixed
         if done == 0 or n_edges == 0 or self.grid_call is None or self.grid_call[0] < 2 * n_edges:
             return 1
+        (p1, t1), (p_last, t_last) = self.timings[0], self.timings[-1]
         if "fixed_s" not in self.decisions:
-            (p1, t1), (p2, t2) = self.timings[0], self.grid_call
-            c = max(0.0, (t2 - t1) / (p2 - p1))
-            f = max(0.0, t1 - c * p1)
-            every = self.ranks.all_gather_objects((f, c))  # the same plan on every rank
-            f, c = max(e[0] for e in every), max(e[1] for e in every)
-            self.decisions.update({"fixed_s": round(f, 4), "per_point_s": c, "edges": n_edges})
+            self._fit((p1, t1), self.grid_call, n_edges)
+        elif p_last > p1 and self.decisions.get("refit_from") is None:
+            # a call of several steps has run: fit again from the search's own two calls (same points, same field),
+            # so a plan that the grid sample made too optimistic is corrected for the calls left
+            self._fit((p1, t1), (p_last, t_last), n_edges)
+            self.decisions["refit_from"] = [p_last, round(t_last, 4)]
         f, c, left = self.decisions["fixed_s"], self.decisions["per_point_s"], self.steps - done
+        if c <= 0.0 or f <= 0.0:  # no usable fit (timing noise, forked CPU workers): one step a call
+            return 1
         return min(range(1, min(left, MAX_STEPS_PER_CALL) + 1),
                    key=lambda d: (-(-left // d)) * (f + c * n_edges * ((1 << d) - 1)))
+
+    def _fit(self, a: tuple[int, float], b: tuple[int, float], n_edges: int) -> None:
+        """``F`` and ``c`` through two (points, seconds) samples, the largest over the ranks; ``c <= 0`` (the calls'
+        times do not grow with their points) is kept as it is and means no usable fit."""
+        (pa, ta), (pb, tb) = a, b
+        c = (tb - ta) / (pb - pa)
+        f = ta - c * pa
+        every = self.ranks.all_gather_objects((f, c))  # the same plan on every rank
+        f, c = max(e[0] for e in every), max(e[1] for e in every)
+        self.decisions.update({"fixed_s": round(f, 4), "per_point_s": c, "edges": n_edges})
 
 
 def _march(points, tets, values, config: MeshConfig, field_fn, ranks: Ranks, counts: dict,
@@ -293,8 +308,10 @@ def _march(points, tets, values, config: MeshConfig, field_fn, ranks: Ranks, cou
     Gaussian (3M Gaussians, 48 views: ~7 s a call on one H100, whatever the number of edges), so sharing the views
     is what divides it. Rank 0 joins the pieces by edge key into the one-process mesh; the other ranks return their
     pieces with the searched vertices."""
-    plan = SearchPlanner(field_fn, config.binary_steps, points.device, ranks, fixed=config.search_steps_per_call,
-                         grid_call=grid_call)
+    # automatic on CUDA only: on the 2-core CPU the README job's plan ([1, 3]) made the search slower than one step a
+    # call (17.9 s against 13.3 s), its near-surface points costing far more than the grid's (the fit's sample)
+    fixed = config.search_steps_per_call or (0 if points.device.type == "cuda" else 1)
+    plan = SearchPlanner(field_fn, config.binary_steps, points.device, ranks, fixed=fixed, grid_call=grid_call)
     if not ranks.active:
         meshes = marching_tetrahedra(points, tets, values, plan.field, levels=config.levels,
                                      binary_steps=config.binary_steps, oriented=True, steps_per_call=plan)

@@ -131,8 +131,9 @@ def test_no_gaussian_in_view_is_a_clear_error_on_the_octree_grid():
 def test_search_planner_serves_many_steps_per_call_only_where_a_call_costs_more_than_its_points():
     """SearchPlanner fits the field's fixed and per-point cost from the grid points' call and the search's first
     call: a costly fixed part with few edges takes several steps a call, a per-point cost keeps one; a fixed setting,
-    no grid sample or a grid no larger than twice the edges keep what they say; the extraction's mesh is the same
-    bit for bit for any steps per call (the plan is recorded in the counts)."""
+    no grid sample or a grid no larger than twice the edges keep what they say; the automatic setting is one step a
+    call on the CPU; the extraction's mesh is the same bit for bit for any steps per call (the plan is recorded in
+    the counts)."""
     from gof_warp.distributed import Ranks
     from gof_warp.extraction import SearchPlanner, StageTimer
 
@@ -148,6 +149,14 @@ def test_search_planner_serves_many_steps_per_call_only_where_a_call_costs_more_
     assert planned(None, (25_000, 7.0), 25_000) == [1, 1]
     assert planned((40_000, 12.8), (25_000, 7.0), 25_000) == [1, 1]
     assert planned((2_400_000, 12.8), (25_000, 7.0), 25_000, fixed=3) == [3, 3]
+    # the README job on the 2-core CPU: the grid's call no slower than the first search call (forked workers): no fit
+    assert planned((95_000, 2.87), (32_356, 3.02), 32_356) == [1, 1]
+    # a plan of several steps whose call then costs its points: the fit from the search's own calls takes over
+    plan = SearchPlanner(lambda x: x, 8, "cpu", Ranks.single(), grid_call=(2_400_000, 12.8))
+    plan.timings.append((25_000, 7.0))
+    assert plan(25_000, 0) == 1 and plan(25_000, 1) == 7
+    plan.timings.append((25_000 * 3, 40.0))  # 3 points per edge took 40 s, not ~7.1 s
+    assert plan(25_000, 3) == 1 and plan.decisions["refit_from"] == [75_000, 40.0]
     with pytest.raises(ValueError, match="search_steps_per_call"):
         MeshConfig(search_steps_per_call=13).validate()
     cams = _ring_cameras()
@@ -157,7 +166,7 @@ def test_search_planner_serves_many_steps_per_call_only_where_a_call_costs_more_
         meshes[per_call], = extract_mesh(_one_gaussian(), cams, MeshConfig(binary_steps=5, search_steps_per_call=per_call),
                                          render_config=RenderConfig(alpha_min=0.0), timer=timer)
         asked = timer.stages["counts"]["search"]["steps_per_call"]  # as asked before each call; the last takes what is left
-        assert asked == {1: [1] * 5, 3: [3, 3], 0: asked}[per_call] and (per_call == 3 or asked[0] == 1)
+        assert asked == {1: [1] * 5, 3: [3, 3], 0: [1] * 5}[per_call]  # automatic: one step a call on the CPU
         assert sum(min(d, 5 - sum(asked[:i])) for i, d in enumerate(asked)) == 5
     for per_call in (3, 0):
         np.testing.assert_array_equal(meshes[per_call][0], meshes[1][0])
