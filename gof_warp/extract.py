@@ -154,9 +154,9 @@ def rank_summary(ranks, device, stages: dict, total_s: float) -> dict:
     """One rank's figures for ``<mesh>.json``: its device, wall time, and the peaks over its stages (host RSS; on
     CUDA torch's allocation and Warp's pool) — each GPU's own memory, which rank 0's stages alone do not show."""
     peaks = {}
-    for entry in stages.values():
+    for entry in (e for e in stages.values() if isinstance(e, dict)):
         for key in ("host_peak_rss_mb", "gpu_peak_allocated_mb", "gpu_warp_pool_high_mb"):
-            if isinstance(entry, dict) and key in entry:
+            if key in entry:
                 peaks[key] = max(peaks.get(key, 0.0), entry[key])
     return {"rank": ranks.rank, "device": str(device), "total_time_s": round(total_s, 3), **peaks}
 

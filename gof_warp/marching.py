@@ -103,9 +103,9 @@ def _refine(br: _Brackets, call_field: FieldCaller | WarpField | None, steps: in
             steps_per_call: StepsPerCall = 1) -> np.ndarray:
     """Bisect every bracket ``steps`` times, then interpolate: ``[V, 3]`` numpy. Each field call serves ``d`` steps
     (``steps_per_call``: an int, or a function of the number of brackets and the steps done, asked before each
-    call): with ``d = 1`` the midpoints, with
-    ``d > 1`` every midpoint those ``d`` steps can visit (``2^d − 1`` per bracket), then the descent; the vertices
-    are the same either way. With no brackets no call is made, unless ``always_call``: then the same calls, empty."""
+    call): the ``2^d − 1`` midpoints those steps can visit per bracket (``d = 1``: the midpoint), then the descent
+    through them; the vertices are the same for any ``d``. With no brackets no call is made, unless
+    ``always_call``: then the same calls, empty."""
     n = br.x_in.shape[0]
     device = br.x_in.device
     if call_field is not None and (n or always_call):
@@ -113,25 +113,16 @@ def _refine(br: _Brackets, call_field: FieldCaller | WarpField | None, steps: in
         while done < steps:
             d = min(check_steps_per_call(steps_per_call(n, done) if callable(steps_per_call) else steps_per_call),
                     steps - done)
+            m = (1 << d) - 1
+            nodes = wp.empty((n, m), dtype=wp.vec3, device=device)
+            if n:
+                wp.launch(mt.bracket_tree_midpoints, dim=n, inputs=[br.x_in, br.x_out, d], outputs=[nodes],
+                          device=device)
             what = f"binary search step {done}" if d == 1 else f"binary search steps {done}-{done + d - 1}"
-            if d == 1:
-                x_mid = wp.empty(n, dtype=wp.vec3, device=device)
-                if n:
-                    wp.launch(mt.bracket_midpoints, dim=n, inputs=[br.x_in, br.x_out], outputs=[x_mid], device=device)
-                f_mid = call_field(x_mid, what)
-                if n:
-                    wp.launch(mt.update_brackets, dim=n, inputs=[x_mid, f_mid, br.level],
-                              outputs=[br.x_in, br.x_out, br.f_in, br.f_out], device=device)
-            else:
-                m = (1 << d) - 1
-                nodes = wp.empty((n, m), dtype=wp.vec3, device=device)
-                if n:
-                    wp.launch(mt.bracket_tree_midpoints, dim=n, inputs=[br.x_in, br.x_out, d], outputs=[nodes],
-                              device=device)
-                f_nodes = call_field(nodes.flatten(), what)
-                if n:
-                    wp.launch(mt.descend_bracket_tree, dim=n, inputs=[nodes, f_nodes.reshape((n, m)), d, br.level],
-                              outputs=[br.x_in, br.x_out, br.f_in, br.f_out], device=device)
+            f_nodes = call_field(nodes.flatten(), what)
+            if n:
+                wp.launch(mt.descend_bracket_tree, dim=n, inputs=[nodes, f_nodes.reshape((n, m)), d, br.level],
+                          outputs=[br.x_in, br.x_out, br.f_in, br.f_out], device=device)
             done += d
     vertices = wp.empty(n, dtype=wp.vec3, device=device)
     wp.launch(mt.interpolate_in_brackets, dim=n, inputs=[br.x_in, br.x_out, br.f_in, br.f_out, br.level],

@@ -187,15 +187,13 @@ def check_levels(levels) -> list[float]:
 
 
 StepsPerCall = Union[int, Callable[[int, int], int]]  # search steps per field call, or f(edges, steps done)
+MAX_STEPS_PER_CALL = 12  # 4,095 field points per edge and call
 
 
 def check_steps_per_call(d) -> int:
     if isinstance(d, bool) or not isinstance(d, (int, np.integer)) or d < 1 or d > MAX_STEPS_PER_CALL:
         raise GofError(f"steps_per_call must be an integer in [1, {MAX_STEPS_PER_CALL}], got {d!r}")
     return int(d)
-
-
-MAX_STEPS_PER_CALL = 12  # 4,095 field points per edge and call
 
 
 def check_steps(binary_steps) -> int:

@@ -16,9 +16,10 @@ Pipeline (host code in :mod:`gof_warp.marching`):
    share the vertex, so the mesh is connected.
 4. :func:`init_edge_brackets` turns each edge key into a bracket ``[x_in, x_out]`` with
    ``f(x_in) >= level > f(x_out)``; :func:`bracket_midpoints` / :func:`update_brackets` halve it with
-   field values at the midpoints (the field is evaluated by the caller, in one batch per step), or
-   :func:`bracket_tree_midpoints` / :func:`descend_bracket_tree` take several steps from one batch (every
-   midpoint those steps can visit: the same vertices, fewer and larger field calls);
+   field values at the midpoints (one step, one batch of field values from the caller), and
+   :func:`bracket_tree_midpoints` / :func:`descend_bracket_tree` take ``d`` steps from one batch (every
+   midpoint those steps can visit; ``d = 1`` is the one-step pair): the same brackets bit for bit. The host
+   code (:mod:`gof_warp.marching`) uses the tree pair;
    :func:`interpolate_in_brackets` puts the vertex at the linear zero of the final bracket.
 
 The field of step 4 is either host code filling a batch of values, or a user's ``@wp.func``

@@ -285,6 +285,43 @@ def test_several_steps_per_field_call_give_the_same_vertices(cloud):
             marching_tetrahedra(points, tets, values, gaussian_field, device="cpu", steps_per_call=bad)
 
 
+@pytest.mark.parametrize("depth", [1, 3, 6])
+def test_bracket_tree_descent_equals_that_many_bisection_steps(depth):
+    """The search's tree kernels against the one-step bisection kernels (bracket_midpoints, update_brackets) on
+    random brackets and a Gaussian field: after ``depth`` steps the same brackets and values, bit for bit."""
+    from gof_warp.kernels import marching_tets as mt
+
+    rng = np.random.default_rng(depth)
+    n = 500
+    a, b = rng.uniform(-0.6, 0.6, (n, 3)).astype(np.float32), rng.uniform(-0.6, 0.6, (n, 3)).astype(np.float32)
+    fa, fb = gaussian_field(a), gaussian_field(b)
+    lv = np.float32(0.5)
+    inside = fa >= lv
+    x_in, x_out = np.where(inside[:, None], a, b), np.where(inside[:, None], b, a)
+    f_in, f_out = np.where(inside, fa, fb).astype(np.float32), np.where(inside, fb, fa).astype(np.float32)
+    level = wp.array(np.full(n, lv, np.float32), dtype=wp.float32, device="cpu")
+
+    def arrays():
+        return [wp.array(x_in, dtype=wp.vec3, device="cpu"), wp.array(x_out, dtype=wp.vec3, device="cpu"),
+                wp.array(f_in, dtype=wp.float32, device="cpu"), wp.array(f_out, dtype=wp.float32, device="cpu")]
+
+    steps = arrays()
+    x_mid = wp.empty(n, dtype=wp.vec3, device="cpu")
+    for _ in range(depth):
+        wp.launch(mt.bracket_midpoints, dim=n, inputs=steps[:2], outputs=[x_mid], device="cpu")
+        f_mid = wp.array(gaussian_field(x_mid.numpy()).astype(np.float32), dtype=wp.float32, device="cpu")
+        wp.launch(mt.update_brackets, dim=n, inputs=[x_mid, f_mid, level], outputs=steps, device="cpu")
+    tree = arrays()
+    nodes = wp.empty((n, (1 << depth) - 1), dtype=wp.vec3, device="cpu")
+    wp.launch(mt.bracket_tree_midpoints, dim=n, inputs=[tree[0], tree[1], depth], outputs=[nodes], device="cpu")
+    f_nodes = gaussian_field(nodes.numpy().reshape(-1, 3)).astype(np.float32).reshape(n, -1)
+    wp.launch(mt.descend_bracket_tree, dim=n, inputs=[nodes, wp.array(f_nodes, dtype=wp.float32, device="cpu"), depth,
+                                                      level], outputs=tree, device="cpu")
+    for s_arr, t_arr in zip(steps, tree):
+        np.testing.assert_array_equal(t_arr.numpy(), s_arr.numpy())
+    assert not np.array_equal(steps[0].numpy(), x_in)  # the steps moved the brackets
+
+
 def test_bracket_tree_nodes_and_descent_on_a_hand_made_edge():
     """One edge from x_in = (0,0,0) to x_out = (8,0,0) and a field falling linearly from 1 to 0 along it (level
     0.3, crossing at x = 5.6): the depth-3 nodes are x = 1 … 7 in order, and the descent keeps [5, 6]."""
