@@ -451,3 +451,26 @@ def test_garden_ground_objects_background_and_exact_depth(tmp_path):
         assert (hit == ground).mean() > 0.2
         seen_shell += int((hit == shell).any())
     assert seen_shell >= 1
+
+
+def test_background_detail_shell_is_the_background_scene_with_a_finer_texture():
+    """``background_detail`` is ``background``'s geometry with a shell whose texture varies on the pixel scale: over
+    the shell's pixels of the same view its colour gradients are several times larger (which is what lets the
+    photos place the shell), everything else is unchanged."""
+    plain, detail = get_preset("background"), get_preset("background_detail")
+    parts_p, parts_d = plain.build(None), detail.build(None)
+    assert [p.name for p in parts_p] == [p.name for p in parts_d]
+    for a, b in zip(parts_p, parts_d):
+        np.testing.assert_array_equal(a.vertices, b.vertices)
+        assert (a.material == b.material) == (a.name != "shell")
+    cam = plain.rig.cameras(96, 96, 4, 0)[0][1]
+    shell = [k for k, p in enumerate(parts_p) if p.name == "shell"][0]
+    energy = []
+    for parts in (parts_p, parts_d):
+        caster = RayCaster(parts, plain.lighting, device="cpu")
+        view = caster.render(cam, 1)
+        on_shell = caster.face_part[view.face] == shell
+        pair = on_shell[:, 1:] & on_shell[:, :-1]  # horizontal neighbours both on the shell
+        assert pair.sum() > 500
+        energy.append(float(np.abs(np.diff(view.rgba[..., :3], axis=1))[pair].mean()))
+    assert energy[1] > 3.0 * energy[0], energy

@@ -7,9 +7,11 @@ at the budget is stopped (its checkpoints stay). Results land in ``--state/resul
 ``$OUT/results.tar.gz`` at the end of every call. Several queues (one ``--state`` each) can share one GPU:
 ``queue_parallel.sh``.
 
-Scenes: ``garden`` and ``background`` (synthetic, exact GT: train with the preset ``train`` picks, extract,
-score the seen region and a ground-and-objects crop, probe the ground of the field) and ``dtu`` (carried in
-``.data/dtu_scan24``: train with the picked preset, extract, pictures).
+Scenes: ``garden``, ``background`` and ``background_detail`` (synthetic, exact GT: train with the preset ``train``
+picks, extract, score the seen region and a ground-and-objects crop, probe the ground of the field) and ``dtu``, ``can``,
+``fox`` (carried in ``.data/`` or parked in ``/tmp/gofdata``: train with the picked preset, extract, pictures). The GPU machine has no pycolmap: with
+``--points DIR`` a synthetic scene gets ``DIR/<scene>/points3d.ply`` (points triangulated from the known poses of the
+same scene generated on another machine) after it is generated.
 """
 
 from __future__ import annotations
@@ -31,10 +33,12 @@ HERE = Path(__file__).resolve().parent
 REAL = {"dtu": "dtu_scan24", "can": "colmap_can", "fox": "fox"}
 STOP_GRACE_S = 45.0  # a step still running this long before the budget is interrupted, so the call ends by then
 # the ground-and-objects crop of each synthetic scene (x0 y0 z0 x1 y1 z1): its ground under and around the objects
-CROPS = {"garden": (-2.5, -2.5, -0.5, 2.5, 2.5, 1.5), "background": (-2.0, -2.0, -1.1, 2.0, 2.0, 1.0)}
+CROPS = {"garden": (-2.5, -2.5, -0.5, 2.5, 2.5, 1.5), "background": (-2.0, -2.0, -1.1, 2.0, 2.0, 1.0),
+         "background_detail": (-2.0, -2.0, -1.1, 2.0, 2.0, 1.0)}
 
 
-def steps(state: Path, scenes: list[str], resolution: tuple[int, int], iterations: int, views: int | None = None):
+def steps(state: Path, scenes: list[str], resolution: tuple[int, int], iterations: int, views: int | None = None,
+          points: Path | None = None):
     """``[(name, command, min_seconds_left, is_training)]`` in order; a scene ``NAME:N`` trains N iterations."""
     out = []
     iters = {s.split(":")[0]: int(s.split(":")[1]) for s in scenes if ":" in s}
@@ -42,11 +46,13 @@ def steps(state: Path, scenes: list[str], resolution: tuple[int, int], iteration
     for s in scenes:
         run = state / f"run_{s}"
         res = state / "results" / s
-        if s in ("garden", "background"):
+        if s in CROPS:
             scene = state / s
             out.append((f"{s}:generate", [PY, "-m", "gof_warp.synthetic", "--preset", s, "--out", str(scene),
                                           "--resolution", str(resolution[0]), str(resolution[1]), "--force"]
                         + (["--views", str(views)] if views else []), 60, False))
+            if points is not None:
+                out.append((f"{s}:points", ["cp", str(points / s / "points3d.ply"), str(scene)], 10, False))
         else:  # a real scene carried in .data/ or .data2/ (the device call's 64 MiB limit splits them)
             scene = state / s
             src = REAL[s]
@@ -58,7 +64,7 @@ def steps(state: Path, scenes: list[str], resolution: tuple[int, int], iteration
             out.append((f"{s}:pack", [PY, str(HERE.parent / "extract" / "pack_model.py"), "pack", str(run),
                                       str(state / "big" / f"{s}_geometry.npz")], 30, False))
         out.append((f"{s}:extract", [PY, "-m", "gof_warp.extract", str(run), "--delaunay-workers", "0"], 240, False))
-        if s in ("garden", "background"):
+        if s in CROPS:
             out.append((f"{s}:evaluate", [PY, "-m", "gof_warp.evaluate", "--mesh", str(run / "mesh_tetra.ply"), "--gt",
                                           str(scene / "gt_mesh.ply"), "--scene", str(scene), "--json",
                                           str(res / "evaluate_seen.json")], 120, False))
@@ -93,6 +99,8 @@ def main() -> int:
     ap.add_argument("--resolution", type=int, nargs=2, default=[256, 192])
     ap.add_argument("--iterations", type=int, default=30000)
     ap.add_argument("--views", type=int, default=None, help="training views of the synthetic scenes (default: preset's)")
+    ap.add_argument("--points", type=Path, default=None,
+                    help="folder with <scene>/points3d.ply for the synthetic scenes (the GPU machine has no pycolmap)")
     a = ap.parse_args()
     t_end = time.time() + a.budget
     state = Path(a.state)
@@ -102,7 +110,8 @@ def main() -> int:
     names = [s.split(":")[0] for s in scenes]
     for s in names:
         (state / "results" / s).mkdir(parents=True, exist_ok=True)
-    for name, cmd, need, training in steps(state, scenes, tuple(a.resolution), a.iterations, a.views):
+    for name, cmd, need, training in steps(state, scenes, tuple(a.resolution), a.iterations, a.views,
+                                         a.points):
         marker = state / "done" / name.replace(":", "_")
         if marker.exists():
             continue

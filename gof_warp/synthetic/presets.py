@@ -116,6 +116,11 @@ _TORUS = M.Material(color_a=(0.35, 0.05, 0.45), color_b=(0.95, 0.9, 0.4), noise_
 _GROUND = M.Material(color_a=(0.25, 0.2, 0.12), color_b=(0.85, 0.8, 0.65), noise_scale=2.0, checker_scale=1.5,
                      checker_strength=0.35)
 _SHELL = M.Material(color_a=(0.1, 0.25, 0.45), color_b=(0.9, 0.85, 0.8), noise_scale=0.8)
+# A far background with detail at every scale the cameras resolve, as real backgrounds (foliage, facades) have:
+# fBm features of ~17, 8 and 4 cm under 33 cm checker squares, about 10-25 px wide at the shell's distance of
+# 6-10 units in 400 px views (the plain _SHELL's features are ~70 px wide there: its depth is barely observable).
+_SHELL_DETAIL = M.Material(color_a=(0.1, 0.25, 0.45), color_b=(0.9, 0.85, 0.8), noise_scale=6.0, checker_scale=3.0,
+                           checker_strength=0.3)
 _PLAIN = M.Material(kind="constant", color_a=(0.75, 0.72, 0.68))
 
 
@@ -157,14 +162,19 @@ def _thin(_path):
     return parts
 
 
-def _background(_path):
+def _background(_path, shell=_SHELL):
     """The composition resting on a textured ground plane inside a textured background shell."""
     ground_z = -0.9
     parts = _composition(z0=0.005)  # 5 mm above the ground: touching parts would hide surfaces
     return parts + [
         M.grid_plane(center=(0, 0, ground_z), half_size=4.2, cell=0.1, material=_GROUND),  # 84 x 84 cells
-        M.sphere(radius=6.0, subdivisions=3, material=_SHELL, name="shell", inward=True, role="background"),
+        M.sphere(radius=6.0, subdivisions=3, material=shell, name="shell", inward=True, role="background"),
     ]
+
+
+def _background_detail(path):
+    """``background`` with the far shell textured finely enough for the photos to place it."""
+    return _background(path, shell=_SHELL_DETAIL)
 
 
 _LAWN = M.Material(color_a=(0.12, 0.22, 0.06), color_b=(0.8, 0.75, 0.45), noise_scale=3.0, checker_scale=2.0,
@@ -249,6 +259,10 @@ _PRESETS = {
                "Gaussians smear and opacity/TSDF fusion erodes.", _thin, rig=CameraRig(elevation_deg=(-20.0, 70.0))),
         Preset("background", "Objects on a textured ground plane inside a textured background shell: the "
                "background is part of the reconstruction (GOF's claim over 2DGS/TSDF).", _background,
+               rig=CameraRig(radius=4.0, elevation_deg=(8.0, 55.0), target=(0.0, 0.0, -0.35))),
+        Preset("background_detail", "The background scene with a far shell textured at every scale the views "
+               "resolve (as foliage or facades are): its depth is observable, so the whole seen region can be "
+               "scored; the plain shell's smooth texture barely places it.", _background_detail,
                rig=CameraRig(radius=4.0, elevation_deg=(8.0, 55.0), target=(0.0, 0.0, -0.35))),
         Preset("garden", "A whole outdoor scene in metres, as GOF meshes it: a textured lawn (10 m), objects of "
                "different kinds on it (box, sphere, torus, a ring on a stand, posts of 1-2 cm radius) and a far "
