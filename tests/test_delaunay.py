@@ -51,7 +51,7 @@ def assert_exact(par: np.ndarray, one: np.ndarray, p: np.ndarray, stats: dict) -
 
 @pytest.mark.parametrize("processes", [False, True])
 def test_chunked_equals_one_call_in_general_position(processes):
-    p = np.random.default_rng(0).normal(size=(30_000, 3))
+    p = np.random.default_rng(0).normal(size=(15_000, 3))
     stats = {}
     par = delaunay(p, workers=2, chunks=6, stats=stats, processes=processes)
     assert stats["delaunay_chunks"] == 6 and stats["delaunay_processes"] == processes
@@ -98,8 +98,8 @@ def test_chunked_equals_one_call_on_cospherical_box_corners(chunks):
     """GOF's points (3σ-box corners: cospherical octuples everywhere) and a regular lattice (every cube's corners
     cospherical): perturbed into general position, every chunk agrees with one call, and the result is closed."""
     g = torch.Generator().manual_seed(2)
-    n = 4000
-    means = torch.rand(n, 3, generator=g) * 4.0
+    n = 2000
+    means = torch.rand(n, 3, generator=g) * 3.0
     quats = torch.nn.functional.normalize(torch.randn(n, 4, generator=g), dim=1)
     scales = torch.rand(n, 3, generator=g) * 0.05 + 0.01
     p, owner, scale = tetra_points(means, quats, scales)
