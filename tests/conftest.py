@@ -59,3 +59,19 @@ def tiny_train_scene(tmp_path_factory):
     from gof_warp.synthetic import make_scene
 
     return make_scene("default", tmp_path_factory.mktemp("scene") / "s", views=5, resolution=(32, 32), device="cpu")
+
+
+@pytest.fixture
+def cli_in_process(capsys):
+    """``cli_in_process(main, *args) -> (exit code, stderr)``: a command's ``main`` run in this process (a subprocess
+    start costs CI seconds; keep one real-process case per command for the exit path)."""
+
+    def run(main, *args) -> tuple[int, str]:
+        capsys.readouterr()
+        try:
+            rc = main(list(args))
+        except SystemExit as e:  # argparse's own errors
+            rc = e.code
+        return rc, capsys.readouterr().err
+
+    return run

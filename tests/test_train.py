@@ -104,18 +104,20 @@ def _cli(*args, cwd):
                           timeout=300)
 
 
-def test_cli_reports_bad_input_before_training(tmp_path):
-    proc = _cli(str(tmp_path / "no_such_scene"), "--out", str(tmp_path / "o"), cwd=tmp_path)
+def test_cli_reports_bad_input_before_training(tmp_path, cli_in_process):
+    from gof_warp.train import main
+
+    proc = _cli(str(tmp_path / "no_such_scene"), "--out", str(tmp_path / "o"), cwd=tmp_path)  # the real process
     assert proc.returncode == 2 and "error:" in proc.stderr and "no_such_scene" in proc.stderr
     assert "Traceback" not in proc.stderr
     blocker = tmp_path / "file"
     blocker.write_text("x")
-    proc = _cli(str(tmp_path), "--out", str(blocker / "run"), cwd=tmp_path)
-    assert proc.returncode == 2 and "cannot create output folder" in proc.stderr
-    proc = _cli(str(tmp_path), "--out", str(tmp_path / "o2"), "loss.lambda_nromal=1", cwd=tmp_path)
-    assert proc.returncode == 2 and "lambda_nromal" in proc.stderr
-    proc = _cli(str(tmp_path), "--out", str(tmp_path / "o3"), "--config", "nope", cwd=tmp_path)
-    assert proc.returncode == 2 and "unknown config preset 'nope'" in proc.stderr
+    rc, err = cli_in_process(main, str(tmp_path), "--out", str(blocker / "run"))
+    assert rc == 2 and "cannot create output folder" in err
+    rc, err = cli_in_process(main, str(tmp_path), "--out", str(tmp_path / "o2"), "loss.lambda_nromal=1")
+    assert rc == 2 and "lambda_nromal" in err
+    rc, err = cli_in_process(main, str(tmp_path), "--out", str(tmp_path / "o3"), "--config", "nope")
+    assert rc == 2 and "unknown config preset 'nope'" in err
 
 
 def test_cli_refuses_to_overwrite_a_run_without_resume(tiny_scene, tmp_path):
