@@ -368,6 +368,57 @@ def _box_diag(p: np.ndarray) -> float:
     return float(np.linalg.norm(p.max(0) - p.min(0))) if len(p) else 0.0
 
 
+@dataclass
+class ScoredRegion:
+    """The region :func:`region_scores` scores (its docstring gives the defaults), from GT triangles already split.
+
+    Attributes:
+        observation: the cameras' :class:`Observation` of the triangles.
+        seen: ``[T]`` bool, the triangles seen (inside the box of interest when one was given).
+        seen_area: their area.
+        diagonal, tau, max_dist, margin, bbox, density: as in :func:`region_scores`, defaults resolved.
+    """
+
+    observation: Observation
+    seen: np.ndarray
+    seen_area: float
+    diagonal: float
+    tau: list[float]
+    max_dist: float
+    margin: float
+    bbox: tuple
+    density: float
+
+    def inside(self, points) -> np.ndarray:
+        """``[N]`` bool: the points in the observed volume (:func:`in_region`) and the box of interest."""
+        return in_region(points, self.observation, self.margin, self.bbox)
+
+
+def scored_region(gt_tri: np.ndarray, cameras, *, tau=None, density: float | None = None,
+                  max_dist: float | None = None, margin: float | None = None, bbox=None,
+                  supersample: int = DEFAULT_SUPERSAMPLE, gt_samples: int = DEFAULT_GT_SAMPLES,
+                  device=None) -> ScoredRegion:
+    """:class:`ScoredRegion` of the split GT triangles ``gt_tri`` ``[T, 3, 3]`` seen by ``cameras``."""
+    obs = observe(*_soup(gt_tri), cameras, supersample=supersample, device=device)
+    seen = obs.seen.copy()
+    if bbox is not None:
+        lo, hi = np.asarray(bbox, np.float64).reshape(2, 3)
+        seen &= np.all((gt_tri.mean(1) >= lo) & (gt_tri.mean(1) <= hi), axis=1)
+    seen_tri = gt_tri[seen]
+    if not len(seen_tri):
+        raise GofError("no GT face is seen by the cameras (inside the box of interest): nothing to score")
+    diag = _box_diag(seen_tri.reshape(-1, 3))
+    tau = [float(f * diag) for f in DEFAULT_TAU_FRACTIONS] if tau is None else [float(t) for t in np.atleast_1d(tau)]
+    max_dist = DEFAULT_MAX_DIST_FRACTION * diag if max_dist is None else float(max_dist)
+    margin = max_dist if margin is None else float(margin)
+    if bbox is None:
+        pts = seen_tri.reshape(-1, 3)
+        bbox = (pts.min(0) - max_dist, pts.max(0) + max_dist)
+    seen_area = float(_triangle_areas(seen_tri).sum())
+    density = math.sqrt(seen_area / gt_samples) if density is None else float(density)
+    return ScoredRegion(obs, seen, seen_area, diag, tau, max_dist, margin, bbox, density)
+
+
 def region_scores(pred, gt, cameras, *, tau=None, density: float | None = None, max_dist: float | None = None,
                   margin: float | None = None, bbox=None, ground: Ground | None = None,
                   footprint_margin: float | None = None, patch: float = PATCH_SIZE,
@@ -398,28 +449,11 @@ def region_scores(pred, gt, cameras, *, tau=None, density: float | None = None, 
     gv, gf = _parts(gt)
     if len(gf) == 0:
         raise GofError("region scoring needs a GT mesh with faces (a point cloud has no visibility)")
-    full_diag = _box_diag(gv)
-    gt_tri = split_triangles(gv[gf], gt_max_edge or DEFAULT_GT_MAX_EDGE_FRACTION * full_diag)
-    obs = observe(*_soup(gt_tri), cameras, supersample=supersample, device=device)
-    seen_tri = gt_tri[obs.seen]
-    if bbox is not None:
-        lo, hi = np.asarray(bbox, np.float64).reshape(2, 3)
-        seen_tri = seen_tri[np.all((seen_tri.mean(1) >= lo) & (seen_tri.mean(1) <= hi), axis=1)]
-    if not len(seen_tri):
-        raise GofError("no GT face is seen by the cameras (inside the box of interest): nothing to score")
-    diag = _box_diag(seen_tri.reshape(-1, 3))
-    tau = [float(f * diag) for f in DEFAULT_TAU_FRACTIONS] if tau is None else [float(t) for t in np.atleast_1d(tau)]
-    max_dist = DEFAULT_MAX_DIST_FRACTION * diag if max_dist is None else float(max_dist)
-    margin = max_dist if margin is None else float(margin)
-    if bbox is None:
-        pts = seen_tri.reshape(-1, 3)
-        bbox = (pts.min(0) - max_dist, pts.max(0) + max_dist)
-
-    def inside(p):
-        return in_region(p, obs, margin, bbox)
-
-    seen_area = float(_triangle_areas(seen_tri).sum())
-    density = math.sqrt(seen_area / gt_samples) if density is None else float(density)
+    gt_tri = split_triangles(gv[gf], gt_max_edge or DEFAULT_GT_MAX_EDGE_FRACTION * _box_diag(gv))
+    reg = scored_region(gt_tri, cameras, tau=tau, density=density, max_dist=max_dist, margin=margin, bbox=bbox,
+                        supersample=supersample, gt_samples=gt_samples, device=device)
+    obs, seen_tri, seen_area, inside = reg.observation, gt_tri[reg.seen], reg.seen_area, reg.inside
+    diag, tau, max_dist, margin, bbox, density = reg.diagonal, reg.tau, reg.max_dist, reg.margin, reg.bbox, reg.density
     gt_crop = crop_mesh(*_soup(seen_tri), inside, resolution=density)
     pred_crop = crop_mesh(pv, pf, inside, resolution=density) if len(pf) else np.zeros((0, 3, 3))
     floor_crop = crop_mesh(gv, gf, inside, resolution=density)
@@ -483,4 +517,5 @@ def evaluate_region(mesh, gt, scene_dir=None, *, cameras=None, ground: Ground | 
 
 
 __all__ = ["Ground", "Observation", "crop_mesh", "evaluate_region", "ground_metrics", "in_region", "observe",
-           "read_scene", "region_scores", "sample_soup", "seen_faces", "split_triangles"]
+           "read_scene", "region_scores", "sample_soup", "scored_region", "ScoredRegion", "seen_faces",
+           "split_triangles"]

@@ -18,10 +18,9 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from gof_warp.geometry_metrics import DEFAULT_GT_SAMPLES, DEFAULT_MAX_DIST_FRACTION, DEFAULT_TAU_FRACTIONS
 from gof_warp.io_utils import write_json_atomic
-from gof_warp.region_metrics import (DEFAULT_GT_MAX_EDGE_FRACTION, _box_diag, _soup, _triangle_areas, crop_mesh,
-                                     in_region, observe, read_scene, sample_soup, split_triangles)
+from gof_warp.region_metrics import (DEFAULT_GT_MAX_EDGE_FRACTION, _box_diag, _soup, crop_mesh, read_scene, sample_soup,
+                                     scored_region, split_triangles)
 
 OFFSET_BINS = (-math.inf, -1.0, -0.5, -0.3, -0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2, math.inf)
 
@@ -41,22 +40,14 @@ def main(argv=None) -> int:
     face_part = np.repeat(np.arange(len(names)), [p["faces"] for p in scene["parts"]])
     if len(face_part) != len(gf):
         raise SystemExit(f"scene.json's parts hold {len(face_part)} faces, gt_mesh.ply {len(gf)}")
-    # the region of region_scores: GT split, seen test, the seen GT's diagonal, tau, truncation, margin, box
-    tri = gv[gf]
+    # the region of region_scores: the GT split (per part, to keep each piece's part), the seen test, the defaults
     max_edge = DEFAULT_GT_MAX_EDGE_FRACTION * _box_diag(gv)
-    split = [split_triangles(tri[face_part == k], max_edge) for k in range(len(names))]
+    split = [split_triangles(gv[gf[face_part == k]], max_edge) for k in range(len(names))]
     part_of = np.concatenate([np.full(len(s), k) for k, s in enumerate(split)])
     gt_tri = np.concatenate(split)
-    obs = observe(*_soup(gt_tri), cameras, device=a.device)
-    seen_tri, seen_part = gt_tri[obs.seen], part_of[obs.seen]
-    diag = _box_diag(seen_tri.reshape(-1, 3))
-    tau, max_dist = DEFAULT_TAU_FRACTIONS[0] * diag, DEFAULT_MAX_DIST_FRACTION * diag
-    pts = seen_tri.reshape(-1, 3)
-    bbox = (pts.min(0) - max_dist, pts.max(0) + max_dist)
-    density = math.sqrt(float(_triangle_areas(seen_tri).sum()) / DEFAULT_GT_SAMPLES)
-
-    def inside(p):
-        return in_region(p, obs, max_dist, bbox)
+    reg = scored_region(gt_tri, cameras, device=a.device)
+    seen_tri, seen_part = gt_tri[reg.seen], part_of[reg.seen]
+    diag, tau, max_dist, density, inside = reg.diagonal, reg.tau[0], reg.max_dist, reg.density, reg.inside
 
     gt_pts, gt_lab = [], []
     for k in range(len(names)):
