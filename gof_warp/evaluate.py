@@ -2,7 +2,7 @@
 
     python -m gof_warp.evaluate --mesh MESH.ply --gt GT.ply [--tau T ...] [--density D] [--max-dist M]
         [--crop xmin ymin zmin xmax ymax zmax] [--method points|triangles] [--truncate exclude|clamp]
-        [--scene SCENE_DIR [--patch P] [--supersample S]] [--json OUT.json]
+        [--scene SCENE_DIR [--patch P] [--supersample S] [--min-views K]] [--json OUT.json]
 
 Prints accuracy, completeness, Chamfer, precision/recall/F-score at each tau and both meshes'
 statistics; ``--json`` writes the same (atomically). With ``--scene`` (a folder with
@@ -23,6 +23,7 @@ import logging
 import sys
 
 from .cli import run_command
+from .errors import GofError
 from .geometry_metrics import evaluate_mesh
 from .region_metrics import PATCH_SIZE, evaluate_region
 from .io_utils import write_json_atomic
@@ -56,6 +57,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--scene", help="scene folder (transforms_train.json [+ scene.json]): score the observed region")
     p.add_argument("--patch", type=float, default=PATCH_SIZE, help="ground patch side (with --scene; default 0.1)")
     p.add_argument("--supersample", type=int, default=3, help="rays per pixel axis for the seen test (--scene)")
+    p.add_argument("--min-views", type=int, default=1,
+                   help="with --scene: score only what at least this many training cameras see (default 1: any)")
     p.add_argument("--json", help="write the results to this JSON file")
     return p
 
@@ -79,7 +82,8 @@ def format_report(report: dict) -> str:
     if report.get("floor"):
         fl, rg = report["floor"]["metrics"], report["region"]
         lines += ["", f"region: seen GT area {rg['gt_seen_area']:.4g} of {rg['gt_area']:.4g}, scored GT {rg['gt_scored_area']:.4g}, "
-                  f"mesh {rg['pred_scored_area']:.4g} of {rg['pred_area']:.4g}; diagonal {rg['diagonal']:.4g} ({rg['diagonal_of']})",
+                  f"mesh {rg['pred_scored_area']:.4g} of {rg['pred_area']:.4g}; diagonal {rg['diagonal']:.4g} ({rg['diagonal_of']})"
+                  + (f"; seen by at least {rg['min_views']} views" if rg.get("min_views", 1) > 1 else ""),
                   f"{'':14s}{'score':>12s}{'floor':>12s}"]
         lines += [f"{k:14s}{_num(m[k]):>12s}{_num(fl[k]):>12s}" for k in ("accuracy", "completeness", "chamfer")]
         lines += [f"{'F@' + _num(t):14s}{f:>12.4f}{g:>12.4f}" for t, f, g in zip(m["tau"], m["fscore"], fl["fscore"])]
@@ -106,10 +110,13 @@ def main(argv=None) -> int:
 
     def body():
         crop = None if args.crop is None else (args.crop[:3], args.crop[3:])
+        if args.min_views != 1 and not args.scene:
+            raise GofError("--min-views needs --scene (the training cameras decide what is seen)")
         if args.scene:
             report = evaluate_region(args.mesh, args.gt, args.scene, tau=args.tau, density=args.density,
                                      max_dist=args.max_dist, bbox=crop, truncate=args.truncate, seed=args.seed,
-                                     patch=args.patch, supersample=args.supersample)
+                                     patch=args.patch, supersample=args.supersample,
+                                     min_views=args.min_views)
         else:
             report = evaluate_mesh(args.mesh, args.gt, tau=args.tau, density=args.density, max_dist=args.max_dist,
                                    crop=crop, truncate=args.truncate, method=args.method, seed=args.seed)

@@ -23,6 +23,7 @@ from .extraction import (METHODS, MeshConfig, StageTimer, empty_mesh_message, ex
 from .io_utils import write_json_atomic
 from .run_folder import cameras_from_json, load_run  # noqa: F401 - re-exported: extract.load_run is public
 from .octree_tets import OctreeConfig
+from .opacity_field import OpacityFieldConfig
 from .tetra import GRIDS, TetraConfig
 
 
@@ -59,6 +60,9 @@ def main(argv=None) -> int:
     ap.add_argument("--corner-min-extent", type=float, default=None,
                     help="tetra: only the centre point for Gaussians whose 3-sigma extent is below this (world units)")
     ap.add_argument("--min-component-faces", type=int, default=0)
+    ap.add_argument("--min-views", type=int, default=OpacityFieldConfig.min_views,
+                    help="mesh only space that at least this many training views see (default %(default)s, GOF's; 2 "
+                         "leaves out what a single photo alone sees, where nothing places the surface's depth)")
     ap.add_argument("--max-faces", type=int, default=None,
                     help="quadric decimation (fast-simplification) to at most this many faces per mesh")
     ap.add_argument("--max-error", type=float, default=None,
@@ -105,7 +109,7 @@ def extract_run(a, ranks, device) -> None:
         return
     cfg = MeshConfig(method=a.method, levels=tuple(a.levels), binary_steps=a.binary_steps,
                      min_component_faces=a.min_component_faces, max_faces=a.max_faces, max_error=a.max_error,
-                     search_steps_per_call=a.search_steps_per_call,
+                     search_steps_per_call=a.search_steps_per_call, field=OpacityFieldConfig(min_views=a.min_views),
                      tetra=TetraConfig(backend=a.delaunay, opacity_min=a.opacity_min,
                                        corner_min_extent=a.corner_min_extent,
                                        delaunay_workers=a.delaunay_workers, band=a.band,
@@ -139,7 +143,7 @@ def extract_run(a, ranks, device) -> None:
         outputs.append({"path": str(path), "level": level, "vertices": int(len(v)), "faces": int(len(f))})
         print(f"wrote {path}: {len(v)} vertices, {len(f)} faces")
     write_json_atomic(base.with_suffix(".json"), {
-        "method": a.method, "binary_steps": a.binary_steps, "num_gaussians": len(gaussians),
+        "method": a.method, "binary_steps": a.binary_steps, "min_views": a.min_views, "num_gaussians": len(gaussians),
         "num_views": len(cameras), "device": device, "processes": ranks.world, "total_time_s": round(total, 3),
         "stages": timer.stages, "meshes": outputs, **({"ranks": per_rank} if ranks.active else {})})
     if not a.no_pictures:  # a picture per mesh; a failure only warns: the mesh is already written

@@ -76,6 +76,9 @@ class MeshConfig:
                            f"got {self.search_steps_per_call!r}")
         if self.max_error is not None and not self.max_error > 0:
             raise GofError(f"max_error must be > 0 (world units), got {self.max_error}")
+        if isinstance(self.field.min_views, bool) or not isinstance(self.field.min_views, int) \
+                or self.field.min_views < 1:
+            raise GofError(f"min_views must be an integer >= 1, got {self.field.min_views!r}")
         self.tetra.validate()
 
 
@@ -182,8 +185,10 @@ def _tetra_grid(gaussians, cameras, config: MeshConfig, tc: TetraConfig, field_f
         points, owner, scale = grid_points(gaussians.means.detach(), gaussians.rotations.detach(),
                                            gaussians.scales.detach(), gaussians.opacities.detach(), cameras, tc)
     counts = {"points": int(len(points))}
+    few_views = config.field.min_views > 1  # the frustum mask kept points one view sees: mark them, drop their cells
     with timer("opacity_field"):  # at every point first: the level band needs it, the marching reuses it
-        values = field_fn(points)
+        values = field_fn(points, dataclasses.replace(config.field, unseen_value=UNSEEN_MARK)) if few_views \
+            else field_fn(points)
     if tc.band:
         with timer("level_band"):
             keep = level_band(points, values.detach().cpu().numpy(), owner, scale, config.levels,
@@ -199,9 +204,23 @@ def _tetra_grid(gaussians, cameras, config: MeshConfig, tc: TetraConfig, field_f
         if ranks.active:
             substages.setdefault("computed_on_rank", 0)
     timer.stages["delaunay+filter"]["substages"] = substages
+    if few_views:
+        values, tets, dropped = _drop_unseen_cells(values, tets, config.field.unseen_value)
+        tets = tets.cpu().numpy()
+        counts["tetrahedra_out_of_view"] = dropped
     log.info("%d points, %d tetrahedra", len(points), len(tets))
     counts["tetrahedra"] = int(len(tets))
-    return points, values, tets, counts
+    return points, values, (tets if len(tets) else None), counts
+
+
+def _drop_unseen_cells(values: torch.Tensor, tets, unseen_value: float):
+    """``(values, tets, dropped)``: the tetrahedra ``[T, 4]`` with a corner marked ``UNSEEN_MARK`` left out, and the
+    marks replaced by ``unseen_value`` (which the search keeps using). ``tets`` may be numpy; a torch tensor returns."""
+    seen = values >= 0
+    tets = torch.as_tensor(tets, device=values.device)
+    in_view = seen[tets.long()].all(dim=1)
+    return (torch.where(seen, values, torch.full_like(values, unseen_value)), tets[in_view],
+            int(tets.shape[0] - int(in_view.sum())))
 
 
 def _octree_grid(gaussians, cameras, config: MeshConfig, field_fn, timer: StageTimer):
@@ -211,21 +230,16 @@ def _octree_grid(gaussians, cameras, config: MeshConfig, field_fn, timer: StageT
     The octree fills whole boxes, which can reach out of every view; the Delaunay grid has no such points (its
     frustum mask drops them before triangulating). To match it, the tetrahedra with a corner no view sees are left
     out: an unseen corner would otherwise carry GOF's "unseen = 1" next to empty seen space and raise walls at the
-    frustum boundaries. The search keeps GOF's setting, as on the Delaunay grid."""
+    frustum boundaries. With ``field.min_views`` > 1 "unseen" means seen by fewer views (both grids). The search keeps GOF's setting, as on the Delaunay grid."""
     sub: dict = {}
     with timer("octree_grid"):
         points, tets = octree_grid_from_gaussians(gaussians.means.detach(), gaussians.scales.detach(),
                                                   gaussians.opacities.detach(), cameras, config.tetra, stats=sub)
     timer.stages["octree_grid"]["substages"] = sub
-    n_grid = int(tets.shape[0])
     with timer("opacity_field"):
         values = field_fn(points, dataclasses.replace(config.field, unseen_value=UNSEEN_MARK))
-        seen = values >= 0
-        in_view = seen[tets.long()].all(dim=1)
-        tets = tets[in_view]
-        values = torch.where(seen, values, torch.full_like(values, config.field.unseen_value))
-    counts = {"points": int(points.shape[0]), "tetrahedra": int(tets.shape[0]),
-              "tetrahedra_out_of_view": n_grid - int(tets.shape[0])}
+        values, tets, dropped = _drop_unseen_cells(values, tets, config.field.unseen_value)
+    counts = {"points": int(points.shape[0]), "tetrahedra": int(tets.shape[0]), "tetrahedra_out_of_view": dropped}
     log.info("octree grid: %d points, %d tetrahedra", points.shape[0], tets.shape[0])
     return points, values, (tets if tets.shape[0] else None), counts
 

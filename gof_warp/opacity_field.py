@@ -2,8 +2,9 @@
 
 The opacity of a point is the minimum, over the training views in whose image it projects (in front of
 the near plane), of the opacity composited along that view's ray up to the point's depth (GOF Sec. 3.2;
-math in :mod:`gof_warp.kernels.opacity_field`). Points no view sees get ``unseen_value`` (GOF keeps 1,
-i.e. "inside": such points produce no surface against other unseen points but can against seen ones).
+math in :mod:`gof_warp.kernels.opacity_field`). Points no view sees (or fewer than ``min_views``) get
+``unseen_value`` (GOF keeps 1, i.e. "inside": such points produce no surface against other unseen points but can
+against seen ones).
 
 Evaluation is tile-binned (paper Algorithm 2): per view the Gaussians are preprocessed and binned once
 (the renderer's own kernels) and each point walks only its tile's depth-sorted list.
@@ -43,6 +44,11 @@ class OpacityFieldConfig:
     """Settings of the opacity-field evaluation."""
 
     unseen_value: float = 1.0  # field of points no view sees (GOF: 1)
+    # Points inside fewer than this many training views' frusta count as unseen (GOF: 1). A surface one photo alone
+    # sees has no parallax to place it (COLMAP's fusion likewise asks for several views: min_num_pixels); with 2 the
+    # tetra path leaves such space out of the grid (gof_warp.extraction) instead of meshing whatever depth the
+    # Gaussians took there. benchmarks/real_captures/README.md, session 18.
+    min_views: int = 1
     chunk_size: int = 1 << 22  # points per device chunk
     # Screen tile (pixels) of the per-view Gaussian lists the points are evaluated against; None: CPU_TILE_SIZE on
     # the CPU, the renderer's tile on a GPU. The value is the same for any tile (the lists are conservative and
@@ -96,6 +102,8 @@ def opacity_field(gaussians, cameras: Sequence[Camera], points, *, config: Opaci
         raise GofError("points contain NaN/inf")
     if not cameras:
         raise GofError("the opacity field needs at least one camera")
+    if isinstance(config.min_views, bool) or not isinstance(config.min_views, int) or config.min_views < 1:
+        raise GofError(f"opacity field min_views must be an integer >= 1, got {config.min_views!r}")
     if ranks is not None and ranks.active:
         cameras = list(cameras)[ranks.rank :: ranks.world]  # this rank's views (none: it still takes part below)
     m = pts.shape[0]
@@ -112,7 +120,8 @@ def opacity_field(gaussians, cameras: Sequence[Camera], points, *, config: Opaci
             seen += inside.int()
         if ranks is not None:
             ranks.reduce_field(field, seen)
-        field = torch.where(seen > 0, torch.zeros_like(field), field)
+        field = torch.where(seen >= config.min_views, torch.zeros_like(field),
+                            torch.full_like(field, config.unseen_value))
         return (field, seen) if return_seen else field
     wp.init()
     wdev = _wp_device(pts)
@@ -132,7 +141,7 @@ def opacity_field(gaussians, cameras: Sequence[Camera], points, *, config: Opaci
                             wp.from_torch(field[start:stop]), wp.from_torch(seen[start:stop]))
     if ranks is not None:
         ranks.reduce_field(field, seen)
-    field = torch.where(seen > 0, field, torch.full_like(field, config.unseen_value))
+    field = torch.where(seen >= config.min_views, field, torch.full_like(field, config.unseen_value))
     return (field, seen) if return_seen else field
 
 

@@ -89,6 +89,7 @@ class Observation:
 
     Attributes:
         seen: ``[F]`` bool, GT face hit by some primary (sub-)ray.
+        views: ``[F]`` int, how many cameras hit the face with some primary (sub-)ray.
         cameras: the cameras.
         depth: one ``[H, W]`` float32 per camera: the largest GT camera-z depth over the pixel's sub-rays,
             ``inf`` where any sub-ray misses the GT.
@@ -97,6 +98,7 @@ class Observation:
     seen: np.ndarray
     cameras: list
     depth: list
+    views: np.ndarray
 
 
 def _check_cameras(cameras) -> list:
@@ -123,9 +125,10 @@ def observe(vertices, faces, cameras, *, supersample: int = DEFAULT_SUPERSAMPLE,
         raise GofError(f"supersample must be a positive integer, got {supersample}")
     V = np.ascontiguousarray(np.asarray(vertices, np.float32).reshape(-1, 3))
     F = np.asarray(faces, np.int64).reshape(-1, 3)
-    seen = np.zeros(len(F), bool)
+    views = np.zeros(len(F), np.int32)
     if len(F) == 0:
-        return Observation(seen, cameras, [np.full((c.height, c.width), np.inf, np.float32) for c in cameras])
+        return Observation(views > 0, cameras, [np.full((c.height, c.width), np.inf, np.float32) for c in cameras],
+                           views)
     dev = wp.get_device(device or default_device())
     mesh = wp.Mesh(points=wp.array(V, dtype=wp.vec3, device=dev),
                    indices=wp.array(np.ascontiguousarray(F.astype(np.int32).ravel()), dtype=wp.int32, device=dev))
@@ -134,10 +137,10 @@ def observe(vertices, faces, cameras, *, supersample: int = DEFAULT_SUPERSAMPLE,
     for c in cameras:
         hits = cast_pinhole_rays(mesh, c.R, c.t, c.fx, c.fy, c.cx, c.cy, c.width, c.height, s)
         face = hits["face"].numpy()
-        seen[face[face >= 0]] = True
+        views[np.unique(face[face >= 0])] += 1
         d = np.where(face >= 0, hits["depth"].numpy(), np.inf).reshape(c.height, s, c.width, s)
         depths.append(d.max(axis=(1, 3)).astype(np.float32))
-    return Observation(seen, cameras, depths)
+    return Observation(views > 0, cameras, depths, views)
 
 
 def seen_faces(vertices, faces, cameras, *, supersample: int = DEFAULT_SUPERSAMPLE, device=None) -> np.ndarray:
@@ -148,13 +151,15 @@ def seen_faces(vertices, faces, cameras, *, supersample: int = DEFAULT_SUPERSAMP
     return observe(vertices, faces, cameras, supersample=supersample, device=device).seen
 
 
-def in_region(points, observation: Observation, margin: float, bbox=None, chunk: int = 1 << 16) -> np.ndarray:
+def in_region(points, observation: Observation, margin: float, bbox=None, chunk: int = 1 << 16,
+              min_views: int = 1) -> np.ndarray:
     """``[N]`` bool: ``points [N, 3]`` inside the observed region (module docstring): in ``bbox``
-    (``(min_xyz, max_xyz)`` or None) and, for some camera, in front of it, inside its image and at most
-    ``margin`` behind the GT depth along the pixel's ray. Cameras are tried in turn; a point stops at the
-    first camera that observes it."""
+    (``(min_xyz, max_xyz)`` or None) and, for at least ``min_views`` cameras, in front of it, inside its image and
+    at most ``margin`` behind the GT depth along the pixel's ray. Cameras are tried in turn; a point stops at the
+    ``min_views``-th camera that observes it."""
     P = np.asarray(points, np.float64).reshape(-1, 3)
     out = np.zeros(len(P), bool)
+    need = np.full(len(P), int(min_views), np.int32)  # observations still missing
     idx = np.arange(len(P))
     if bbox is not None:
         lo, hi = np.asarray(bbox, np.float64).reshape(2, 3)
@@ -175,8 +180,10 @@ def in_region(points, observation: Observation, margin: float, bbox=None, chunk:
             iv = np.clip(np.floor(v).astype(np.int64), 0, cam.height - 1)
             behind = (z - D[iv, iu]) * np.sqrt(a * a + b * b + 1.0)  # -inf where the GT ray misses
             hit = ok & (behind <= margin)
-            out[left[hit]] = True
-            left = left[~hit]
+            need[left[hit]] -= 1
+            done = need[left] <= 0
+            out[left[done]] = True
+            left = left[~done]
     return out
 
 
@@ -376,7 +383,7 @@ class ScoredRegion:
         observation: the cameras' :class:`Observation` of the triangles.
         seen: ``[T]`` bool, the triangles seen (inside the box of interest when one was given).
         seen_area: their area.
-        diagonal, tau, max_dist, margin, bbox, density: as in :func:`region_scores`, defaults resolved.
+        diagonal, tau, max_dist, margin, bbox, density, min_views: as in :func:`region_scores`, defaults resolved.
     """
 
     observation: Observation
@@ -388,25 +395,30 @@ class ScoredRegion:
     margin: float
     bbox: tuple
     density: float
+    min_views: int = 1
 
     def inside(self, points) -> np.ndarray:
         """``[N]`` bool: the points in the observed volume (:func:`in_region`) and the box of interest."""
-        return in_region(points, self.observation, self.margin, self.bbox)
+        return in_region(points, self.observation, self.margin, self.bbox, min_views=self.min_views)
 
 
 def scored_region(gt_tri: np.ndarray, cameras, *, tau=None, density: float | None = None,
                   max_dist: float | None = None, margin: float | None = None, bbox=None,
                   supersample: int = DEFAULT_SUPERSAMPLE, gt_samples: int = DEFAULT_GT_SAMPLES,
-                  device=None) -> ScoredRegion:
-    """:class:`ScoredRegion` of the split GT triangles ``gt_tri`` ``[T, 3, 3]`` seen by ``cameras``."""
+                  min_views: int = 1, device=None) -> ScoredRegion:
+    """:class:`ScoredRegion` of the split GT triangles ``gt_tri`` ``[T, 3, 3]`` seen by ``cameras`` (by at least
+    ``min_views`` of them)."""
+    if isinstance(min_views, bool) or not isinstance(min_views, (int, np.integer)) or min_views < 1:
+        raise GofError(f"min_views must be an integer >= 1, got {min_views!r}")
     obs = observe(*_soup(gt_tri), cameras, supersample=supersample, device=device)
-    seen = obs.seen.copy()
+    seen = obs.views >= min_views
     if bbox is not None:
         lo, hi = np.asarray(bbox, np.float64).reshape(2, 3)
         seen &= np.all((gt_tri.mean(1) >= lo) & (gt_tri.mean(1) <= hi), axis=1)
     seen_tri = gt_tri[seen]
     if not len(seen_tri):
-        raise GofError("no GT face is seen by the cameras (inside the box of interest): nothing to score")
+        raise GofError(f"no GT face is seen by {'the' if min_views == 1 else f'at least {min_views}'} cameras "
+                       "(inside the box of interest): nothing to score")
     diag = _box_diag(seen_tri.reshape(-1, 3))
     tau = [float(f * diag) for f in DEFAULT_TAU_FRACTIONS] if tau is None else [float(t) for t in np.atleast_1d(tau)]
     max_dist = DEFAULT_MAX_DIST_FRACTION * diag if max_dist is None else float(max_dist)
@@ -416,7 +428,7 @@ def scored_region(gt_tri: np.ndarray, cameras, *, tau=None, density: float | Non
         bbox = (pts.min(0) - max_dist, pts.max(0) + max_dist)
     seen_area = float(_triangle_areas(seen_tri).sum())
     density = math.sqrt(seen_area / gt_samples) if density is None else float(density)
-    return ScoredRegion(obs, seen, seen_area, diag, tau, max_dist, margin, bbox, density)
+    return ScoredRegion(obs, seen, seen_area, diag, tau, max_dist, margin, bbox, density, int(min_views))
 
 
 def region_scores(pred, gt, cameras, *, tau=None, density: float | None = None, max_dist: float | None = None,
@@ -424,7 +436,7 @@ def region_scores(pred, gt, cameras, *, tau=None, density: float | None = None, 
                   footprint_margin: float | None = None, patch: float = PATCH_SIZE,
                   gt_max_edge: float | None = None, supersample: int = DEFAULT_SUPERSAMPLE,
                   truncate: str = "exclude", gt_samples: int = DEFAULT_GT_SAMPLES, seed: int = 0,
-                  device=None) -> dict:
+                  min_views: int = 1, device=None) -> dict:
     """Score ``pred`` against ``gt`` on the region the ``cameras`` observe (module docstring).
 
     Args:
@@ -439,6 +451,8 @@ def region_scores(pred, gt, cameras, *, tau=None, density: float | None = None, 
         gt_max_edge: GT split before the seen test (default 1 % of the GT's diagonal).
         supersample: sub-rays per pixel axis; truncate: as :func:`mesh_accuracy_completeness`.
         seed: pred samples use ``seed``, GT ``seed + 1``, the floor's GT-as-prediction ``seed + 2``.
+        min_views: score only what at least this many cameras see (the GT faces they hit, the volume they observe);
+            1 (default): any camera.
 
     Returns:
         ``{"metrics": SurfaceMetrics dict, "region": {...}, "floor": {"metrics", "ground"}, "ground": {...}
@@ -451,7 +465,7 @@ def region_scores(pred, gt, cameras, *, tau=None, density: float | None = None, 
         raise GofError("region scoring needs a GT mesh with faces (a point cloud has no visibility)")
     gt_tri = split_triangles(gv[gf], gt_max_edge or DEFAULT_GT_MAX_EDGE_FRACTION * _box_diag(gv))
     reg = scored_region(gt_tri, cameras, tau=tau, density=density, max_dist=max_dist, margin=margin, bbox=bbox,
-                        supersample=supersample, gt_samples=gt_samples, device=device)
+                        supersample=supersample, gt_samples=gt_samples, min_views=min_views, device=device)
     obs, seen_tri, seen_area, inside = reg.observation, gt_tri[reg.seen], reg.seen_area, reg.inside
     diag, tau, max_dist, margin, bbox, density = reg.diagonal, reg.tau, reg.max_dist, reg.margin, reg.bbox, reg.density
     gt_crop = crop_mesh(*_soup(seen_tri), inside, resolution=density)
@@ -472,7 +486,7 @@ def region_scores(pred, gt, cameras, *, tau=None, density: float | None = None, 
                    "diagonal": diag, "diagonal_of": "bounding box of the seen GT", "tau": tau,
                    "max_dist": max_dist, "margin": margin, "density": density, "bbox": [list(map(float, b)) for b in bbox],
                    "cameras": len(cameras), "supersample": supersample,
-                   "gt_faces_split": int(len(gt_tri)), "gt_faces_seen": int(obs.seen.sum()),
+                   "min_views": int(min_views), "gt_faces_split": int(len(gt_tri)), "gt_faces_seen": int(reg.seen.sum()),
                    "gt_area": float(_triangle_areas(gv[gf]).sum()), "gt_seen_area": seen_area,
                    "gt_scored_area": float(_triangle_areas(gt_crop).sum()),
                    "pred_area": float(_triangle_areas(pv[pf]).sum()) if len(pf) else 0.0,
