@@ -25,12 +25,32 @@ from gof_warp.region_metrics import (DEFAULT_GT_MAX_EDGE_FRACTION, _box_diag, _s
 OFFSET_BINS = (-math.inf, -1.0, -0.5, -0.3, -0.2, -0.1, -0.05, 0.0, 0.05, 0.1, 0.2, math.inf)
 
 
+Z_BINS = (-math.inf, -1.0, -0.5, -0.2, 0.0, 0.2, 0.4, 1.0, 2.0, math.inf)  # height above the ground plane
+
+
+def _where(points: np.ndarray, ground: dict | None, area_per_sample: float) -> dict:
+    """Area of ``points`` (the off samples) by height above the ground and by whether they lie over the ground's
+    square (``inside``), beyond its edges (``beyond``): the gap between a finite ground and the shell."""
+    if ground is None or not len(points):
+        return {}
+    z = points[:, 2] - ground["height"]
+    (x0, y0), (x1, y1) = ground["extent"]
+    over = (points[:, 0] >= x0) & (points[:, 0] <= x1) & (points[:, 1] >= y0) & (points[:, 1] <= y1)
+    out = {"z_bins": [str(b) for b in Z_BINS]}
+    for name, m in (("over_ground", over), ("beyond_ground", ~over)):
+        hist, _ = np.histogram(z[m], bins=Z_BINS)
+        out[name] = [round(float(h) * area_per_sample, 3) for h in hist]
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("mesh", type=Path)
     ap.add_argument("scene", type=Path)
     ap.add_argument("--shell-radius", type=float, default=6.0, help="radius of the part named 'shell' (origin-centred)")
     ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--samples-out", type=Path, default=None,
+                    help="also write the off samples (position, distance, nearest part) to this .npz")
     ap.add_argument("--device", default=None)
     a = ap.parse_args(argv)
     cameras, scene = read_scene(a.scene)
@@ -91,6 +111,12 @@ def main(argv=None) -> int:
 
         report["shell_missing"] = {"fraction": round(float(miss.sum() / max(gm.sum(), 1)), 4),
                                    "z_quartiles_missing": z_quartiles(miss), "z_quartiles_all": z_quartiles(gm)}
+    is_off = keep & (d > tau)
+    report["off_where"] = _where(pred_pts[is_off], scene.get("ground"), area_per_sample)
+    if a.samples_out is not None:
+        a.samples_out.parent.mkdir(parents=True, exist_ok=True)
+        np.savez_compressed(a.samples_out, points=pred_pts[is_off].astype(np.float32), dist=d[is_off].astype(np.float32),
+                            part=gt_lab[j[is_off]].astype(np.int8), parts=np.array(names))
     write_json_atomic(a.out, report)
     print(json.dumps(report, indent=1))
     return 0
