@@ -151,6 +151,22 @@ def seen_faces(vertices, faces, cameras, *, supersample: int = DEFAULT_SUPERSAMP
     return observe(vertices, faces, cameras, supersample=supersample, device=device).seen
 
 
+def observed_by(cam: Camera, depth: np.ndarray, points: np.ndarray, margin: float) -> np.ndarray:
+    """``[N]`` bool: ``points [N, 3]`` (float64) in front of ``cam``, inside its image and at most ``margin`` behind
+    its GT ``depth`` map (:class:`Observation`) along the pixel's ray."""
+    x = points @ cam.R.T + cam.t
+    z = x[:, 2]
+    front = z > 1e-9
+    zs = np.where(front, z, 1.0)
+    a, b = x[:, 0] / zs, x[:, 1] / zs
+    u, v = cam.fx * a + cam.cx, cam.fy * b + cam.cy
+    ok = front & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
+    iu = np.clip(np.floor(u).astype(np.int64), 0, cam.width - 1)
+    iv = np.clip(np.floor(v).astype(np.int64), 0, cam.height - 1)
+    behind = (z - depth[iv, iu]) * np.sqrt(a * a + b * b + 1.0)  # -inf where the GT ray misses
+    return ok & (behind <= margin)
+
+
 def in_region(points, observation: Observation, margin: float, bbox=None, chunk: int = 1 << 16,
               min_views: int = 1) -> np.ndarray:
     """``[N]`` bool: ``points [N, 3]`` inside the observed region (module docstring): in ``bbox``
@@ -169,17 +185,7 @@ def in_region(points, observation: Observation, margin: float, bbox=None, chunk:
         for cam, D in zip(observation.cameras, observation.depth):
             if not len(left):
                 break
-            x = P[left] @ cam.R.T + cam.t
-            z = x[:, 2]
-            front = z > 1e-9
-            zs = np.where(front, z, 1.0)
-            a, b = x[:, 0] / zs, x[:, 1] / zs
-            u, v = cam.fx * a + cam.cx, cam.fy * b + cam.cy
-            ok = front & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
-            iu = np.clip(np.floor(u).astype(np.int64), 0, cam.width - 1)
-            iv = np.clip(np.floor(v).astype(np.int64), 0, cam.height - 1)
-            behind = (z - D[iv, iu]) * np.sqrt(a * a + b * b + 1.0)  # -inf where the GT ray misses
-            hit = ok & (behind <= margin)
+            hit = observed_by(cam, D, P[left], margin)
             need[left[hit]] -= 1
             done = need[left] <= 0
             out[left[done]] = True
@@ -531,5 +537,6 @@ def evaluate_region(mesh, gt, scene_dir=None, *, cameras=None, ground: Ground | 
 
 
 __all__ = ["Ground", "Observation", "crop_mesh", "evaluate_region", "ground_metrics", "in_region", "observe",
+           "observed_by",
            "read_scene", "region_scores", "sample_soup", "scored_region", "ScoredRegion", "seen_faces",
            "split_triangles"]

@@ -12,38 +12,30 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from gof_warp.region_metrics import _box_diag, _soup, observe, read_scene, sample_soup, split_triangles
+from gof_warp.region_metrics import _box_diag, _soup, observe, observed_by, read_scene, sample_soup, split_triangles
 
 BINS = [0, 1, 2, 3, 4, 6, 10, 20, 1000]
 
 
-def main() -> int:
-    sc = Path(sys.argv[1])
-    off = np.load(sys.argv[2])
+def scene_parts(sc: Path):
+    """``(cameras, scene.json, part names, GT triangles split as region scoring splits them [T, 3, 3], part [T])``."""
     cams, scene = read_scene(sc)
     gt = trimesh.load(sc / "gt_mesh.ply", process=False)
     gv, gf = np.asarray(gt.vertices, float), np.asarray(gt.faces)
     names = [p["name"] for p in scene["parts"]]
     fp = np.repeat(np.arange(len(names)), [p["faces"] for p in scene["parts"]])
     split = [split_triangles(gv[gf[fp == k]], 0.01 * _box_diag(gv)) for k in range(len(names))]
-    lab = np.concatenate([np.full(len(s), k) for k, s in enumerate(split)])
-    tri = np.concatenate(split)
+    return cams, scene, names, np.concatenate(split), np.concatenate([np.full(len(s), k) for k, s in enumerate(split)])
+
+
+def main() -> int:
+    sc = Path(sys.argv[1])
+    off = np.load(sys.argv[2])
+    cams, scene, names, tri, lab = scene_parts(sc)
     obs = observe(*_soup(tri), cams)
 
     def count(P, margin=0.1):
-        n = np.zeros(len(P), int)
-        for cam, D in zip(obs.cameras, obs.depth):
-            x = P @ cam.R.T + cam.t
-            z = x[:, 2]
-            front = z > 1e-9
-            zs = np.where(front, z, 1.0)
-            a, b = x[:, 0] / zs, x[:, 1] / zs
-            u, v = cam.fx * a + cam.cx, cam.fy * b + cam.cy
-            ok = front & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
-            iu = np.clip(np.floor(u).astype(int), 0, cam.width - 1)
-            iv = np.clip(np.floor(v).astype(int), 0, cam.height - 1)
-            n += ok & ((z - D[iv, iu]) * np.sqrt(a * a + b * b + 1.0) <= margin)
-        return n
+        return sum(observed_by(cam, D, P, margin).astype(int) for cam, D in zip(obs.cameras, obs.depth))
 
     sh = names.index("shell")
     g = sample_soup(tri[obs.seen & (lab == sh)], 0.05, 1)

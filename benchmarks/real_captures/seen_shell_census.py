@@ -4,17 +4,13 @@ cameras (:func:`gof_warp.region_metrics.observe`), and prints the seen area per 
 height bands. Session 17 ran it on `background_detail` at 96×96 (100 views) to see how much of the seen shell lies
 below the lines `shell_profile.py` samples (z > ground + 0.4): 21.3 m² below the ground's height, 14.7 m² within
 0.4 above it, of 134.1 m²."""
-import sys, numpy as np, trimesh
+import sys
 from pathlib import Path
-from gof_warp.region_metrics import observe, read_scene, split_triangles, _soup, _triangle_areas, _box_diag
-sc = Path(sys.argv[1])
-cams, scene = read_scene(sc)
-gt = trimesh.load(sc / "gt_mesh.ply", process=False)
-gv, gf = np.asarray(gt.vertices, float), np.asarray(gt.faces)
-names = [p["name"] for p in scene["parts"]]
-fp = np.repeat(np.arange(len(names)), [p["faces"] for p in scene["parts"]])
-split = [split_triangles(gv[gf[fp == k]], 0.01 * _box_diag(gv)) for k in range(len(names))]
-lab = np.concatenate([np.full(len(s), k) for k, s in enumerate(split)]); tri = np.concatenate(split)
+
+from gof_warp.region_metrics import _soup, _triangle_areas, observe
+from off_view_count import scene_parts  # same folder
+
+cams, scene, names, tri, lab = scene_parts(Path(sys.argv[1]))
 obs = observe(*_soup(tri), cams)
 a = _triangle_areas(tri)
 print("seen area, all parts", a[obs.seen].sum().round(1), {n: round(float(a[obs.seen & (lab == k)].sum()), 1) for k, n in enumerate(names)})
