@@ -7,6 +7,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from datetime import timedelta
 
 import numpy as np
 import pytest
@@ -18,6 +19,7 @@ from gof_warp.errors import GofError
 from gof_warp.extract import main as extract_main
 from gof_warp.model import Gaussians
 from gof_warp.synthetic import make_scene
+from gof_warp.train import main as train_main
 
 ARGS = ["--config", "quick", "--iterations", "40", "--device", "cpu", "--no-pictures", "--quiet", "views_per_step=2",
         "log_every=10", "checksum_every=10", "checkpoint_every=20", "model.random_init_points=400",
@@ -38,9 +40,15 @@ def _train(cmd, env_extra=None):
 @pytest.fixture(scope="module")
 def one_process_run(scene, tmp_path_factory):
     """The one-process run of ARGS (the reference of the two-process training, and the model the extraction test
-    meshes)."""
+    meshes), trained by the command's ``main`` in this process (a subprocess start costs ~7 s of CI) with one torch
+    thread, as the subprocess had (OMP_NUM_THREADS=1) and as torchrun gives each rank."""
     one = tmp_path_factory.mktemp("one") / "run"
-    _train([sys.executable, "-m", "gof_warp.train", str(scene), "--out", str(one), *ARGS])
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        assert train_main([str(scene), "--out", str(one), *ARGS]) == 0
+    finally:
+        torch.set_num_threads(threads)
     return one
 
 
@@ -59,31 +67,59 @@ def test_two_processes_train_the_one_process_model(scene, one_process_run, tmp_p
     assert sorted(p.name for p in (two / "checkpoints").iterdir()) == sorted(p.name for p in (one / "checkpoints").iterdir())
 
 
-def _in_gloo_group(rank, world, init_file, result, body):
-    """Spawned: ``body(Ranks, result)`` in a gloo group; its GofError's message lands in ``result[rank]``."""
-    torch.distributed.init_process_group("gloo", init_method=f"file://{init_file}", rank=rank, world_size=world)
+class _Slot:
+    """One body's part of the shared result dict: ``slot[key] = value`` stores ``result[(name, key)]``."""
+
+    def __init__(self, result, name):
+        self.result, self.name = result, name
+
+    def __setitem__(self, key, value):
+        self.result[(self.name, key)] = value
+
+
+def _in_gloo_group(rank, world, init_file, result, bodies):
+    """Spawned: each ``(name, body)`` in turn runs ``body(Ranks, slot)`` in one gloo group; ``slot[rank]`` is "same",
+    or its GofError's message. A collective that one rank never joins fails after 2 minutes instead of gloo's 30."""
+    torch.distributed.init_process_group("gloo", init_method=f"file://{init_file}", rank=rank, world_size=world,
+                                         timeout=timedelta(minutes=2))
     try:
-        body(Ranks(rank=rank, world=world), result)
-        result[rank] = "same"
-    except GofError as e:
-        result[rank] = str(e)
+        for name, body in bodies:
+            slot = _Slot(result, name)
+            try:
+                body(Ranks(rank=rank, world=world), slot)
+                slot[rank] = "same"
+            except GofError as e:
+                slot[rank] = str(e)
     finally:
         torch.distributed.destroy_process_group()
 
 
-def _spawn_two(body) -> dict:
+def _spawn_two(*bodies) -> dict:
+    """``{name: {key: value}}``: the ``(name, body)`` pairs run by two spawned ranks of one gloo group."""
     with tempfile.TemporaryDirectory() as d, mp.Manager() as manager:
         result = manager.dict()
-        mp.spawn(_in_gloo_group, args=(2, os.path.join(d, "init"), result, body), nprocs=2, join=True)
-        return dict(result)
+        mp.spawn(_in_gloo_group, args=(2, os.path.join(d, "init"), result, bodies), nprocs=2, join=True)
+        out: dict = {name: {} for name, _ in bodies}
+        for (name, key), value in dict(result).items():
+            out[name][key] = value
+        return out
+
+
+@pytest.fixture(scope="module")
+def two_ranks(scene):
+    """The two-rank bodies below, run in turn by ONE pair of spawned processes (a pair costs ~12 s of CI: two
+    interpreters importing torch and the package); each test reads its body's results. The late-rank body runs
+    last: the ranks enter it together, just out of the previous body's collectives."""
+    return _spawn_two(("drift", _drift), ("rows", _other_points),
+                      ("late", functools.partial(_late_rank_one, str(scene))))
 
 
 def _drift(ranks, result):
     ranks.check_identical({"means": torch.zeros(4, 3) + (ranks.rank == 1) * 1e-7}, 7)
 
 
-def test_the_checksum_stops_ranks_that_drifted_apart():
-    result = _spawn_two(_drift)
+def test_the_checksum_stops_ranks_that_drifted_apart(two_ranks):
+    result = two_ranks["drift"]
     assert all("differs" in result[r] and "iteration 7" in result[r] for r in (0, 1)), result
 
 
@@ -138,8 +174,8 @@ def _other_points(ranks, result):
     ranks.check_same_points(np.zeros((5, 3), np.float32) + (ranks.rank == 1) * 1e-3, "opacity field")
 
 
-def test_rank_zero_rows_reach_every_rank_and_different_points_are_refused():
-    result = _spawn_two(_other_points)
+def test_rank_zero_rows_reach_every_rank_and_different_points_are_refused(two_ranks):
+    result = two_ranks["rows"]
     assert result["tets1"] == result["tets0"] == np.arange(12).reshape(3, 4).tolist()
     assert all("evaluates other points" in result[r] for r in (0, 1)), result
 
@@ -164,10 +200,10 @@ def _late_rank_one(scene_dir, ranks, result):
         result["warmup_s"], result["train_time_s"] = trainer.warmup_s, metrics["train_time_s"]
 
 
-def test_the_clock_starts_when_every_rank_is_ready(scene):
+def test_the_clock_starts_when_every_rank_is_ready(two_ranks):
     """The warm-up ends at a barrier: a rank that starts late (or NCCL setting up its communicators at the first
     collective) is waited for before the clock starts, not inside the first step's all-reduce."""
-    result = _spawn_two(functools.partial(_late_rank_one, str(scene)))
+    result = two_ranks["late"]
     assert result[0] == result[1] == "same", result
     assert result["warmup_s"] > LATE_S / 2, result  # rank 0 waited for rank 1 in its warm-up
     assert result["train_time_s"] < result["warmup_s"], result  # ... and not in its timed steps

@@ -194,11 +194,16 @@ def run_folder(tmp_path_factory):
 
 
 @pytest.mark.parametrize("method", ["tetra", "cubes", "tsdf"])
-def test_cli_writes_mesh_and_stats(run_folder, method, tmp_path):
+def test_cli_writes_mesh_and_stats(run_folder, method, tmp_path, cli_in_process):
+    """The command's ``main`` in this process (a ``python -m`` start costs ~7 s of CI per method). Real processes of
+    this command: test_cli_errors_name_the_problem (a bad input), test_volume.py's ``--volume`` run and
+    test_distributed.py's torchrun extractions (a mesh)."""
+    from gof_warp.extract import main
+
     out = tmp_path / f"m_{method}.ply"
-    proc = subprocess.run([sys.executable, "-m", "gof_warp.extract", str(run_folder), "--method", method, "--out", str(out),
-                           "--device", "cpu", "--resolution", "32", "--quiet"], capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    rc, err = cli_in_process(main, str(run_folder), "--method", method, "--out", str(out), "--device", "cpu",
+                             "--resolution", "32", "--quiet")
+    assert rc == 0, err[-3000:]
     mesh = trimesh.load(out, process=False)
     stats = json.loads(out.with_suffix(".json").read_text())
     min_faces = {"tetra": 8, "cubes": 50, "tsdf": 50}[method]  # two Gaussians give 18 tetra points only

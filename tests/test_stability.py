@@ -96,10 +96,16 @@ def test_dense_grid_bounds_ignore_huge_and_unseen_gaussians(reports):
 
 
 def test_bad_inputs_are_counted_per_kind_with_no_crash_or_nan(reports):
+    """The bad-input cases (stability_inputs.run_input_cases) as the suite ran them: all as expected, no crash or NaN,
+    nothing overwritten, each a clear error or a warning (tests/test_bad_inputs.py ran them a second time for these
+    checks; they are here now)."""
     summary, inputs = _saved_inputs["summary"], _saved_inputs["inputs"]
     assert set(summary) == {"model", "scene", "ply", "config"}
+    assert {r["kind"] for r in inputs} == {"scene", "ply", "config"}
     assert summary["model"]["tried"] == len(CASES) * len(STABILITY_METHODS)
     for kind, c in summary.items():
         assert c["crash"] == 0 and c["nan_inf"] == 0, (kind, c)
+        if kind != "model":
+            assert c["overwritten"] == 0 and c["error"] + c["warning"] == c["tried"], (kind, c)
     assert all(r["as_expected"] for r in inputs), [r for r in inputs if not r["as_expected"]]
     assert summary["scene"]["warning"] >= 2 and summary["ply"]["error"] >= 6

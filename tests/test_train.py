@@ -39,11 +39,20 @@ def _config(**top):
     return merge(merge(TrainConfig(), TINY), top)
 
 
-def test_training_runs_and_writes_outputs(tiny_scene, tmp_path):
-    trainer = Trainer(tiny_scene, _config(), tmp_path / "run", "cpu")
+@pytest.fixture(scope="module")
+def straight_run(tiny_scene, tmp_path_factory):
+    """``(trainer, run folder, Gaussians at the start, metrics)`` of one uninterrupted TINY run (24 iterations): the
+    run whose outputs test_training_runs_and_writes_outputs checks, and the reference that the resumed and the
+    snapshotting runs must equal bit for bit (the tests only read it; the same run was trained three times)."""
+    run = tmp_path_factory.mktemp("straight") / "run"
+    trainer = Trainer(tiny_scene, _config(), run, "cpu")
     n0 = len(trainer.gaussians)
     metrics = trainer.run()
-    run = tmp_path / "run"
+    return trainer, run, n0, metrics
+
+
+def test_training_runs_and_writes_outputs(tiny_scene, straight_run):
+    trainer, run, n0, metrics = straight_run
     for name in ("point_cloud.ply", "metrics.json", "config.yaml", "cameras.json"):
         assert (run / name).is_file(), name
     saved = json.loads((run / "metrics.json").read_text())
@@ -61,9 +70,8 @@ def test_training_runs_and_writes_outputs(tiny_scene, tmp_path):
     assert spikes["after_iteration"] == 1000 and spikes["iterations_checked"] == 0 and spikes["max_ratio"] is None
 
 
-def test_resume_reproduces_the_uninterrupted_run(tiny_scene, tmp_path):
-    straight = Trainer(tiny_scene, _config(), tmp_path / "a", "cpu")
-    straight.run()
+def test_resume_reproduces_the_uninterrupted_run(tiny_scene, straight_run, tmp_path):
+    straight = straight_run[0]
     first = Trainer(tiny_scene, _config(iterations=12), tmp_path / "b", "cpu")
     first.run()
     assert [it for it, _ in list_checkpoints(tmp_path / "b")] == [12]
@@ -120,10 +128,14 @@ def test_cli_reports_bad_input_before_training(tmp_path, cli_in_process):
     assert rc == 2 and "unknown config preset 'nope'" in err
 
 
-def test_cli_refuses_to_overwrite_a_run_without_resume(tiny_scene, tmp_path):
+def test_cli_refuses_to_overwrite_a_run_without_resume(tiny_scene, tmp_path, cli_in_process):
+    """In this process (the real process's exit path: test_cli_reports_bad_input_before_training)."""
+    from gof_warp.train import main
+
     Trainer(tiny_scene, _config(iterations=2, checkpoint_every=0), tmp_path / "run", "cpu").run()
-    proc = _cli(tiny_scene.source, "--out", str(tmp_path / "run"), cwd=tmp_path)
-    assert proc.returncode == 2 and "--resume" in proc.stderr
+    # --iterations 2: were the run not refused, the command would train briefly and exit 0, not for minutes
+    rc, err = cli_in_process(main, tiny_scene.source, "--out", str(tmp_path / "run"), "--iterations", "2")
+    assert rc == 2 and "--resume" in err
 
 
 def test_decoupled_appearance_trains_and_stays_out_of_the_render(tiny_scene, tmp_path):
@@ -142,11 +154,10 @@ def test_decoupled_appearance_trains_and_stays_out_of_the_render(tiny_scene, tmp
     assert trainer.appearance.gain(torch.rand(3, 20, 20), 0).numel() == 0  # below 32 px: no crop, no gain
 
 
-def test_snapshots_are_written_and_do_not_change_the_run(tiny_scene, tmp_path):
+def test_snapshots_are_written_and_do_not_change_the_run(tiny_scene, straight_run, tmp_path):
     from gof_warp.model import Gaussians
 
-    plain = Trainer(tiny_scene, _config(), tmp_path / "plain", "cpu")
-    plain.run()
+    plain = straight_run[0]
     short = Trainer(tiny_scene, _config(iterations=8, checkpoint_every=0), tmp_path / "short", "cpu")
     short.run()  # the first 8 iterations of the same schedule (TINY's schedule does not depend on iterations)
     snap = Trainer(tiny_scene, _config(snapshot_iterations=[8, 16]), tmp_path / "snap", "cpu")
