@@ -76,9 +76,7 @@ class MeshConfig:
                            f"got {self.search_steps_per_call!r}")
         if self.max_error is not None and not self.max_error > 0:
             raise GofError(f"max_error must be > 0 (world units), got {self.max_error}")
-        if isinstance(self.field.min_views, bool) or not isinstance(self.field.min_views, int) \
-                or self.field.min_views < 1:
-            raise GofError(f"min_views must be an integer >= 1, got {self.field.min_views!r}")
+        self.field.validate()
         self.tetra.validate()
 
 

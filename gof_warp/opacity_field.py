@@ -61,6 +61,10 @@ class OpacityFieldConfig:
     cpu_processes: int = 0
     cpu_split_min_points: int = 20_000
 
+    def validate(self):
+        if isinstance(self.min_views, bool) or not isinstance(self.min_views, int) or self.min_views < 1:
+            raise GofError(f"opacity field min_views must be an integer >= 1, got {self.min_views!r}")
+
 
 CPU_TILE_SIZE = 4
 
@@ -102,8 +106,7 @@ def opacity_field(gaussians, cameras: Sequence[Camera], points, *, config: Opaci
         raise GofError("points contain NaN/inf")
     if not cameras:
         raise GofError("the opacity field needs at least one camera")
-    if isinstance(config.min_views, bool) or not isinstance(config.min_views, int) or config.min_views < 1:
-        raise GofError(f"opacity field min_views must be an integer >= 1, got {config.min_views!r}")
+    config.validate()
     if ranks is not None and ranks.active:
         cameras = list(cameras)[ranks.rank :: ranks.world]  # this rank's views (none: it still takes part below)
     m = pts.shape[0]

@@ -88,17 +88,20 @@ class Observation:
     """What the training cameras see of a GT mesh (:func:`observe`).
 
     Attributes:
-        seen: ``[F]`` bool, GT face hit by some primary (sub-)ray.
         views: ``[F]`` int, how many cameras hit the face with some primary (sub-)ray.
+        seen: ``[F]`` bool (derived: ``views > 0``), GT face hit by some primary (sub-)ray.
         cameras: the cameras.
         depth: one ``[H, W]`` float32 per camera: the largest GT camera-z depth over the pixel's sub-rays,
             ``inf`` where any sub-ray misses the GT.
     """
 
-    seen: np.ndarray
+    views: np.ndarray
     cameras: list
     depth: list
-    views: np.ndarray
+
+    @property
+    def seen(self) -> np.ndarray:
+        return self.views > 0
 
 
 def _check_cameras(cameras) -> list:
@@ -127,8 +130,7 @@ def observe(vertices, faces, cameras, *, supersample: int = DEFAULT_SUPERSAMPLE,
     F = np.asarray(faces, np.int64).reshape(-1, 3)
     views = np.zeros(len(F), np.int32)
     if len(F) == 0:
-        return Observation(views > 0, cameras, [np.full((c.height, c.width), np.inf, np.float32) for c in cameras],
-                           views)
+        return Observation(views, cameras, [np.full((c.height, c.width), np.inf, np.float32) for c in cameras])
     dev = wp.get_device(device or default_device())
     mesh = wp.Mesh(points=wp.array(V, dtype=wp.vec3, device=dev),
                    indices=wp.array(np.ascontiguousarray(F.astype(np.int32).ravel()), dtype=wp.int32, device=dev))
@@ -140,7 +142,7 @@ def observe(vertices, faces, cameras, *, supersample: int = DEFAULT_SUPERSAMPLE,
         views[np.unique(face[face >= 0])] += 1
         d = np.where(face >= 0, hits["depth"].numpy(), np.inf).reshape(c.height, s, c.width, s)
         depths.append(d.max(axis=(1, 3)).astype(np.float32))
-    return Observation(views > 0, cameras, depths, views)
+    return Observation(views, cameras, depths)
 
 
 def seen_faces(vertices, faces, cameras, *, supersample: int = DEFAULT_SUPERSAMPLE, device=None) -> np.ndarray:
