@@ -474,3 +474,37 @@ def test_background_detail_shell_is_the_background_scene_with_a_finer_texture():
         assert pair.sum() > 500
         energy.append(float(np.abs(np.diff(view.rgba[..., :3], axis=1))[pair].mean()))
     assert energy[1] > 3.0 * energy[0], energy
+
+
+def _shell_pixels_below_ground(preset_name: str, n_views: int = 16, size: int = 48) -> tuple[int, int]:
+    """``(shell pixels whose hit point lies below the ground's height, shell pixels)`` over the rig's first views."""
+    preset = get_preset(preset_name)
+    parts = preset.build(None)
+    caster = RayCaster(parts, preset.lighting, device="cpu")
+    shell = [k for k, p in enumerate(parts) if p.name == "shell"][0]
+    ground_z = float(np.median(parts[[p.name for p in parts].index("ground")].vertices[:, 2]))
+    below = total = 0
+    ys, xs = np.mgrid[0:size, 0:size] + 0.5
+    for cam in preset.rig.cameras(size, size, n_views, 0)[0]:
+        view = caster.render(cam, 1)
+        rays = np.stack([(xs - cam.cx) / cam.fx, (ys - cam.cy) / cam.fy, np.ones_like(xs)], -1)
+        z = ((rays * view.depth[..., None]) @ cam.R + cam.center)[..., 2]  # depth is along the optical axis
+        on_shell = caster.face_part[view.face] == shell
+        below += int((z[on_shell] < ground_z - 1e-3).sum())
+        total += int(on_shell.sum())
+    return below, total
+
+
+def test_background_full_ground_reaches_the_shell():
+    """``background_full`` closes the gap between ``background_detail``'s ground square (half-size 4.2) and the
+    shell (radius 5.93 at the ground's height): its cameras see no shell below the ground's height, where
+    ``background_detail``'s see it through the gap at grazing angles. Everything but the ground is unchanged."""
+    detail, full = get_preset("background_detail").build(None), get_preset("background_full").build(None)
+    assert [p.name for p in detail] == [p.name for p in full]
+    for a, b in zip(detail, full):
+        assert (a.vertices.shape == b.vertices.shape and np.array_equal(a.vertices, b.vertices)) == (a.name != "ground")
+    below_detail, shell_detail = _shell_pixels_below_ground("background_detail")
+    below_full, shell_full = _shell_pixels_below_ground("background_full")
+    assert shell_detail > 1000 and shell_full > 1000
+    assert below_detail > 100  # the gap is seen
+    assert below_full == 0

@@ -35,12 +35,15 @@ SYNTHETIC_VIEWS = 100  # the issue's ground-and-background protocol (100 views);
 STOP_GRACE_S = 45.0  # a step still running this long before the budget is interrupted, so the call ends by then
 # the ground-and-objects crop of each synthetic scene (x0 y0 z0 x1 y1 z1): its ground under and around the objects
 CROPS = {"garden": (-2.5, -2.5, -0.5, 2.5, 2.5, 1.5), "background": (-2.0, -2.0, -1.1, 2.0, 2.0, 1.0),
-         "background_detail": (-2.0, -2.0, -1.1, 2.0, 2.0, 1.0)}
+         "background_detail": (-2.0, -2.0, -1.1, 2.0, 2.0, 1.0), "background_full": (-2.0, -2.0, -1.1, 2.0, 2.0, 1.0)}
 
 
 def steps(state: Path, scenes: list[str], resolution: tuple[int, int], iterations: int, views: int | None = None,
-          points: Path | None = None):
-    """``[(name, command, min_seconds_left, is_training)]`` in order; a scene ``NAME:N`` trains N iterations."""
+          points: Path | None = None, min_views: int = 0):
+    """``[(name, command, min_seconds_left, is_training)]`` in order; a scene ``NAME:N`` trains N iterations.
+
+    ``min_views`` K > 1 adds a second extraction with ``--min-views K`` (``RUN/mesh_views<K>.ply``, pictures for
+    every scene) and, for the synthetic scenes, its two scores beside the default mesh's."""
     out = []
     iters = {s.split(":")[0]: int(s.split(":")[1]) for s in scenes if ":" in s}
     scenes = [s.split(":")[0] for s in scenes]
@@ -65,14 +68,21 @@ def steps(state: Path, scenes: list[str], resolution: tuple[int, int], iteration
             out.append((f"{s}:pack", [PY, str(HERE.parent / "extract" / "pack_model.py"), "pack", str(run),
                                       str(state / "big" / f"{s}_geometry.npz")], 30, False))
         out.append((f"{s}:extract", [PY, "-m", "gof_warp.extract", str(run), "--delaunay-workers", "0"], 240, False))
+        meshes = [("", run / "mesh_tetra.ply")]
+        if min_views > 1:
+            meshes.append((f"_views{min_views}", run / f"mesh_views{min_views}.ply"))
+        for tag, mesh in meshes:  # the default mesh scored before the second one is extracted
+            if tag:
+                out.append((f"{s}:extract{tag}", [PY, "-m", "gof_warp.extract", str(run), "--min-views",
+                                                  str(min_views), "--out", str(mesh)], 240, False))
+            if s in CROPS:
+                evaluate = [PY, "-m", "gof_warp.evaluate", "--mesh", str(mesh), "--gt", str(scene / "gt_mesh.ply"),
+                            "--scene", str(scene)]
+                out.append((f"{s}:evaluate{tag}", evaluate + ["--json", str(res / f"evaluate_seen{tag}.json")], 120,
+                            False))
+                out.append((f"{s}:evaluate_crop{tag}", evaluate + ["--crop", *map(str, CROPS[s]), "--json",
+                                                                   str(res / f"evaluate_crop{tag}.json")], 120, False))
         if s in CROPS:
-            out.append((f"{s}:evaluate", [PY, "-m", "gof_warp.evaluate", "--mesh", str(run / "mesh_tetra.ply"), "--gt",
-                                          str(scene / "gt_mesh.ply"), "--scene", str(scene), "--json",
-                                          str(res / "evaluate_seen.json")], 120, False))
-            out.append((f"{s}:evaluate_crop", [PY, "-m", "gof_warp.evaluate", "--mesh", str(run / "mesh_tetra.ply"),
-                                               "--gt", str(scene / "gt_mesh.ply"), "--scene", str(scene), "--crop",
-                                               *map(str, CROPS[s]), "--json",
-                                               str(res / "evaluate_crop.json")], 120, False))
             out.append((f"{s}:gt_pictures", [PY, "-m", "gof_warp.pictures", str(run), "--mesh",
                                              str(scene / "gt_mesh.ply")], 60, False))
             out.append((f"{s}:probe", [PY, str(HERE / "probe_run.py"), str(scene), str(run),
@@ -84,7 +94,8 @@ def collect(state: Path, scenes: list[str]) -> None:
     for s in scenes:
         run, res = state / f"run_{s}", state / "results" / s
         res.mkdir(parents=True, exist_ok=True)
-        for name in ("metrics.json", "config.yaml", "mesh_tetra.json", "train.log", "extract.log"):
+        for name in ("metrics.json", "config.yaml", "mesh_tetra.json", "train.log", "extract.log",
+                     *(p.name for p in run.glob("mesh_views*.json"))):
             if (run / name).is_file():
                 shutil.copy(run / name, res / name)
         if (run / "pictures").is_dir():
@@ -102,6 +113,8 @@ def main() -> int:
     ap.add_argument("--views", type=int, default=SYNTHETIC_VIEWS,
                     help="training views of the synthetic scenes (default %(default)s, the real-captures issue's protocol; "
                          "0: the preset's own, 40 for the background scenes)")
+    ap.add_argument("--min-views", type=int, default=0,
+                    help="also extract with `extract --min-views K` (K > 1) and score that mesh beside the default")
     ap.add_argument("--points", type=Path, default=None,
                     help="folder with <scene>/points3d.ply for the synthetic scenes (the GPU machine has no pycolmap)")
     a = ap.parse_args()
@@ -114,7 +127,7 @@ def main() -> int:
     for s in names:
         (state / "results" / s).mkdir(parents=True, exist_ok=True)
     for name, cmd, need, training in steps(state, scenes, tuple(a.resolution), a.iterations, a.views,
-                                         a.points):
+                                         a.points, a.min_views):
         marker = state / "done" / name.replace(":", "_")
         if marker.exists():
             continue

@@ -4,14 +4,21 @@
 # Each argument after BUDGET is one queue: its --scenes value, then any further gpu_queue.py options. The state of
 # queue "NAME..." is /tmp/rcp_NAME (resumable across calls); its results come back in $OUT/NAME/results.tar.gz.
 # Times measured this way are of runs that shared the GPU (and the host's cores) with the others.
+# With SPREAD=1 on a machine of several GPUs, queue i runs alone on GPU i (modulo the GPU count): its times are of a
+# GPU of its own, on a host shared with the other queues.
 set -u
 budget=$1; shift
 pids=()
+ngpu=$(nvidia-smi -L 2>/dev/null | wc -l); [ "$ngpu" -ge 1 ] || ngpu=1
+i=0
 for q in "$@"; do
   read -r scenes opts <<<"$q"
   name=${scenes%%:*}; name=${name%%,*}
   mkdir -p "$OUT/$name"
-  OUT="$OUT/$name" python3 benchmarks/real_captures/gpu_queue.py --budget "$budget" --state "/tmp/rcp_$name" \
+  gpu=()
+  if [ "${SPREAD:-0}" = 1 ]; then gpu=(env CUDA_VISIBLE_DEVICES=$((i % ngpu))); fi
+  i=$((i + 1))
+  OUT="$OUT/$name" "${gpu[@]}" python3 benchmarks/real_captures/gpu_queue.py --budget "$budget" --state "/tmp/rcp_$name" \
     --scenes "$scenes" $opts > "$OUT/$name/queue.log" 2>&1 &
   pids+=($!)
 done

@@ -162,12 +162,12 @@ def _thin(_path):
     return parts
 
 
-def _background(_path, shell=_SHELL):
+def _background(_path, shell=_SHELL, ground_half_size=4.2):
     """The composition resting on a textured ground plane inside a textured background shell."""
     ground_z = -0.9
     parts = _composition(z0=0.005)  # 5 mm above the ground: touching parts would hide surfaces
     return parts + [
-        M.grid_plane(center=(0, 0, ground_z), half_size=4.2, cell=0.1, material=_GROUND),  # 84 x 84 cells
+        M.grid_plane(center=(0, 0, ground_z), half_size=ground_half_size, cell=0.1, material=_GROUND),
         M.sphere(radius=6.0, subdivisions=3, material=shell, name="shell", inward=True, role="background"),
     ]
 
@@ -175,6 +175,16 @@ def _background(_path, shell=_SHELL):
 def _background_detail(path):
     """``background`` with the far shell textured finely enough for the photos to place it."""
     return _background(path, shell=_SHELL_DETAIL)
+
+
+# The shell (radius 6) crosses the ground's height z = -0.9 at radius 5.93: a ground of half-size 6 reaches it all
+# round (its corners pass behind the shell, where no camera looks).
+GROUND_TO_SHELL_HALF_SIZE = 6.0
+
+
+def _background_full(path):
+    """``background_detail`` with the ground reaching the shell: no gap below the ground's edge."""
+    return _background(path, shell=_SHELL_DETAIL, ground_half_size=GROUND_TO_SHELL_HALF_SIZE)
 
 
 _LAWN = M.Material(color_a=(0.12, 0.22, 0.06), color_b=(0.8, 0.75, 0.45), noise_scale=3.0, checker_scale=2.0,
@@ -263,6 +273,10 @@ _PRESETS = {
         Preset("background_detail", "The background scene with a far shell textured at every scale the views "
                "resolve (as foliage or facades are): its depth is observable, so the whole seen region can be "
                "scored; the plain shell's smooth texture barely places it.", _background_detail,
+               rig=CameraRig(radius=4.0, elevation_deg=(8.0, 55.0), target=(0.0, 0.0, -0.35))),
+        Preset("background_full", "background_detail with the ground reaching the shell all round, as a real "
+               "ground meets its background: no gap under the ground's edge that the cameras see into at grazing "
+               "angles.", _background_full,
                rig=CameraRig(radius=4.0, elevation_deg=(8.0, 55.0), target=(0.0, 0.0, -0.35))),
         Preset("garden", "A whole outdoor scene in metres, as GOF meshes it: a textured lawn (10 m), objects of "
                "different kinds on it (box, sphere, torus, a ring on a stand, posts of 1-2 cm radius) and a far "
