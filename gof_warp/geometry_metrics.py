@@ -158,13 +158,17 @@ def _closest_point_on_triangles(p, a, b, c) -> np.ndarray:
     return out
 
 
+RADIUS_CLASS_RATIO = 4.0  # triangles are pruned in classes whose bounding-sphere radii span at most this factor
+
+
 def point_mesh_distance(points, vertices, faces, chunk: int = 4096) -> np.ndarray:
     """Exact distances ``[N]`` from ``points [N, 3]`` to the triangles ``vertices[faces]`` (zero-area ones ignored).
 
     An upper bound ``u`` per point (nearest vertex or centroid) prunes the triangles to those whose
-    bounding sphere reaches within ``u``; the exact point-triangle distance is computed for those.
-    Work per point grows with the number of triangles within ``u`` plus the largest triangle's radius,
-    so it suits meshes of fairly even triangles. Empty mesh -> ``inf``.
+    bounding sphere reaches within ``u``; the exact point-triangle distance is computed for those. The
+    triangles are grouped by bounding-sphere radius (classes a factor :data:`RADIUS_CLASS_RATIO` wide), each
+    class searched with its own largest radius, so a few large triangles (a tetra mesh's edge of the seen
+    space) do not widen every point's search. Empty mesh -> ``inf``.
     """
     points = np.asarray(points, np.float64).reshape(-1, 3)
     faces = np.asarray(faces, np.int64).reshape(-1, 3)
@@ -178,17 +182,20 @@ def point_mesh_distance(points, vertices, faces, chunk: int = 4096) -> np.ndarra
     on_surface = np.concatenate([np.asarray(vertices, np.float64)[np.unique(faces)], centroid])
     out, _ = cKDTree(on_surface).query(points, workers=-1)
     slack = 1e-9 * (radius.max() + np.abs(centroid).max())  # rounding in the sphere test
-    tree = cKDTree(centroid)
+    cls = np.floor(np.log(np.maximum(radius / radius.max(), 1e-12)) / np.log(RADIUS_CLASS_RATIO)).astype(np.int64)
+    classes = [np.flatnonzero(cls == c) for c in np.unique(cls)]
+    trees = [(cKDTree(centroid[ids]), ids, radius[ids].max()) for ids in classes]
     for s in range(0, len(points), chunk):
         q, u = points[s : s + chunk], out[s : s + chunk]
-        lists = tree.query_ball_point(q, u + radius.max() + slack, workers=-1)
-        counts = np.fromiter(map(len, lists), np.int64, len(lists))
-        qi = np.repeat(np.arange(len(q)), counts)
-        fi = np.fromiter(itertools.chain.from_iterable(lists), np.int64, int(counts.sum()))
-        near = np.linalg.norm(q[qi] - centroid[fi], axis=1) <= u[qi] + radius[fi] + slack
-        qi, fi = qi[near], fi[near]
-        d = np.linalg.norm(q[qi] - _closest_point_on_triangles(q[qi], tri[fi, 0], tri[fi, 1], tri[fi, 2]), axis=1)
-        np.minimum.at(u, qi, d)  # u is a view into out
+        for tree, ids, r_max in trees:  # u only shrinks, so each class's search uses the tightest bound so far
+            lists = tree.query_ball_point(q, u + r_max + slack, workers=-1)
+            counts = np.fromiter(map(len, lists), np.int64, len(lists))
+            qi = np.repeat(np.arange(len(q)), counts)
+            fi = ids[np.fromiter(itertools.chain.from_iterable(lists), np.int64, int(counts.sum()))]
+            near = np.linalg.norm(q[qi] - centroid[fi], axis=1) <= u[qi] + radius[fi] + slack
+            qi, fi = qi[near], fi[near]
+            d = np.linalg.norm(q[qi] - _closest_point_on_triangles(q[qi], tri[fi, 0], tri[fi, 1], tri[fi, 2]), axis=1)
+            np.minimum.at(u, qi, d)  # u is a view into out
     return out
 
 

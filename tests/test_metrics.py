@@ -15,8 +15,8 @@ import trimesh
 
 from gof_warp.errors import GofError
 from gof_warp.evaluate import main as evaluate_main
-from gof_warp.geometry_metrics import (load_geometry, mesh_accuracy_completeness, mesh_statistics,
-                                       point_mesh_distance, sample_surface)
+from gof_warp.geometry_metrics import (_closest_point_on_triangles, load_geometry, mesh_accuracy_completeness,
+                                       mesh_statistics, point_mesh_distance, sample_surface)
 from gof_warp.metrics import (LPIPS_WEIGHTS_ENV, LpipsVgg, image_metrics, lpips,
                               lpips_available, load_lpips, psnr, ssim)
 
@@ -311,3 +311,19 @@ def test_cli_bad_file_exit_2(tmp_path, capsys):
     assert err.startswith("error:") and "garbage.ply" in err
     assert evaluate_main(["--mesh", str(tmp_path / "gt.ply"), "--gt", str(tmp_path / "missing.ply")]) == 2
     assert "missing.ply" in capsys.readouterr().err
+
+
+def test_point_mesh_distance_mixed_triangle_sizes_against_brute_force():
+    """Small and very large triangles together (pruned in separate radius classes): every distance is the brute
+    force minimum over all triangles, each computed exactly."""
+    rng = np.random.default_rng(5)
+    small = rng.uniform(-1, 1, (300, 1, 3)) + rng.normal(0, 0.01, (300, 3, 3))
+    large = rng.uniform(-1, 1, (3, 1, 3)) + rng.normal(0, 3.0, (3, 3, 3))
+    tri = np.concatenate([small, large])
+    v, f = tri.reshape(-1, 3), np.arange(3 * len(tri)).reshape(-1, 3)
+    q = rng.uniform(-3, 3, (400, 3))
+    got = point_mesh_distance(q, v, f, chunk=128)
+    brute = np.stack([np.linalg.norm(q - _closest_point_on_triangles(q, *[np.broadcast_to(t[k], q.shape)
+                                                                        for k in range(3)]), axis=1) for t in tri], 1)
+    np.testing.assert_allclose(got, brute.min(1), atol=EXACT64)
+    assert (brute.argmin(1) >= 300).any() and (brute.argmin(1) < 300).any()  # both classes decide some points

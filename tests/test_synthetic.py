@@ -503,8 +503,42 @@ def test_background_full_ground_reaches_the_shell():
     assert [p.name for p in detail] == [p.name for p in full]
     for a, b in zip(detail, full):
         assert (a.vertices.shape == b.vertices.shape and np.array_equal(a.vertices, b.vertices)) == (a.name != "ground")
+    ground, shell = full[-2], full[-1]
+    assert (ground.name, shell.name) == ("ground", "shell")
+    # nothing of the ground behind the shell (where no camera sees it but the scored region's margin reaches),
+    # and its rim on the shell: the largest radius of every 10-degree sector is the shell's there (5.90-5.93)
+    cut = M.clip_to_convex(ground, shell, center=(0, 0, -0.9))
+    np.testing.assert_allclose(cut.vertices, ground.vertices, atol=1e-9)
+    r = np.linalg.norm(ground.vertices[:, :2], axis=1)
+    sector = np.floor((np.degrees(np.arctan2(ground.vertices[:, 1], ground.vertices[:, 0])) + 180) / 10).astype(int)
+    rim = np.array([r[sector == k].max() for k in range(36)])
+    assert rim.min() > 5.85 and rim.max() < np.sqrt(36 - 0.81) + 1e-9
     below_detail, shell_detail = _shell_pixels_below_ground("background_detail")
     below_full, shell_full = _shell_pixels_below_ground("background_full")
     assert shell_detail > 1000 and shell_full > 1000
     assert below_detail > 100  # the gap is seen
     assert below_full == 0
+
+
+def test_clip_to_convex_moves_outside_vertices_onto_the_hull():
+    """A 4 x 4 plane at z = 0 cut to a unit-half-size cube (either winding): vertices outside land on the cube's
+    side along the line to the centre, faces wholly outside go, faces inside are untouched."""
+    plane = M.grid_plane(center=(0, 0, 0), half_size=2.0, cell=0.5)
+    for cube in (M.box(size=(2, 2, 2)), M.sphere(radius=1.0, subdivisions=0, inward=True)):
+        cut = M.clip_to_convex(plane, cube, center=(0, 0, 0))
+        inside = np.all(np.abs(plane.vertices) <= 1.0 + 1e-12, axis=1) if cube.name == "box" else None
+        if inside is not None:
+            np.testing.assert_array_equal(cut.vertices[inside], plane.vertices[inside])
+            moved = cut.vertices[~inside]
+            np.testing.assert_allclose(np.abs(moved[:, :2]).max(axis=1), 1.0, atol=1e-12)  # on the cube's sides
+            cos = np.einsum("ij,ij->i", moved, plane.vertices[~inside]) / (
+                np.linalg.norm(moved, axis=1) * np.linalg.norm(plane.vertices[~inside], axis=1))
+            np.testing.assert_allclose(cos, 1.0, atol=1e-12)  # along the line to the centre
+            np.testing.assert_array_equal(cut.faces, plane.faces[inside[plane.faces].any(axis=1)])
+            assert 32 < len(cut.faces) < len(plane.faces)
+        else:  # an inward-wound icosahedron in the unit sphere (inradius 0.7947): moved vertices between the two
+            r = np.linalg.norm(cut.vertices, axis=1)
+            moved = np.linalg.norm(plane.vertices, axis=1) > 1.0
+            assert np.all(r <= 1.0 + 1e-12) and np.all(r[moved] >= 0.79)
+    with pytest.raises(ValueError, match="not inside"):
+        M.clip_to_convex(plane, M.box(size=(2, 2, 2)), center=(5, 0, 0))

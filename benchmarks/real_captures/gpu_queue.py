@@ -39,7 +39,7 @@ CROPS = {"garden": (-2.5, -2.5, -0.5, 2.5, 2.5, 1.5), "background": (-2.0, -2.0,
 
 
 def steps(state: Path, scenes: list[str], resolution: tuple[int, int], iterations: int, views: int | None = None,
-          points: Path | None = None, min_views: int = 0):
+          points: Path | None = None, min_views: int = 0, overrides: tuple[str, ...] = ()):
     """``[(name, command, min_seconds_left, is_training)]`` in order; a scene ``NAME:N`` trains N iterations.
 
     ``min_views`` K > 1 adds a second extraction with ``--min-views K`` (``RUN/mesh_views<K>.ply``, pictures for
@@ -63,7 +63,8 @@ def steps(state: Path, scenes: list[str], resolution: tuple[int, int], iteration
             out.append((f"{s}:copy", ["sh", "-c", f"cp -r $(ls -d .data/{src} .data2/{src} /tmp/gofdata/{src} 2>/dev/null "
                                                  f"| head -1) {scene}"], 10, False))
         out.append((f"{s}:train", [PY, "-m", "gof_warp.train", str(scene), "--out", str(run), "--iterations",
-                                   str(iters.get(s, iterations)), "checkpoint_every=1000", "--resume"], 120, True))
+                                   str(iters.get(s, iterations)), "checkpoint_every=1000", *overrides, "--resume"], 120,
+                    True))
         if s == "dtu":  # the trained DTU geometry comes back for the extraction benchmarks (benchmarks/extract)
             out.append((f"{s}:pack", [PY, str(HERE.parent / "extract" / "pack_model.py"), "pack", str(run),
                                       str(state / "big" / f"{s}_geometry.npz")], 30, False))
@@ -113,6 +114,8 @@ def main() -> int:
     ap.add_argument("--views", type=int, default=SYNTHETIC_VIEWS,
                     help="training views of the synthetic scenes (default %(default)s, the real-captures issue's protocol; "
                          "0: the preset's own, 40 for the background scenes)")
+    ap.add_argument("--train-override", action="append", default=[], metavar="KEY=VALUE",
+                    help="a config override for every training (repeatable), e.g. seed=1")
     ap.add_argument("--min-views", type=int, default=0,
                     help="also extract with `extract --min-views K` (K > 1) and score that mesh beside the default")
     ap.add_argument("--points", type=Path, default=None,
@@ -127,7 +130,7 @@ def main() -> int:
     for s in names:
         (state / "results" / s).mkdir(parents=True, exist_ok=True)
     for name, cmd, need, training in steps(state, scenes, tuple(a.resolution), a.iterations, a.views,
-                                         a.points, a.min_views):
+                                         a.points, a.min_views, tuple(a.train_override)):
         marker = state / "done" / name.replace(":", "_")
         if marker.exists():
             continue

@@ -289,6 +289,33 @@ def grid_plane(center=(0, 0, 0), half_size=4.0, cell=0.1, material=None, name="g
     return _part(name, *_grid(P, N, False, False), material or Material(), role)
 
 
+def clip_to_convex(mesh: SyntheticMesh, hull: SyntheticMesh, center) -> SyntheticMesh:
+    """``mesh`` cut to the inside of the convex closed mesh ``hull``: each vertex outside moves towards
+    ``center`` (a point inside ``hull``) onto its boundary, and faces whose three vertices all moved are dropped.
+
+    A ground that reaches a background shell this way meets it with no gap (up to the chords between moved
+    vertices, ``cell**2 / (8 * radius)``) and has nothing behind it that a camera cannot see.
+    """
+    c = np.asarray(center, dtype=np.float64)
+    area = face_normals(hull.vertices, hull.faces)
+    v0 = hull.vertices[hull.faces[:, 0]]
+    inner = hull.vertices.mean(axis=0)  # inside a convex closed mesh
+    n = area * np.sign(np.einsum("ij,ij->i", area, v0 - inner))[:, None]  # outward whichever way hull is wound
+    offset = np.einsum("ij,ij->i", n, v0 - c)  # > 0: c lies inside every face plane
+    if np.any(offset <= 0):
+        raise ValueError(f"clip_to_convex: center {c.tolist()} is not inside the hull {hull.name!r}")
+    d = mesh.vertices - c
+    reach = d @ n.T  # [V, F]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(reach > 0, offset[None] / reach, np.inf).min(axis=1)
+    moved = t < 1.0
+    vertices = mesh.vertices.copy()
+    vertices[moved] = c + t[moved, None] * d[moved]
+    keep = ~moved[mesh.faces].all(axis=1)
+    return replace(mesh, vertices=vertices, faces=mesh.faces[keep],
+                   corner_uvs=None if mesh.corner_uvs is None else mesh.corner_uvs[keep])
+
+
 def plane(center=(0, 0, 0), half_size=4.0, material=None, name="ground", role="background") -> SyntheticMesh:
     """A square facing +z (visible from both sides: shading turns normals to the camera)."""
     h = float(half_size)

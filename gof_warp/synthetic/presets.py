@@ -162,14 +162,16 @@ def _thin(_path):
     return parts
 
 
-def _background(_path, shell=_SHELL, ground_half_size=4.2):
-    """The composition resting on a textured ground plane inside a textured background shell."""
+def _background(_path, shell=_SHELL, ground_half_size=4.2, cut_ground_to_shell=False):
+    """The composition resting on a textured ground plane inside a textured background shell (the ground cut to
+    the shell's inside with ``cut_ground_to_shell``)."""
     ground_z = -0.9
     parts = _composition(z0=0.005)  # 5 mm above the ground: touching parts would hide surfaces
-    return parts + [
-        M.grid_plane(center=(0, 0, ground_z), half_size=ground_half_size, cell=0.1, material=_GROUND),
-        M.sphere(radius=6.0, subdivisions=3, material=shell, name="shell", inward=True, role="background"),
-    ]
+    shell_mesh = M.sphere(radius=6.0, subdivisions=3, material=shell, name="shell", inward=True, role="background")
+    ground = M.grid_plane(center=(0, 0, ground_z), half_size=ground_half_size, cell=0.1, material=_GROUND)
+    if cut_ground_to_shell:
+        ground = M.clip_to_convex(ground, shell_mesh, center=(0, 0, ground_z))
+    return parts + [ground, shell_mesh]
 
 
 def _background_detail(path):
@@ -177,14 +179,14 @@ def _background_detail(path):
     return _background(path, shell=_SHELL_DETAIL)
 
 
-# The shell (radius 6) crosses the ground's height z = -0.9 at radius 5.93: a ground of half-size 6 reaches it all
-# round (its corners pass behind the shell, where no camera looks).
+# The shell (radius 6) crosses the ground's height z = -0.9 at radius 5.93: a ground of half-size 6, cut to the
+# shell, reaches it all round with nothing behind it.
 GROUND_TO_SHELL_HALF_SIZE = 6.0
 
 
 def _background_full(path):
     """``background_detail`` with the ground reaching the shell: no gap below the ground's edge."""
-    return _background(path, shell=_SHELL_DETAIL, ground_half_size=GROUND_TO_SHELL_HALF_SIZE)
+    return _background(path, shell=_SHELL_DETAIL, ground_half_size=GROUND_TO_SHELL_HALF_SIZE, cut_ground_to_shell=True)
 
 
 _LAWN = M.Material(color_a=(0.12, 0.22, 0.06), color_b=(0.8, 0.75, 0.45), noise_scale=3.0, checker_scale=2.0,
