@@ -498,11 +498,13 @@ def _shell_pixels_below_ground(preset_name: str, n_views: int = 16, size: int = 
 def test_background_full_ground_reaches_the_shell():
     """``background_full`` closes the gap between ``background_detail``'s ground square (half-size 4.2) and the
     shell (radius 5.93 at the ground's height): its cameras see no shell below the ground's height, where
-    ``background_detail``'s see it through the gap at grazing angles. Everything but the ground is unchanged."""
+    ``background_detail``'s see it through the gap at grazing angles. The ground is cut to the shell and the shell
+    to above the ground (nothing hidden behind either); every other part is unchanged."""
     detail, full = get_preset("background_detail").build(None), get_preset("background_full").build(None)
     assert [p.name for p in detail] == [p.name for p in full]
     for a, b in zip(detail, full):
-        assert (a.vertices.shape == b.vertices.shape and np.array_equal(a.vertices, b.vertices)) == (a.name != "ground")
+        same = a.vertices.shape == b.vertices.shape and np.array_equal(a.vertices, b.vertices)
+        assert same == (a.name not in ("ground", "shell"))
     ground, shell = full[-2], full[-1]
     assert (ground.name, shell.name) == ("ground", "shell")
     # nothing of the ground behind the shell (where no camera sees it but the scored region's margin reaches),
@@ -513,6 +515,7 @@ def test_background_full_ground_reaches_the_shell():
     sector = np.floor((np.degrees(np.arctan2(ground.vertices[:, 1], ground.vertices[:, 0])) + 180) / 10).astype(int)
     rim = np.array([r[sector == k].max() for k in range(36)])
     assert rim.min() > 5.85 and rim.max() < np.sqrt(36 - 0.81) + 1e-9
+    assert shell.vertices[np.unique(shell.faces)][:, 2].min() >= -0.9 - 1e-12
     below_detail, shell_detail = _shell_pixels_below_ground("background_detail")
     below_full, shell_full = _shell_pixels_below_ground("background_full")
     assert shell_detail > 1000 and shell_full > 1000
@@ -542,3 +545,29 @@ def test_clip_to_convex_moves_outside_vertices_onto_the_hull():
             assert np.all(r <= 1.0 + 1e-12) and np.all(r[moved] >= 0.79)
     with pytest.raises(ValueError, match="not inside"):
         M.clip_to_convex(plane, M.box(size=(2, 2, 2)), center=(5, 0, 0))
+
+
+def test_cut_below_keeps_the_part_above_the_plane():
+    """A unit sphere cut at z = 0.3: every vertex at z >= 0.3, the cut rim on the plane and on the sphere's
+    faceted surface (each new corner on an original edge), the area that of the faces' parts above the plane
+    (a hemisphere-like cap: between the cap of the inscribed and of the circumscribed sphere), winding kept."""
+    sphere = M.sphere(radius=1.0, subdivisions=3)
+    cut = M.cut_below(sphere, 0.3)
+    assert cut.vertices[np.unique(cut.faces)][:, 2].min() >= 0.3 - 1e-12
+    rim = cut.vertices[len(sphere.vertices):]
+    np.testing.assert_allclose(rim[:, 2], 0.3, atol=1e-12)
+    assert np.all(np.linalg.norm(rim, axis=1) <= 1.0 + 1e-12) and np.all(np.linalg.norm(rim, axis=1) > 0.98)
+    area = np.linalg.norm(M.face_normals(cut.vertices, cut.faces), axis=1).sum() / 2
+    assert 2 * np.pi * 0.7 * 0.97 < area < 2 * np.pi * 0.7  # cap area 2*pi*R*h of the unit sphere, faceted
+    outward = np.einsum("ij,ij->i", M.face_normals(cut.vertices, cut.faces), cut.vertices[cut.faces].mean(axis=1))
+    assert np.all(outward > 0)  # the sphere's outward winding survives the cut
+    assert cut.corner_uvs is None and sphere.corner_uvs is None
+    tube = M.cylinder((0, 0, 0), (0, 0, 1), 0.5)  # one texture coordinate runs along its length, one around
+    tube_cut = M.cut_below(tube, 0.25)
+    assert tube_cut.corner_uvs.shape == (len(tube_cut.faces), 3, 2)
+    on_rim = np.isclose(tube_cut.vertices[tube_cut.faces][..., 2], 0.25)
+    spans = sorted(np.ptp(tube_cut.corner_uvs[on_rim], axis=0))
+    assert on_rim.any() and spans[0] < 1e-9 and spans[1] > 0.5  # the cut: one length coordinate all round
+    whole = M.cut_below(sphere, -2.0)
+    np.testing.assert_array_equal(whole.faces, sphere.faces)
+    assert len(M.cut_below(sphere, 2.0).faces) == 0

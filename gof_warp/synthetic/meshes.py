@@ -289,6 +289,49 @@ def grid_plane(center=(0, 0, 0), half_size=4.0, cell=0.1, material=None, name="g
     return _part(name, *_grid(P, N, False, False), material or Material(), role)
 
 
+def cut_below(mesh: SyntheticMesh, z0: float) -> SyntheticMesh:
+    """The part of ``mesh`` at ``z >= z0``: faces below go, faces across the plane are cut on it (one or two
+    triangles, winding kept; the new corners' normals and texture coordinates interpolated along the edge)."""
+    V, F = mesh.vertices, mesh.faces
+    uvs = mesh.corner_uvs if mesh.corner_uvs is not None else np.zeros((len(F), 3, 2))
+    above = V[F][:, :, 2] >= z0  # [F, 3]
+    n_above = above.sum(axis=1)
+    out_v, out_n, out_f, out_uv = [V], [mesh.vertex_normals], [F[n_above == 3]], [uvs[n_above == 3]]
+    base = len(V)
+
+    def edge_point(f, uv, a, b):  # where corner a -> corner b crosses the plane, per face
+        za, zb = V[f[:, a], 2], V[f[:, b], 2]
+        t = ((z0 - za) / (zb - za))[:, None]
+        na, nb = mesh.vertex_normals[f[:, a]], mesh.vertex_normals[f[:, b]]
+        point = V[f[:, a]] + t * (V[f[:, b]] - V[f[:, a]])
+        return point, _normalize(na + t * (nb - na)), uv[:, a] + t * (uv[:, b] - uv[:, a])
+
+    for count in (1, 2):  # rotate each face so that its odd corner (the one on its own side) comes first
+        sel = np.flatnonzero(n_above == count)
+        if len(sel) == 0:
+            continue
+        odd = np.argmax(above[sel] == (count == 1), axis=1)
+        roll = (odd[:, None] + np.arange(3)[None]) % 3
+        f = np.take_along_axis(F[sel], roll, axis=1)
+        uv = np.take_along_axis(uvs[sel], roll[:, :, None], axis=1)
+        p01, n01, uv01 = edge_point(f, uv, 0, 1)
+        p02, n02, uv02 = edge_point(f, uv, 0, 2)
+        k = len(sel)
+        i01, i02 = base + np.arange(k), base + k + np.arange(k)
+        base += 2 * k
+        out_v += [p01, p02]
+        out_n += [n01, n02]
+        if count == 1:  # corner 0 above: the triangle (0, p01, p02)
+            out_f.append(np.stack([f[:, 0], i01, i02], 1))
+            out_uv.append(np.stack([uv[:, 0], uv01, uv02], 1))
+        else:  # corner 0 below: the quad (p01, 1, 2, p02) as two triangles
+            out_f += [np.stack([i01, f[:, 1], f[:, 2]], 1), np.stack([i01, f[:, 2], i02], 1)]
+            out_uv += [np.stack([uv01, uv[:, 1], uv[:, 2]], 1), np.stack([uv01, uv[:, 2], uv02], 1)]
+    return replace(mesh, vertices=np.concatenate(out_v), vertex_normals=np.concatenate(out_n),
+                   faces=np.concatenate(out_f).astype(np.int64),
+                   corner_uvs=None if mesh.corner_uvs is None else np.concatenate(out_uv))
+
+
 def clip_to_convex(mesh: SyntheticMesh, hull: SyntheticMesh, center) -> SyntheticMesh:
     """``mesh`` cut to the inside of the convex closed mesh ``hull``: each vertex outside moves towards
     ``center`` (a point inside ``hull``) onto its boundary, and faces whose three vertices all moved are dropped.

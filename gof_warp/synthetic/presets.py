@@ -163,14 +163,16 @@ def _thin(_path):
 
 
 def _background(_path, shell=_SHELL, ground_half_size=4.2, cut_ground_to_shell=False):
-    """The composition resting on a textured ground plane inside a textured background shell (the ground cut to
-    the shell's inside with ``cut_ground_to_shell``)."""
+    """The composition resting on a textured ground plane inside a textured background shell (with
+    ``cut_ground_to_shell`` the ground cut to the shell's inside and the shell to above the ground: they meet on
+    one polygon)."""
     ground_z = -0.9
     parts = _composition(z0=0.005)  # 5 mm above the ground: touching parts would hide surfaces
     shell_mesh = M.sphere(radius=6.0, subdivisions=3, material=shell, name="shell", inward=True, role="background")
     ground = M.grid_plane(center=(0, 0, ground_z), half_size=ground_half_size, cell=0.1, material=_GROUND)
-    if cut_ground_to_shell:
+    if cut_ground_to_shell:  # and the shell to the ground: nothing of either hidden behind the other
         ground = M.clip_to_convex(ground, shell_mesh, center=(0, 0, ground_z))
+        shell_mesh = M.cut_below(shell_mesh, ground_z)
     return parts + [ground, shell_mesh]
 
 
@@ -179,8 +181,8 @@ def _background_detail(path):
     return _background(path, shell=_SHELL_DETAIL)
 
 
-# The shell (radius 6) crosses the ground's height z = -0.9 at radius 5.93: a ground of half-size 6, cut to the
-# shell, reaches it all round with nothing behind it.
+# The shell (radius 6) crosses the ground's height z = -0.9 at radius 5.93: a ground of half-size 6 cut to the
+# shell, and the shell cut at the ground, meet all round with nothing hidden behind either.
 GROUND_TO_SHELL_HALF_SIZE = 6.0
 
 
