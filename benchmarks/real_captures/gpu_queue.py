@@ -7,7 +7,7 @@ at the budget is stopped (its checkpoints stay). Results land in ``--state/resul
 ``$OUT/results.tar.gz`` at the end of every call. Several queues (one ``--state`` each) can share one GPU:
 ``queue_parallel.sh``.
 
-Scenes: ``garden``, ``background`` and ``background_detail`` (synthetic, exact GT: train with the preset ``train``
+Scenes: ``garden``, ``background``, ``background_detail`` and ``background_full`` (synthetic, exact GT: train with the preset ``train``
 picks, extract, score the seen region and a ground-and-objects crop, probe the ground of the field) and ``dtu``, ``can``,
 ``fox`` (carried in ``.data/`` or parked in ``/tmp/gofdata``: train with the picked preset, extract, pictures). The GPU machine has no pycolmap: with
 ``--points DIR`` a synthetic scene gets ``DIR/<scene>/points3d.ply`` (points triangulated from the known poses of the
