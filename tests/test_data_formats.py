@@ -292,7 +292,7 @@ def test_blender_missing_frame_image_and_corrupt_colmap_model(tmp_path):
         _load(root)
     croot = make_colmap_scene(tmp_path / "c", n=3)
     (croot / "sparse" / "0" / "points3D.txt").write_text("garbage\n")
-    with pytest.raises(SceneError, match=r"sparse/0: cannot read the COLMAP model"):
+    with pytest.raises(SceneError, match=r"sparse/0/points3D.txt: cannot parse a 3D point from line 'garbage'"):
         _load(croot)
 
 

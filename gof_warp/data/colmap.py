@@ -1,4 +1,4 @@
-"""COLMAP sparse models (binary or text, read by ``pycolmap.Reconstruction``).
+"""COLMAP sparse models (binary or text, read by :mod:`gof_warp.data.colmap_model`: no pycolmap needed).
 
 Layout: ``SCENE/sparse/0/`` (or ``SCENE/sparse/``, or ``SCENE`` itself) holds ``cameras``, ``images``,
 ``points3D`` as ``.bin`` or ``.txt``; the images are in ``SCENE/<images>/`` (``config.images``, default
@@ -24,6 +24,7 @@ import numpy as np
 from ..camera import Camera
 from ..errors import SceneError
 from . import images as imio
+from .colmap_model import ColmapImage, quaternion_to_rotation, read_model
 from .plan import ScenePlan, ViewPlan
 from .undistort import LensCamera, undistorted_intrinsics
 
@@ -63,29 +64,16 @@ def lens_from_colmap(model: str, params, width: int, height: int, where: str) ->
     )
 
 
-def _pose(image, where: str) -> tuple[np.ndarray, np.ndarray]:
-    """World-to-camera ``(R, t)`` of a pycolmap image (``cam_from_world`` is a method in pycolmap ≥ 3.12).
-
-    SceneError for a zero or non-finite quaternion: pycolmap turns a zero quaternion into the identity
-    rotation, which would silently put the camera at the origin looking down +z."""
-    cfw = image.cam_from_world
-    cfw = cfw() if callable(cfw) else cfw
-    q = np.asarray(cfw.rotation.quat, dtype=np.float64)
+def _pose(image: ColmapImage, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """World-to-camera ``(R, t)`` of a COLMAP image; SceneError for a zero or non-finite quaternion (no rotation:
+    normalising it would silently put the camera anywhere)."""
+    q = np.asarray(image.qvec, dtype=np.float64)
     if not np.all(np.isfinite(q)) or not np.linalg.norm(q) > 1e-8:
         raise SceneError(f"{where}: the rotation quaternion {q.tolist()} is zero or not finite (no valid pose)")
-    m = np.asarray(cfw.matrix(), dtype=np.float64)
-    return m[:, :3], m[:, 3]
-
-
-def read_reconstruction(model_dir: Path):
-    """``pycolmap.Reconstruction`` of ``model_dir``; SceneError naming the folder when it cannot be read."""
-    import pycolmap
-
-    try:
-        return pycolmap.Reconstruction(str(model_dir))
-    except Exception as e:  # pycolmap raises ValueError/IndexError/RuntimeError for bad files
-        files = ", ".join(sorted(p.name for p in model_dir.iterdir() if p.suffix in (".bin", ".txt")))
-        raise SceneError(f"{model_dir}: cannot read the COLMAP model ({files}): {e}") from None
+    t = np.asarray(image.tvec, dtype=np.float64)
+    if not np.all(np.isfinite(t)):
+        raise SceneError(f"{where}: the translation {t.tolist()} is not finite (no valid pose)")
+    return quaternion_to_rotation(q), t
 
 
 def _images_dir(root: Path, model_dir: Path, images: str) -> Path:
@@ -100,14 +88,12 @@ def read_colmap(root: Path, config) -> ScenePlan:
     model_dir = find_model_dir(root)
     if model_dir is None:
         raise SceneError(f"{root}: no COLMAP model (cameras.bin/.txt in sparse/0, sparse or the folder)")
-    rec = read_reconstruction(model_dir)
+    rec = read_model(model_dir)
     cam_file = next((model_dir / f for f in _MODEL_FILES if (model_dir / f).is_file()), model_dir)
     pose_file = next((model_dir / f for f in ("images.bin", "images.txt") if (model_dir / f).is_file()), model_dir)
     image_dir = _images_dir(root, model_dir, config.images)
     warnings = []
-    registered = [im for im in rec.images.values() if im.has_pose and "sky_mask" not in im.name]
-    if len(registered) < len(rec.images):
-        warnings.append(f"{len(rec.images) - len(registered)} image(s) in the model have no pose and are skipped")
+    registered = [im for im in rec.images.values() if "sky_mask" not in im.name]  # the file holds posed images only
     if not registered:
         raise SceneError(f"{model_dir}: the COLMAP model has no registered images")
     views, models = [], []
@@ -116,7 +102,7 @@ def read_colmap(root: Path, config) -> ScenePlan:
         cam = rec.cameras[im.camera_id]
         if im.camera_id not in lenses:
             where = f"{cam_file} (camera {im.camera_id})"
-            lenses[im.camera_id] = lens_from_colmap(cam.model.name, cam.params, cam.width, cam.height, where)
+            lenses[im.camera_id] = lens_from_colmap(cam.model, cam.params, cam.width, cam.height, where)
         lens = lenses[im.camera_id]
         K = undistorted_intrinsics(lens, config.undistort) if lens.has_distortion else (lens.fx, lens.fy, lens.cx, lens.cy)
         R, t = _pose(im, f"{pose_file} (image {im.name})")
@@ -134,9 +120,7 @@ def read_colmap(root: Path, config) -> ScenePlan:
     if any(v.lens is not None for v in views):
         warnings.append(f"lens distortion removed ({config.undistort!r} pinhole K)")
     points = colors = None
-    if len(rec.points3D):
-        pts = list(rec.points3D.values())
-        points = np.array([p.xyz for p in pts], dtype=np.float64)
-        colors = np.array([p.color for p in pts], dtype=np.uint8)
+    if len(rec.xyz):
+        points, colors = rec.xyz, rec.rgb
     return ScenePlan(format="colmap", source=root, views=views, points=points, point_colors=colors,
                      camera_models=sorted(set(models)), warnings=warnings)  # fmt: skip
