@@ -154,9 +154,9 @@ def _merge(a: dict, b: dict) -> dict:
 
 
 def preset_overrides(preset: str) -> dict:
-    """Training overrides a synthetic preset needs: the ``background`` preset's ground plane and shell reach
-    radius 6 (``garden``'s 8), so its random initialisation must too (the presets' init boxes are ±1 or ±1.3)."""
-    reach = {"background": 6.0, "garden": 8.0}.get(preset)
+    """Training overrides a synthetic preset needs: the ``background`` presets' ground plane and shell reach
+    radius 6 (``garden``'s 8), so their random initialisation must too (the presets' init boxes are ±1 or ±1.3)."""
+    reach = {"background": 6.0, "background_detail": 6.0, "background_full": 6.0, "garden": 8.0}.get(preset)
     return {"model": {"init_box": [-reach] * 3 + [reach] * 3}} if reach else {}
 
 

@@ -571,3 +571,18 @@ def test_cut_below_keeps_the_part_above_the_plane():
     whole = M.cut_below(sphere, -2.0)
     np.testing.assert_array_equal(whole.faces, sphere.faces)
     assert len(M.cut_below(sphere, 2.0).faces) == 0
+
+
+def test_bench_init_box_reaches_every_background_presets_shell():
+    """A bench run of any preset with a shell starts its random points out to the shell (each preset's largest
+    vertex radius), not in the ±1.3 box of the object presets."""
+    from gof_warp.bench_runs import preset_overrides
+
+    for name in list_presets():
+        parts = get_preset(name).build(None) if name != "spot" else []
+        shell = [p for p in parts if p.name == "shell"]
+        if not shell:
+            assert preset_overrides(name) == {}
+            continue
+        box = preset_overrides(name)["model"]["init_box"]
+        assert box[3] >= np.abs(shell[0].vertices).max() - 1e-9, name
