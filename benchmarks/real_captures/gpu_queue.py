@@ -153,8 +153,12 @@ def main() -> int:
                 except subprocess.TimeoutExpired:
                     p.kill()
                     p.wait()
-                print(f"[queue] {name}: stopped at the budget after {time.time() - t0:.0f} s (resumes next call)",
-                      flush=True)
+                if p.returncode == 0:  # it finished before the interrupt took effect (130 when it stopped early)
+                    marker.write_text("ok\n")
+                    print(f"[queue] {name}: rc 0 in {time.time() - t0:.0f} s, at the budget", flush=True)
+                else:
+                    print(f"[queue] {name}: stopped at the budget after {time.time() - t0:.0f} s (resumes next call)",
+                          flush=True)
                 break
         print(f"[queue] {name}: rc {rc} in {time.time() - t0:.0f} s", flush=True)
         if rc != 0:  # no marker: the next call tries again
