@@ -14,12 +14,21 @@ Names are imported on first use, so ``import gof_warp`` stays cheap (torch and W
 from __future__ import annotations
 
 import importlib
+import sys
+import warnings
 
 from .camera import Camera, camera_extent, look_at
 from .errors import GofError, ModelError, PlyError, SceneError
 from .scene import Scene, View
 
 __version__ = "0.1.0"
+
+# Pillow's C module must load before pycolmap's wheel, or Pillow's PNG writer aborts the process ("double free",
+# pycolmap 4.2.1): importing it here makes any later pycolmap import safe; an earlier one gets a warning.
+if "pycolmap" in sys.modules and "PIL._imaging" not in sys.modules:
+    warnings.warn("pycolmap was imported before Pillow: writing PNG files (gof_warp's pictures) may abort the "
+                  "process; import gof_warp (or PIL.Image) before pycolmap", RuntimeWarning, stacklevel=2)
+import PIL.Image  # noqa: E402,F401
 
 _LAZY = {
     "load_scene": "data", "DataConfig": "data", "detect_format": "data",

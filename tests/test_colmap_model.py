@@ -88,3 +88,22 @@ def test_images_of_a_missing_camera_and_short_camera_lines(tmp_path):
     (model_dir / "cameras.txt").write_text(first.replace("1 PINHOLE", "7 PINHOLE", 1) + "\n")
     with pytest.raises(SceneError, match=r"images.txt: images refer to camera id\(s\) \[1, 2, 3\]"):
         read_model(model_dir)
+
+
+def _python(code: str):
+    import subprocess
+    import sys
+
+    return subprocess.run([sys.executable, "-W", "always::RuntimeWarning", "-c", code], capture_output=True,
+                          text=True, timeout=120, cwd=Path(__file__).resolve().parents[1])
+
+
+def test_pycolmap_after_gof_warp_leaves_png_writing_working_and_before_it_warns(tmp_path):
+    """With pycolmap's wheel loaded before Pillow's C module, Pillow's PNG writer aborts the process (pycolmap 4.2.1).
+    ``import gof_warp`` loads Pillow first, so a later pycolmap import is safe; an earlier one is warned about."""
+    save = ("import numpy as np; from PIL import Image; "
+            f"Image.fromarray(np.zeros((64, 64, 3), np.uint8)).save(r'{tmp_path}/x.png')")
+    ok = _python(f"import gof_warp, pycolmap; {save}; print('saved')")
+    assert ok.returncode == 0 and "saved" in ok.stdout, ok.stderr[-500:]
+    warned = _python("import pycolmap, gof_warp")
+    assert warned.returncode == 0 and "pycolmap was imported before Pillow" in warned.stderr

@@ -25,10 +25,19 @@ log = logging.getLogger("gof_warp.data.sfm")  # the logger of the public entry: 
 MIN_PAIR_MATCHES = 4  # fewer raw matches than this in a pair are mostly chance (ratio-test survivors)
 
 
+def _import_pycolmap():
+    """pycolmap, imported after Pillow's C module: with pycolmap's wheel loaded first, Pillow's PNG writer aborts the
+    process ("double free", measured with pycolmap 4.2.1), so this process could no longer write its pictures."""
+    import PIL.Image  # noqa: F401  (first: see above)
+    import pycolmap
+
+    return pycolmap
+
+
 @contextlib.contextmanager
 def _quiet_colmap():
     """Keep COLMAP's (glog) INFO chatter off stderr while it runs; restore the level afterwards."""
-    import pycolmap
+    pycolmap = _import_pycolmap()
 
     old = pycolmap.logging.minloglevel
     pycolmap.logging.minloglevel = max(old, 1)
@@ -50,7 +59,7 @@ def _write_images(views: list[View], folder: Path) -> list[str]:
 
 
 def _run(views: list[View], config: SfmConfig, work: Path, num_threads: int) -> SfmResult:
-    import pycolmap
+    pycolmap = _import_pycolmap()
 
     seconds: dict[str, float] = {}
     tick = time.perf_counter()
