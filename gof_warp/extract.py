@@ -27,7 +27,9 @@ from .opacity_field import OpacityFieldConfig
 from .tetra import GRIDS, TetraConfig
 
 
-def main(argv=None) -> int:
+def parse_args(argv=None) -> argparse.Namespace:
+    """The command's arguments (``argv``: a list, or None for ``sys.argv``), for :func:`main` and
+    :func:`extract_run`."""
     ap = argparse.ArgumentParser(prog="python -m gof_warp.extract", description="Mesh extraction from trained Gaussians (GOF): tetra, cubes or tsdf.")
     ap.add_argument("run", help="training output folder, or a 3DGS-layout Gaussian PLY (with --scene)")
     ap.add_argument("--scene", default=None, help="scene folder for the cameras (and masks for TSDF)")
@@ -77,7 +79,11 @@ def main(argv=None) -> int:
     ap.add_argument("--no-pictures", action="store_true",
                     help="do not write RUN/pictures/mesh_<stem>.png (views of the model and the shaded mesh)")
     ap.add_argument("--quiet", action="store_true")
-    a = ap.parse_args(argv)
+    return ap.parse_args(argv)
+
+
+def main(argv=None) -> int:
+    a = parse_args(argv)
     configure_output(a.quiet)
 
     def body():

@@ -8,6 +8,7 @@ import sys
 import tempfile
 import time
 from datetime import timedelta
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -106,12 +107,29 @@ def _spawn_two(*bodies) -> dict:
 
 
 @pytest.fixture(scope="module")
-def two_ranks(scene):
+def two_ranks(scene, one_process_run, tmp_path_factory):
     """The two-rank bodies below, run in turn by ONE pair of spawned processes (a pair costs ~12 s of CI: two
     interpreters importing torch and the package); each test reads its body's results. The late-rank body runs
     last: the ranks enter it together, just out of the previous body's collectives."""
+    out = tmp_path_factory.mktemp("two_ranks_extract") / "two_delaunay.ply"
     return _spawn_two(("drift", _drift), ("rows", _other_points),
+                      ("extract", functools.partial(_extract_delaunay, str(one_process_run), str(out))),
                       ("late", functools.partial(_late_rank_one, str(scene))))
+
+
+def _extract_common(run: Path, grid: str) -> list[str]:
+    common = [str(run), "--grid", grid, "--binary-steps", "3", "--device", "cpu", "--no-pictures", "--quiet"]
+    # this tiny model's few large Gaussians need cells finer than the default (0.4: ~330 faces; 0.2 took 3x longer)
+    return common + (["--cell-factor", "0.4"] if grid == "octree" else [])
+
+
+def _extract_delaunay(run, out, ranks, result):
+    """The extract command's work on the Delaunay grid by two ranks of the spawned group (the octree grid goes
+    through torchrun and the CLI's own process-group set-up in the test below)."""
+    from gof_warp.extract import extract_run, parse_args
+
+    extract_run(parse_args([*_extract_common(run, "delaunay"), "--out", out]), ranks, "cpu")
+    result["mesh"] = out
 
 
 def _drift(ranks, result):
@@ -134,30 +152,34 @@ def test_views_are_shared_out_and_bad_splits_refused(scene, tmp_path):
         Trainer(load_scene(scene), cfg, tmp_path / "r", "cpu", ranks=Ranks(rank=0, world=2))
 
 
-def test_two_processes_extract_the_one_process_mesh(one_process_run, tmp_path):
-    """torchrun extraction: the grid points' field shared out by views (the minimum over ranks is exact), the marching
-    split by space (each rank its share of the tetrahedra, joined by edge key on rank 0), the search by views (every
-    rank searches the union of the crossing edges over its views), rank 0 writes; the mesh is the one-process mesh exactly on both grids: the octree (the default, built alike on every
-    rank) and the Delaunay grid (computed on rank 0 and broadcast)."""
+def test_two_processes_extract_the_one_process_mesh(one_process_run, two_ranks, tmp_path):
+    """Extraction by two processes: the grid points' field shared out by views (the minimum over ranks is exact), the
+    marching split by space (each rank its share of the tetrahedra, joined by edge key on rank 0), the search by views
+    (every rank searches the union of the crossing edges over its views), rank 0 writes; the mesh is the one-process
+    mesh exactly on both grids: the octree (the default, built alike on every rank; the CLI under torchrun) and the
+    Delaunay grid (computed on rank 0 and broadcast; the command's work in the spawned pair of ``two_ranks``)."""
     import json
 
     import trimesh
 
     run = one_process_run
+    assert two_ranks["extract"][0] == two_ranks["extract"][1] == "same", two_ranks["extract"]
     for grid, stage in (("octree", "octree_grid"), ("delaunay", "delaunay+filter")):
-        common = [str(run), "--grid", grid, "--binary-steps", "3", "--device", "cpu", "--no-pictures", "--quiet"]
-        # this tiny model's few large Gaussians need cells finer than the default (0.4: ~330 faces; 0.2 took 3x longer)
-        common += ["--cell-factor", "0.4"] if grid == "octree" else []
+        common = _extract_common(run, grid)
         # the one-process mesh in this process (a subprocess start costs ~5 s of CI per run); the test sets no
         # process group, so the CLI runs as one process
         assert extract_main([*common, "--out", str(tmp_path / f"one_{grid}.ply")]) == 0
-        _train([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
-                "-m", "gof_warp.extract", *common, "--out", str(tmp_path / f"two_{grid}.ply")])
+        if grid == "octree":
+            _train([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
+                    "-m", "gof_warp.extract", *common, "--out", str(tmp_path / f"two_{grid}.ply")])
+            two_path = tmp_path / f"two_{grid}.ply"
+        else:
+            two_path = Path(two_ranks["extract"]["mesh"])
         one = trimesh.load(tmp_path / f"one_{grid}.ply", process=False)
-        two = trimesh.load(tmp_path / f"two_{grid}.ply", process=False)
+        two = trimesh.load(two_path, process=False)
         assert len(one.faces) > 100, grid
         assert np.array_equal(one.vertices, two.vertices) and np.array_equal(one.faces, two.faces), grid
-        info = json.loads((tmp_path / f"two_{grid}.json").read_text())
+        info = json.loads(two_path.with_suffix(".json").read_text())
         assert info["processes"] == 2 and stage in info["stages"], grid
         counts = info["stages"]["counts"]  # the marching was split by space: each rank marched its share
         assert len(counts["tetrahedra_per_rank"]) == 2 and sum(counts["tetrahedra_per_rank"]) == counts["tetrahedra"]
