@@ -198,25 +198,32 @@ def test_forked_processes_give_the_one_process_field():
     assert (seen_one > 0).any() and (one < 1).any()  # the scene is seen and not empty
 
 
-def _views_split_rank(rank, world, init_file, cams_n, result):
+RANK_CASES = ((3, 2), (2, 5))  # (ranks, cameras): a rank with no view (3 ranks, 2 cameras), and several views per rank
+
+
+def _views_split_rank(rank, init_dir, result):
+    """Spawned with 3 processes: each case of RANK_CASES in turn, in a gloo group of its first ``world`` processes (one
+    set of interpreter start-ups for both cases)."""
     import torch.distributed as dist
 
     from gof_warp.distributed import Ranks
 
-    dist.init_process_group("gloo", init_method=f"file://{init_file}", rank=rank, world_size=world)
-    try:
-        means, quats, scales, opac = _scene(seed=8)
-        g = Gaussians.from_activated(means, quats, scales, opac, device="cpu")
-        points = np.random.default_rng(9).uniform(-0.8, 0.8, (203, 3))
-        field, seen = opacity_field(g, _cameras(cams_n), points, config=OpacityFieldConfig(cpu_processes=1),
-                                    return_seen=True, ranks=Ranks(rank=rank, world=world))
-        result[rank] = (field.numpy().tobytes(), seen.numpy().tobytes())
-    finally:
-        dist.destroy_process_group()
+    means, quats, scales, opac = _scene(seed=8)
+    g = Gaussians.from_activated(means, quats, scales, opac, device="cpu")
+    points = np.random.default_rng(9).uniform(-0.8, 0.8, (203, 3))
+    for world, cams_n in RANK_CASES:
+        if rank >= world:
+            continue
+        dist.init_process_group("gloo", init_method=f"file://{init_dir}/init_{world}", rank=rank, world_size=world)
+        try:
+            field, seen = opacity_field(g, _cameras(cams_n), points, config=OpacityFieldConfig(cpu_processes=1),
+                                        return_seen=True, ranks=Ranks(rank=rank, world=world))
+            result[(world, rank)] = (field.numpy().tobytes(), seen.numpy().tobytes())
+        finally:
+            dist.destroy_process_group()
 
 
-@pytest.mark.parametrize("world, cams_n", [(2, 5), (3, 2)])
-def test_views_shared_out_among_ranks_give_the_one_process_field(tmp_path, world, cams_n):
+def test_views_shared_out_among_ranks_give_the_one_process_field(tmp_path):
     """torch.distributed (gloo) ranks each evaluate every world-th view and reduce (minimum, summed view counts):
     every rank ends with the one-process field and seen counts bit for bit, also when a rank has no view
     (3 ranks, 2 cameras)."""
@@ -225,15 +232,16 @@ def test_views_shared_out_among_ranks_give_the_one_process_field(tmp_path, world
     means, quats, scales, opac = _scene(seed=8)
     g = Gaussians.from_activated(means, quats, scales, opac, device="cpu")
     points = np.random.default_rng(9).uniform(-0.8, 0.8, (203, 3))
-    one, seen_one = opacity_field(g, _cameras(cams_n), points, config=OpacityFieldConfig(cpu_processes=1),
-                                  return_seen=True)
-    assert (seen_one > 1).any() and (one < 1).any()  # several views see points: the reduction has work to do
     with mp.Manager() as manager:
         result = manager.dict()
-        mp.spawn(_views_split_rank, args=(world, str(tmp_path / "init"), cams_n, result), nprocs=world, join=True)
+        mp.spawn(_views_split_rank, args=(str(tmp_path), result), nprocs=max(w for w, _ in RANK_CASES), join=True)
         got = dict(result)
-    for rank in range(world):
-        field = np.frombuffer(got[rank][0], np.float32)
-        seen = np.frombuffer(got[rank][1], np.int32)
-        np.testing.assert_array_equal(field, one.numpy())
-        np.testing.assert_array_equal(seen, seen_one.numpy())
+    for world, cams_n in RANK_CASES:
+        one, seen_one = opacity_field(g, _cameras(cams_n), points, config=OpacityFieldConfig(cpu_processes=1),
+                                      return_seen=True)
+        assert (seen_one > 1).any() and (one < 1).any()  # several views see points: the reduction has work to do
+        for rank in range(world):
+            field = np.frombuffer(got[(world, rank)][0], np.float32)
+            seen = np.frombuffer(got[(world, rank)][1], np.int32)
+            np.testing.assert_array_equal(field, one.numpy(), err_msg=f"{world} ranks, rank {rank}")
+            np.testing.assert_array_equal(seen, seen_one.numpy(), err_msg=f"{world} ranks, rank {rank}")
