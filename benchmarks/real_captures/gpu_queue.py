@@ -39,11 +39,12 @@ CROPS = {"garden": (-2.5, -2.5, -0.5, 2.5, 2.5, 1.5), "background": (-2.0, -2.0,
 
 
 def steps(state: Path, scenes: list[str], resolution: tuple[int, int], iterations: int, views: int | None = None,
-          points: Path | None = None, min_views: int = 0, overrides: tuple[str, ...] = ()):
+          points: Path | None = None, min_views: int = 0, overrides: tuple[str, ...] = (), pack: bool = False):
     """``[(name, command, min_seconds_left, is_training)]`` in order; a scene ``NAME:N`` trains N iterations.
 
     ``min_views`` K > 1 adds a second extraction with ``--min-views K`` (``RUN/mesh_views<K>.ply``, pictures for
-    every scene) and, for the synthetic scenes, its two scores beside the default mesh's."""
+    every scene) and, for the synthetic scenes, its two scores beside the default mesh's. ``pack`` brings every
+    scene's trained geometry back (``../extract/pack_model.py``; DTU's always comes back)."""
     out = []
     iters = {s.split(":")[0]: int(s.split(":")[1]) for s in scenes if ":" in s}
     scenes = [s.split(":")[0] for s in scenes]
@@ -65,7 +66,7 @@ def steps(state: Path, scenes: list[str], resolution: tuple[int, int], iteration
         out.append((f"{s}:train", [PY, "-m", "gof_warp.train", str(scene), "--out", str(run), "--iterations",
                                    str(iters.get(s, iterations)), "checkpoint_every=1000", *overrides, "--resume"], 120,
                     True))
-        if s == "dtu":  # the trained DTU geometry comes back for the extraction benchmarks (benchmarks/extract)
+        if s == "dtu" or pack:  # the trained geometry comes back (DTU's for the extraction benchmarks)
             out.append((f"{s}:pack", [PY, str(HERE.parent / "extract" / "pack_model.py"), "pack", str(run),
                                       str(state / "big" / f"{s}_geometry.npz")], 30, False))
         out.append((f"{s}:extract", [PY, "-m", "gof_warp.extract", str(run), "--delaunay-workers", "0"], 240, False))
@@ -116,6 +117,8 @@ def main() -> int:
                          "0: the preset's own, 40 for the background scenes)")
     ap.add_argument("--train-override", action="append", default=[], metavar="KEY=VALUE",
                     help="a config override for every training (repeatable), e.g. seed=1")
+    ap.add_argument("--pack", action="store_true",
+                    help="bring every scene's trained geometry back as <scene>_geometry[.partK].npz (DTU's always)")
     ap.add_argument("--min-views", type=int, default=0,
                     help="also extract with `extract --min-views K` (K > 1) and score that mesh beside the default")
     ap.add_argument("--points", type=Path, default=None,
@@ -130,7 +133,7 @@ def main() -> int:
     for s in names:
         (state / "results" / s).mkdir(parents=True, exist_ok=True)
     for name, cmd, need, training in steps(state, scenes, tuple(a.resolution), a.iterations, a.views,
-                                         a.points, a.min_views, tuple(a.train_override)):
+                                         a.points, a.min_views, tuple(a.train_override), a.pack):
         marker = state / "done" / name.replace(":", "_")
         if marker.exists():
             continue
@@ -170,7 +173,7 @@ def main() -> int:
     if out:
         with tarfile.open(Path(out) / "results.tar.gz", "w:gz") as tar:
             tar.add(state / "results", arcname="results")
-        for big in (state / "big").glob("*.npz"):  # one file each (16 MiB per file back)
+        for big in (state / "big").glob("*.npz"):  # at most 16 MiB a file and 8 files a call come back
             shutil.copy(big, Path(out) / big.name)
     return 0
 
