@@ -107,3 +107,20 @@ def test_pycolmap_after_gof_warp_leaves_png_writing_working_and_before_it_warns(
     assert ok.returncode == 0 and "saved" in ok.stdout, ok.stderr[-500:]
     warned = _python("import pycolmap, gof_warp")
     assert warned.returncode == 0 and "pycolmap was imported before Pillow" in warned.stderr
+
+
+def test_an_unregistered_image_is_not_in_the_files(tmp_path):
+    """COLMAP writes only registered (posed) images into ``images``; an image whose frame is deregistered is absent,
+    which is why the reader takes every listed image as posed (pycolmap's ``has_pose`` was checked before)."""
+    root = make_colmap_scene(tmp_path / "s", n=3, binary=True)
+    rec = pycolmap.Reconstruction(str(root / "sparse" / "0"))
+    if not hasattr(rec, "deregister_frame"):
+        pytest.skip(f"pycolmap {pycolmap.__version__} has no frames to deregister")
+    dropped = sorted(rec.images)[1]
+    rec.deregister_frame(rec.images[dropped].frame_id)
+    for write, name in ((rec.write_binary, "bin"), (rec.write_text, "txt")):
+        out = tmp_path / name
+        out.mkdir()
+        write(str(out))
+        model = read_model(out)
+        assert sorted(model.images) == sorted(set(rec.images) - {dropped}), name
