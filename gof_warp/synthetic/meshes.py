@@ -289,9 +289,18 @@ def grid_plane(center=(0, 0, 0), half_size=4.0, cell=0.1, material=None, name="g
     return _part(name, *_grid(P, N, False, False), material or Material(), role)
 
 
+def _without_unused_vertices(mesh: SyntheticMesh) -> SyntheticMesh:
+    used = np.unique(mesh.faces)
+    remap = np.full(len(mesh.vertices), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    return replace(mesh, vertices=mesh.vertices[used], vertex_normals=mesh.vertex_normals[used],
+                   faces=remap[mesh.faces])
+
+
 def cut_below(mesh: SyntheticMesh, z0: float) -> SyntheticMesh:
-    """The part of ``mesh`` at ``z >= z0``: faces below go, faces across the plane are cut on it (one or two
-    triangles, winding kept; the new corners' normals and texture coordinates interpolated along the edge)."""
+    """The part of ``mesh`` at ``z >= z0``: faces below go (and the vertices no face uses), faces across the plane
+    are cut on it (one or two triangles, winding kept; the new corners' normals and texture coordinates interpolated
+    along the edge)."""
     V, F = mesh.vertices, mesh.faces
     uvs = mesh.corner_uvs if mesh.corner_uvs is not None else np.zeros((len(F), 3, 2))
     above = V[F][:, :, 2] >= z0  # [F, 3]
@@ -327,14 +336,15 @@ def cut_below(mesh: SyntheticMesh, z0: float) -> SyntheticMesh:
         else:  # corner 0 below: the quad (p01, 1, 2, p02) as two triangles
             out_f += [np.stack([i01, f[:, 1], f[:, 2]], 1), np.stack([i01, f[:, 2], i02], 1)]
             out_uv += [np.stack([uv01, uv[:, 1], uv[:, 2]], 1), np.stack([uv01, uv[:, 2], uv02], 1)]
-    return replace(mesh, vertices=np.concatenate(out_v), vertex_normals=np.concatenate(out_n),
-                   faces=np.concatenate(out_f).astype(np.int64),
-                   corner_uvs=None if mesh.corner_uvs is None else np.concatenate(out_uv))
+    return _without_unused_vertices(replace(mesh, vertices=np.concatenate(out_v), vertex_normals=np.concatenate(out_n),
+                                            faces=np.concatenate(out_f).astype(np.int64),
+                                            corner_uvs=None if mesh.corner_uvs is None else np.concatenate(out_uv)))
 
 
 def clip_to_convex(mesh: SyntheticMesh, hull: SyntheticMesh, center) -> SyntheticMesh:
     """``mesh`` cut to the inside of the convex closed mesh ``hull``: each vertex outside moves towards
-    ``center`` (a point inside ``hull``) onto its boundary, and faces whose three vertices all moved are dropped.
+    ``center`` (a point inside ``hull``) onto its boundary, and faces whose three vertices all moved are dropped
+    (with the vertices no face uses any more).
 
     A ground that reaches a background shell this way meets it with no gap (up to the chords between moved
     vertices, ``cell**2 / (8 * radius)``) and has nothing behind it that a camera cannot see.
@@ -355,8 +365,8 @@ def clip_to_convex(mesh: SyntheticMesh, hull: SyntheticMesh, center) -> Syntheti
     vertices = mesh.vertices.copy()
     vertices[moved] = c + t[moved, None] * d[moved]
     keep = ~moved[mesh.faces].all(axis=1)
-    return replace(mesh, vertices=vertices, faces=mesh.faces[keep],
-                   corner_uvs=None if mesh.corner_uvs is None else mesh.corner_uvs[keep])
+    return _without_unused_vertices(replace(mesh, vertices=vertices, faces=mesh.faces[keep],
+                                            corner_uvs=None if mesh.corner_uvs is None else mesh.corner_uvs[keep]))
 
 
 def plane(center=(0, 0, 0), half_size=4.0, material=None, name="ground", role="background") -> SyntheticMesh:
