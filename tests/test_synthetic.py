@@ -484,11 +484,10 @@ def _shell_pixels_below_ground(preset_name: str, n_views: int = 16, size: int = 
     shell = [k for k, p in enumerate(parts) if p.name == "shell"][0]
     ground_z = float(np.median(parts[[p.name for p in parts].index("ground")].vertices[:, 2]))
     below = total = 0
-    ys, xs = np.mgrid[0:size, 0:size] + 0.5
     for cam in preset.rig.cameras(size, size, n_views, 0)[0]:
         view = caster.render(cam, 1)
-        rays = np.stack([(xs - cam.cx) / cam.fx, (ys - cam.cy) / cam.fy, np.ones_like(xs)], -1)
-        z = ((rays * view.depth[..., None]) @ cam.R + cam.center)[..., 2]  # depth is along the optical axis
+        origin, rays = cam.pixel_rays()  # camera-space z of 1: the ray parameter is the rendered z-depth
+        z = (origin + rays * view.depth[..., None])[..., 2]
         on_shell = caster.face_part[view.face] == shell
         below += int((z[on_shell] < ground_z - 1e-3).sum())
         total += int(on_shell.sum())
