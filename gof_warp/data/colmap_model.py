@@ -2,10 +2,10 @@
 
 Reading a scene needs no pycolmap (a 38 MB wheel, not built for every platform): only the triangulation from
 known poses (:mod:`gof_warp.data.sfm`) does. The formats are COLMAP's documented ones (``src/colmap/scene/
-reconstruction_io.cc``): binary little-endian with ``uint64`` counts, text with ``#`` comments. Only what a scene
-needs is kept: each camera's model and parameters, each image's pose, camera and name (not its 2D points'
-coordinates), each 3D point's position and colour. Their observations are kept too, as the (image, 2D point)
-pairs of each image's ``points2D`` that name a 3D point, for checks that reproject them.
+reconstruction_io.cc``): binary little-endian with ``uint64`` counts, text with ``#`` comments. Kept: each camera's
+model and parameters; each image's pose, camera, name and the ``points2D`` that name a 3D point, as
+``(x, y, point3D_id)`` rows (for checks that reproject them); each 3D point's id, position and colour (not its
+track).
 
 Errors (missing, truncated or malformed files; unknown camera models) are :class:`~gof_warp.errors.SceneError`
 naming the file.
@@ -57,7 +57,10 @@ class ColmapModel:
 
 
 def quaternion_to_rotation(q) -> np.ndarray:
-    """``[3, 3]`` rotation of the unit quaternion along ``q = (w, x, y, z)`` (normalised here; COLMAP's convention)."""
+    """``[3, 3]`` rotation of the unit quaternion along ``q = (w, x, y, z)`` (normalised here; COLMAP's convention).
+
+    :func:`gof_warp.model.quat_to_rotmat` is the same formula in torch; this NumPy one keeps reading a scene free
+    of torch, as the rest of :mod:`gof_warp.data` is."""
     w, x, y, z = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
     return np.array([
         [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
