@@ -58,6 +58,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--cell-factor", type=float, default=None,
                     help="--grid octree: leaf side at most this times a Gaussian's 3-sigma box width (smaller: finer; "
                          f"default {OctreeConfig.cell_factor})")
+    ap.add_argument("--piece-tets", type=int, default=None,
+                    help="--grid octree: make and march the grid's tetrahedra in pieces of at most this many, so they are "
+                         f"never held whole (default {OctreeConfig.piece_tets}; the mesh is the same for any value)")
     ap.add_argument("--opacity-min", type=float, default=None, help="drop Gaussians below this opacity first")
     ap.add_argument("--corner-min-extent", type=float, default=None,
                     help="tetra: only the centre point for Gaussians whose 3-sigma extent is below this (world units)")
@@ -120,8 +123,9 @@ def extract_run(a, ranks, device) -> None:
                                        corner_min_extent=a.corner_min_extent,
                                        delaunay_workers=a.delaunay_workers, band=a.band,
                                        delaunay_processes=a.delaunay_processes, grid=a.grid,
-                                       octree=OctreeConfig() if a.cell_factor is None else
-                                       OctreeConfig(cell_factor=a.cell_factor)))
+                                       octree=OctreeConfig(**{k: v for k, v in (("cell_factor", a.cell_factor),
+                                                                                ("piece_tets", a.piece_tets))
+                                                              if v is not None})))
     if a.resolution:
         cfg.cubes_resolution = a.resolution
         cfg.tsdf.resolution = a.resolution

@@ -34,7 +34,7 @@ from .marching import compact_mesh, marching_tetrahedra, merge_keyed_pieces, sea
 from .marching_inputs import MAX_STEPS_PER_CALL
 from .opacity_field import OpacityFieldConfig, opacity_field
 from .render import RenderConfig
-from .tetra import TetraConfig, grid_points, level_band, octree_grid_from_gaussians, tetrahedralize
+from .tetra import TetraConfig, grid_points, level_band, octree_tets_from_gaussians, tetrahedralize
 from .tsdf import TSDFConfig, extract_tsdf_mesh, fuse_tsdf
 
 log = logging.getLogger("gof_warp.extract")  # one logger name for the stage and its CLI
@@ -174,9 +174,10 @@ def empty_mesh_message(gaussians, method: str, levels, config: MeshConfig | None
 
 def _tetra_grid(gaussians, cameras, config: MeshConfig, tc: TetraConfig, field_fn, timer: StageTimer, ranks: Ranks):
     """The tetra path's grid: points → the field at them → (band) → Delaunay + cell filter. Returns
-    ``(points [P, 3] float32, values [P] (the field, on the model's device), tets [T, 4] int32 or None when fewer
-    than 4 points are left, counts)``; each stage is timed on ``timer``. With several ``ranks`` the Delaunay
-    runs on rank 0 only and its tetrahedra are broadcast (every rank has the same points)."""
+    ``(points [P, 3] float32, values [P] (the field, on the model's device), tets, counts)``: ``tets`` the grid's
+    tetrahedra as pieces for :func:`_march` (:class:`_WholeTets` of ``[T, 4]`` int32, or the octree's
+    :class:`_OctreePieces`), None when there are none; each stage is timed on ``timer``. With several ``ranks`` the
+    Delaunay runs on rank 0 only and its tetrahedra are broadcast (every rank has the same points)."""
     if tc.grid == "octree":
         return _octree_grid(gaussians, cameras, config, field_fn, timer)
     with timer("tetra_points"):
@@ -208,7 +209,7 @@ def _tetra_grid(gaussians, cameras, config: MeshConfig, tc: TetraConfig, field_f
         counts["tetrahedra_out_of_view"] = dropped
     log.info("%d points, %d tetrahedra", len(points), len(tets))
     counts["tetrahedra"] = int(len(tets))
-    return points, values, (tets if len(tets) else None), counts
+    return points, values, (_WholeTets(tets) if len(tets) else None), counts
 
 
 def _drop_unseen_cells(values: torch.Tensor, tets, unseen_value: float):
@@ -222,24 +223,66 @@ def _drop_unseen_cells(values: torch.Tensor, tets, unseen_value: float):
 
 
 def _octree_grid(gaussians, cameras, config: MeshConfig, field_fn, timer: StageTimer):
-    """The tetra path's octree grid (:func:`gof_warp.tetra.octree_grid_from_gaussians`): ``(points, values, tets,
-    counts)`` as :func:`_tetra_grid`.
+    """The tetra path's octree grid (:func:`gof_warp.tetra.octree_tets_from_gaussians`): ``(points, values, tets,
+    counts)`` as :func:`_tetra_grid`, but ``tets`` is an :class:`_OctreePieces`: the tetrahedra are made piece by
+    piece when marched, never held whole.
 
     The octree fills whole boxes, which can reach out of every view; the Delaunay grid has no such points (its
     frustum mask drops them before triangulating). To match it, the tetrahedra with a corner no view sees are left
     out: an unseen corner would otherwise carry GOF's "unseen = 1" next to empty seen space and raise walls at the
-    frustum boundaries. With ``field.min_views`` > 1 "unseen" means seen by fewer views (both grids). The search keeps GOF's setting, as on the Delaunay grid."""
+    frustum boundaries. With ``field.min_views`` > 1 "unseen" means seen by fewer views (both grids). The search keeps
+    GOF's setting, as on the Delaunay grid."""
     sub: dict = {}
     with timer("octree_grid"):
-        points, tets = octree_grid_from_gaussians(gaussians.means.detach(), gaussians.scales.detach(),
-                                                  gaussians.opacities.detach(), cameras, config.tetra, stats=sub)
+        grid = octree_tets_from_gaussians(gaussians.means.detach(), gaussians.scales.detach(),
+                                          gaussians.opacities.detach(), cameras, config.tetra, stats=sub)
     timer.stages["octree_grid"]["substages"] = sub
     with timer("opacity_field"):
-        values = field_fn(points, dataclasses.replace(config.field, unseen_value=UNSEEN_MARK))
-        values, tets, dropped = _drop_unseen_cells(values, tets, config.field.unseen_value)
-    counts = {"points": int(points.shape[0]), "tetrahedra": int(tets.shape[0]), "tetrahedra_out_of_view": dropped}
-    log.info("octree grid: %d points, %d tetrahedra", points.shape[0], tets.shape[0])
-    return points, values, (tets if tets.shape[0] else None), counts
+        values = field_fn(grid.points, dataclasses.replace(config.field, unseen_value=UNSEEN_MARK))
+        seen = values >= 0
+        values = torch.where(seen, values, torch.full_like(values, config.field.unseen_value))
+    counts = {"points": int(grid.points.shape[0]), "tetrahedra_made": grid.count}
+    log.info("octree grid: %d points, %d tetrahedra", grid.points.shape[0], grid.count)
+    tets = _OctreePieces(grid, seen, config.tetra.octree.piece_tets)
+    return grid.points, values, (tets if grid.count else None), counts
+
+
+class _OctreePieces:
+    """The octree grid's tetrahedra in view, piece by piece: each piece of :meth:`OctreeTets.pieces
+    <gof_warp.octree_tets.OctreeTets.pieces>` without the tetrahedra that have a corner no view sees (``seen [P]``
+    false). ``n_pieces(world)``: enough pieces of at most ``piece_tets`` made tetrahedra, and one per rank at least."""
+
+    def __init__(self, grid, seen: torch.Tensor, piece_tets: int):
+        self.grid, self.seen, self.piece_tets = grid, seen, piece_tets
+
+    def n_pieces(self, world: int) -> int:
+        return max(world, -(-self.grid.count // self.piece_tets))
+
+    def pieces(self, n_pieces: int, first: int, last: int, tally: dict):
+        """Yield the tetrahedra in view of pieces ``first … last - 1`` of ``n_pieces``; ``tally`` counts the kept
+        (``"tetrahedra"``) and left out (``"tetrahedra_out_of_view"``) ones."""
+        for _, t in self.grid.pieces(n_pieces, first, last):
+            in_view = self.seen[t.long()].all(dim=1)
+            kept = int(in_view.sum())
+            tally["tetrahedra"] = tally.get("tetrahedra", 0) + kept
+            tally["tetrahedra_out_of_view"] = tally.get("tetrahedra_out_of_view", 0) + t.shape[0] - kept
+            yield t[in_view]
+
+
+class _WholeTets:
+    """A grid's tetrahedra held whole (the Delaunay grid's, already in view): its pieces are consecutive slices."""
+
+    def __init__(self, tets):
+        self.tets = tets
+
+    def n_pieces(self, world: int) -> int:
+        return world
+
+    def pieces(self, n_pieces: int, first: int, last: int, tally: dict):
+        n = len(self.tets)
+        for k in range(first, last):
+            tally["tetrahedra"] = tally.get("tetrahedra", 0) + n * (k + 1) // n_pieces - n * k // n_pieces
+            yield self.tets[n * k // n_pieces:n * (k + 1) // n_pieces]
 
 
 class SearchPlanner:
@@ -313,35 +356,50 @@ def _march(points, tets, values, config: MeshConfig, field_fn, ranks: Ranks, cou
            grid_call: tuple[int, float] | None = None) -> list:
     """Marching tetrahedra with the binary search: one ``(vertices, faces)`` per level, the search's field calls
     planned by :class:`SearchPlanner` from ``grid_call`` (points, seconds of the field at the grid points), recorded
-    in ``counts["search"]``. With several ``ranks`` the
-    marching is split by space (each rank marches its consecutive share of ``tets``) and the search by views: every
-    rank searches the union of the ranks' crossing edges with ``field_fn``, which evaluates its own views and
-    reduces the minimum over the ranks at each call. A call's cost is mostly the per-view preparation of every
-    Gaussian (3M Gaussians, 48 views: ~7 s a call on one H100, whatever the number of edges), so sharing the views
-    is what divides it. Rank 0 joins the pieces by edge key into the one-process mesh; the other ranks return their
-    pieces with the searched vertices."""
+    in ``counts["search"]``.
+
+    ``tets``: :class:`_WholeTets` or :class:`_OctreePieces`. One piece in one process: marched and searched at once.
+    Otherwise the pieces are marched one after another without the search (each holds only its own tetrahedra), each
+    piece's crossing edges kept by key, and the search runs once on their union; with several ``ranks`` the marching
+    is split by space (each rank marches its consecutive share of the pieces) and the search by views: every rank
+    searches the union of the ranks' crossing edges with ``field_fn``, which evaluates its own views and reduces the
+    minimum over the ranks at each call. A call's cost is mostly the per-view preparation of every Gaussian (3M
+    Gaussians, 48 views: ~7 s a call on one H100, whatever the number of edges), so sharing the views is what divides
+    it. The pieces are joined by edge key (on rank 0) into the mesh of every tetrahedron marched at once, bit for bit;
+    the other ranks return their pieces with the searched vertices."""
     # automatic on CUDA only: on the 2-core CPU the README job's plan ([1, 3]) made the search slower than one step a
     # call (17.9 s against 13.3 s), its near-surface points costing far more than the grid's (the fit's sample)
     fixed = config.search_steps_per_call or (0 if points.device.type == "cuda" else 1)
     plan = SearchPlanner(field_fn, config.binary_steps, points.device, ranks, fixed=fixed, grid_call=grid_call)
-    if not ranks.active:
-        meshes = marching_tetrahedra(points, tets, values, plan.field, levels=config.levels,
-                                     binary_steps=config.binary_steps, oriented=True, steps_per_call=plan)
-        counts["search"] = {**plan.decisions, "calls": len(plan.timings)}
-        return meshes
-    start, end = ranks.my_range(len(tets))
-    pieces = marching_tetrahedra(points, tets[start:end], values, None, levels=config.levels, binary_steps=0,
-                                 oriented=True, return_keys=True)
-    every = ranks.all_gather_objects([k for _, _, k in pieces])  # each rank's edge keys, per level
-    keys = [np.unique(np.concatenate([mine[level] for mine in every])) for level in range(len(config.levels))]
-    vertices = search_edges(points, values, keys, plan.field, levels=config.levels, binary_steps=config.binary_steps,
-                            steps_per_call=plan)
+    n_pieces, tally = tets.n_pieces(ranks.world), {}
+    first, last = ranks.my_range(n_pieces)
+    if n_pieces == 1:
+        meshes = marching_tetrahedra(points, next(tets.pieces(1, 0, 1, tally)), values, plan.field,
+                                     levels=config.levels, binary_steps=config.binary_steps, oriented=True,
+                                     steps_per_call=plan)
+    else:
+        pieces = [marching_tetrahedra(points, t, values, None, levels=config.levels, binary_steps=0, oriented=True,
+                                      return_keys=True) for t in tets.pieces(n_pieces, first, last, tally)]
+        mine = [np.unique(np.concatenate([p[level][2] for p in pieces] + [np.zeros(0, np.int64)]))
+                for level in range(len(config.levels))]
+        every = ranks.all_gather_objects(mine)  # each rank's edge keys, per level
+        keys = [np.unique(np.concatenate([e[level] for e in every])) for level in range(len(config.levels))]
+        vertices = search_edges(points, values, keys, plan.field, levels=config.levels,
+                                binary_steps=config.binary_steps, steps_per_call=plan)
+        pieces = [[(vertices[level][np.searchsorted(keys[level], k)], f, k) for level, (_, f, k) in enumerate(p)]
+                  for p in pieces]
+        gathered = [p for rank_pieces in ranks.gather_to_main(pieces) or [] for p in rank_pieces]
+        meshes = ([merge_keyed_pieces([p[level] for p in gathered]) for level in range(len(config.levels))]
+                  if ranks.is_main else [(v, f) for v, f, _ in pieces[0]] if pieces else [])
     counts["search"] = {**plan.decisions, "calls": len(plan.timings)}
-    pieces = [(vertices[level][np.searchsorted(keys[level], k)], f, k) for level, (_, f, k) in enumerate(pieces)]
-    gathered = ranks.gather_to_main(pieces)
-    if not ranks.is_main:
-        return [(v, f) for v, f, _ in pieces]
-    return [merge_keyed_pieces([g[level] for g in gathered]) for level in range(len(config.levels))]
+    tallies = ranks.all_gather_objects(tally)  # what each rank marched (and, octree, left out of view)
+    for name in ("tetrahedra", "tetrahedra_out_of_view"):
+        if name in tally:
+            counts[name] = sum(t.get(name, 0) for t in tallies)
+    counts["pieces"] = n_pieces
+    if ranks.active:
+        counts["tetrahedra_per_rank"] = [t.get("tetrahedra", 0) for t in tallies]
+    return meshes
 
 
 def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = None, *,
@@ -407,9 +465,6 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
             with timer("marching_tetrahedra"):
                 meshes = _march(torch.as_tensor(points, device=gaussians.device), tets, values, config, field_fn,
                                 ranks, counts, grid_call=tuple(counts["grid_field_call"]))
-            if ranks.active:
-                counts["tetrahedra_per_rank"] = [b - a for a, b in (Ranks(rank=r, world=ranks.world).my_range(len(tets))
-                                                                    for r in range(ranks.world))]
         timer.stages["counts"] = counts
     elif config.method == "cubes":
         from .tsdf import scene_bounds

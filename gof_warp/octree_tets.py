@@ -27,9 +27,12 @@ Coordinates are integers on the lattice of the finest level's half cells: ``2^(d
 Counts (per leaf): 6 tetrahedra and no extra point for a leaf with no finer neighbour; next to finer leaves one
 centre and 12 to 96 tetrahedra. Memory (on the device): the asked-for cells are gathered one box offset at a time
 (``N`` int64 candidates and the distinct cells); the tree holds int64 keys per cell (the balance looks at 27
-neighbours of each refined node of one level at a time); the tetrahedra are made twice in chunks of ``FACE_CHUNK``
-face records — once for the distinct vertex keys, once to write indices — so beyond the output (16 B per
-tetrahedron, 12 B per point) one chunk's work is held (~0.7 GB).
+neighbours of each refined node of one level at a time). The tetrahedra are made ``LEAF_CHUNK`` leaves (and face
+records) at a time, twice: once to collect the distinct vertex keys (the grid's points, 8 B each, plus 12 B each for
+their positions), and again, on demand, as **pieces** (:class:`OctreeTets`): consecutive ranges of the one order in
+which the chunks come, written as int32 point indices. The tetrahedra need never be held whole: a caller that marches
+piece by piece (``gof_warp.extraction``) holds one piece (16 B per tetrahedron) and one chunk's int64 work
+(~0.25 GB) beyond the points.
 """
 
 from __future__ import annotations
@@ -48,7 +51,10 @@ KEY_BITS = 21
 KEY_MASK = (1 << KEY_BITS) - 1
 MAX_DEPTH = KEY_BITS - 2  # the lattice has 2^(depth+1) units per axis, and its far corner 2^(depth+1) fits the bits
 CLAMP_WARN_FRACTION = 0.01  # warn when more Gaussians than this get cells larger than asked (the deepest level)
-FACE_CHUNK = 1 << 20  # face records per tetrahedron chunk (~0.7 GB of int64 work at 10 candidate triangles each)
+KEYSET_MERGE_MIN = 1 << 22  # keys a _KeySet lets wait before merging them into its sorted set
+LEVEL_BITS = MAX_DEPTH  # bits per axis of a cell of any level (coordinates < 2^depth)
+LEVEL_SHIFT = 3 * LEVEL_BITS  # an asked-for cell's level above its three coordinates: 5 + 57 bits
+LEAF_CHUNK = 1 << 18  # leaves (and face records of cone leaves) per tetrahedron chunk: ~0.25 GB of int64 work
 
 # the 26 neighbours and the cell itself
 _NEIGHBOURS = torch.tensor([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)], dtype=torch.int64)
@@ -74,6 +80,7 @@ _KUHN = torch.tensor([[[0, 0, 0], list(map(int, [a == 0, a == 1, a == 2])),
                       for a in range(3) for b in range(3) if a != b], dtype=torch.int64)  # [6, 4, 3]
 
 
+
 @dataclass
 class OctreeConfig:
     """Settings of the octree grid (``TetraConfig.grid = "octree"``)."""
@@ -86,12 +93,18 @@ class OctreeConfig:
     # default is the deepest the keys allow: 5·10^5 cells along the root cube, room for far background Gaussians
     depth: int = MAX_DEPTH
     box_percentile: float = 0.0  # root cube: the box of the 3σ boxes, ignoring this % of the Gaussians per side
+    # tetrahedra made and marched at once: extraction takes the grid in consecutive pieces of at most this many
+    # (OctreeTets.pieces), so the tetrahedra are never held whole; the mesh is the same for any value. 2^24: 0.27 GB of
+    # indices and the marching's 24 B per tetrahedron (DTU scan 24's 35.7M tetrahedra: three pieces)
+    piece_tets: int = 1 << 24
 
     def validate(self):
         if not (self.cell_factor > 0 and math.isfinite(self.cell_factor)):
             raise GofError(f"octree cell_factor must be a positive number, got {self.cell_factor!r}")
         if not (isinstance(self.depth, int) and 1 <= self.depth <= MAX_DEPTH):
             raise GofError(f"octree depth must be an integer in [1, {MAX_DEPTH}], got {self.depth!r}")
+        if isinstance(self.piece_tets, bool) or not isinstance(self.piece_tets, int) or self.piece_tets < 1:
+            raise GofError(f"octree piece_tets must be a positive integer, got {self.piece_tets!r}")
         if not 0.0 <= self.box_percentile < 50.0:
             raise GofError(f"octree box_percentile must be in [0, 50), got {self.box_percentile!r}")
 
@@ -140,10 +153,34 @@ class Octree:
         return self.size / float(1 << (self.depth + 1))
 
 
+class _KeySet:
+    """Sorted distinct int64 keys gathered from many batches: the batches wait in a list and are merged
+    (``torch.unique``) once they hold as many keys as the set (and at least ``KEYSET_MERGE_MIN``), so ``n`` keys
+    cost ``O(n log n)`` work and the memory of a few times the set, whatever the number of batches."""
+
+    def __init__(self, device):
+        self.keys = torch.zeros(0, dtype=torch.int64, device=device)
+        self.pending: list = []
+        self.waiting = 0
+
+    def add(self, keys: torch.Tensor) -> None:
+        self.pending.append(keys)
+        self.waiting += keys.numel()
+        if self.waiting > max(KEYSET_MERGE_MIN, self.keys.numel()):
+            self.sorted()
+
+    def sorted(self) -> torch.Tensor:
+        if self.pending:
+            self.keys = torch.unique(torch.cat([self.keys, *self.pending]))
+            self.pending, self.waiting = [], 0
+        return self.keys
+
+
 def _asked_cells(centres: torch.Tensor, radii: torch.Tensor, lo: torch.Tensor, size: float, depth: int,
                  cell_factor: float) -> list[torch.Tensor]:
     """Per level, the sorted keys of the cells some Gaussian asks for: the cells of its level overlapping its box.
-    Gathered one box-corner offset at a time, so the work holds ``N`` candidates, not ``27 N``."""
+    Gathered one box-corner offset at a time (``N`` candidates at once, not ``span³ N``), each candidate keyed by its
+    level and cell together (``LEVEL_SHIFT``) in one :class:`_KeySet`."""
     device = centres.device
     want = (size / (cell_factor * 2.0 * radii)).clamp(min=1.0)
     level = torch.ceil(torch.log2(want)).to(torch.int64)
@@ -160,14 +197,18 @@ def _asked_cells(centres: torch.Tensor, radii: torch.Tensor, lo: torch.Tensor, s
     top = (1 << level)[:, None] - 1
     first, last = first.clamp(min=0).minimum(top), last.clamp(min=0).minimum(top)
     span = int((last - first).max()) + 1 if centres.shape[0] else 0
-    asked = [torch.zeros(0, dtype=torch.int64, device=device) for _ in range(depth + 1)]
-    levels_present = torch.unique(level).tolist()
+    cells = _KeySet(device)
     for off in torch.cartesian_prod(*[torch.arange(span, device=device)] * 3).reshape(-1, 3):
         ijk = first + off
         ok = (ijk <= last).all(dim=1)
-        keys, lv = pack(ijk[ok]), level[ok]
-        for l in levels_present:
-            asked[l] = torch.unique(torch.cat([asked[l], keys[lv == l]]))
+        c = ijk[ok]  # a cell of level l has coordinates < 2^l <= 2^depth: LEVEL_BITS each
+        cells.add(c[:, 0] | (c[:, 1] << LEVEL_BITS) | (c[:, 2] << (2 * LEVEL_BITS)) | (level[ok] << LEVEL_SHIFT))
+    found = cells.sorted()
+    lv, mask = found >> LEVEL_SHIFT, (1 << LEVEL_BITS) - 1
+    keys = pack(torch.stack([found & mask, (found >> LEVEL_BITS) & mask, (found >> (2 * LEVEL_BITS)) & mask], -1))
+    asked = [torch.zeros(0, dtype=torch.int64, device=device) for _ in range(depth + 1)]
+    for l in torch.unique(lv).tolist():
+        asked[l] = torch.sort(keys[lv == l]).values
     return asked
 
 
@@ -204,14 +245,14 @@ def tree_from_asked(asked: list, lo: torch.Tensor, size: float, depth: int) -> O
     # refined[l]: parents of asked-for cells, then closed under ancestors and balanced, deepest level first
     refined = [torch.zeros(0, dtype=torch.int64, device=device) for _ in range(depth + 1)]
     for l in range(depth, 0, -1):
-        parents = [unpack(asked[l]) >> 1] if asked[l].numel() else []
-        if refined[l].numel():
-            c = unpack(refined[l])
-            nb = (c[:, None, :] + _NEIGHBOURS.to(device)[None]).reshape(-1, 3)
+        parents = _KeySet(device)
+        if asked[l].numel():
+            parents.add(pack(unpack(asked[l]) >> 1))
+        for s in range(0, refined[l].numel(), LEAF_CHUNK):  # the 27 neighbours of a chunk of refined nodes at once
+            nb = (unpack(refined[l][s:s + LEAF_CHUNK])[:, None, :] + _NEIGHBOURS.to(device)[None]).reshape(-1, 3)
             nb = nb[((nb >= 0) & (nb < (1 << l))).all(dim=1)]
-            parents.append(nb >> 1)
-        if parents:
-            refined[l - 1] = torch.unique(torch.cat([refined[l - 1], pack(torch.cat(parents))]))
+            parents.add(torch.unique(pack(nb >> 1)))
+        refined[l - 1] = parents.sorted()
     tree = Octree(lo=lo, size=float(size), depth=depth, refined=refined)
     # leaves: children of refined nodes that are not refined; the root alone when nothing is refined
     children_of = _CHILDREN.to(device)
@@ -238,14 +279,15 @@ def tree_from_asked(asked: list, lo: torch.Tensor, size: float, depth: int) -> O
 
 
 # ---------------------------------------------------------------------------------------------- tetrahedra
-def _corner_keys(tree: Octree) -> torch.Tensor:
-    """Sorted lattice keys of every leaf corner (the vertices a face edge can hang)."""
-    out = []
+def _corner_keys(tree: Octree, chunk: int = LEAF_CHUNK) -> torch.Tensor:
+    """Sorted lattice keys of every leaf corner (the vertices a face edge can hang), ``chunk`` leaves at a time."""
+    out = _KeySet(tree.lo.device)
     for l, keys in enumerate(tree.leaves):
-        if keys.numel():
-            u = 1 << (tree.depth + 1 - l)
-            out.append(pack(((unpack(keys) * u)[:, None, :] + _CHILDREN.to(keys.device)[None] * u).reshape(-1, 3)))
-    return torch.unique(torch.cat(out))
+        u = 1 << (tree.depth + 1 - l)
+        for s in range(0, keys.numel(), chunk):
+            c = unpack(keys[s:s + chunk]) * u
+            out.add(torch.unique(pack((c[:, None, :] + _CHILDREN.to(keys.device)[None] * u).reshape(-1, 3))))
+    return out.sorted()
 
 
 def _plain(tree: Octree, level: int, keys: torch.Tensor, corners: torch.Tensor) -> torch.Tensor:
@@ -270,8 +312,9 @@ def _refined_neighbour(tree: Octree, level: int, c: torch.Tensor, off: torch.Ten
 
 
 def _kuhn_tets(keys: torch.Tensor, u: int) -> torch.Tensor:
-    """Kuhn's six tetrahedra of each cell ``keys [L]`` of side ``u`` lattice units, as keys ``[6 L, 4]``."""
-    corner = (unpack(keys) * u)[:, None, None, :] + _KUHN.to(keys.device)[None] * u  # [L, 6, 4, 3]
+    """Kuhn's six tetrahedra of each cell ``keys [L]`` of side ``u`` lattice units, as keys ``[6 L, 4]``, positively
+    oriented (the templates are)."""
+    corner = (unpack(keys) * u)[:, None, None, :] + _KUHN_ORIENTED.to(keys.device)[None] * u  # [L, 6, 4, 3]
     return pack(corner).reshape(-1, 4)
 
 
@@ -341,60 +384,125 @@ def _orient(tets_xyz: torch.Tensor) -> torch.Tensor:
     return (d[:, 0] * torch.linalg.cross(d[:, 1], d[:, 2])).sum(dim=1) < 0
 
 
-def _oriented_chunks(tree: Octree, corners: torch.Tensor, chunk: int):
-    """The occupied leaves' tetrahedra as lattice keys ``[T_c, 4]``, positively oriented, a chunk of face records
-    at a time (same chunks, same order, on every call)."""
-    def oriented(t):
-        flip = _orient(unpack(t))
-        t[flip] = t[flip][:, [0, 2, 1, 3]]
-        return t
+def _oriented(tets: torch.Tensor, xyz: torch.Tensor) -> torch.Tensor:
+    """``tets [T, 4]`` (any dtype) with corners 1 and 2 swapped where ``xyz [T, 4, 3]`` (their lattice coordinates)
+    has negative volume, in place."""
+    flip = _orient(xyz)
+    tets[flip] = tets[flip][:, [0, 2, 1, 3]]
+    return tets
 
+
+# Kuhn's tetrahedra positively oriented once, so the cubes' tetrahedra need no volume test
+_KUHN_ORIENTED = _oriented(_KUHN.clone(), _KUHN)
+
+
+def _oriented_chunks(tree: Octree, corners: torch.Tensor, chunk: int):
+    """The occupied leaves' tetrahedra as lattice keys ``[T_c, 4]``, positively oriented: level by level, ``chunk``
+    leaves at a time (their Kuhn cubes, then their cones' face records ``chunk`` at a time). The same chunks in the
+    same order on every call: the order of :class:`OctreeTets`' tetrahedra."""
     for level in range(tree.depth + 1):
         keys = tree.leaves[level][tree.occupied[level]]
-        if keys.numel() == 0:
-            continue
-        plain = _plain(tree, level, keys, corners)
-        cubes, cones = keys[plain], keys[~plain]
         u = 1 << (tree.depth + 1 - level)
-        for s in range(0, cubes.shape[0], chunk):
-            yield oriented(_kuhn_tets(cubes[s:s + chunk], u))
-        if cones.numel():
-            rec = _face_records(tree, level, cones)
-            for s in range(0, rec[0].shape[0], chunk):
-                yield oriented(_face_tets(*(r[s:s + chunk] for r in rec), corners))
+        for s in range(0, keys.numel(), chunk):
+            part = keys[s:s + chunk]
+            plain = _plain(tree, level, part, corners)
+            cubes, cones = part[plain], part[~plain]
+            if cubes.numel():
+                yield _kuhn_tets(cubes, u)
+            if cones.numel():
+                rec = _face_records(tree, level, cones)
+                for f in range(0, rec[0].shape[0], chunk):
+                    t = _face_tets(*(r[f:f + chunk] for r in rec), corners)
+                    yield _oriented(t, unpack(t))
 
 
-def octree_tetrahedra(tree: Octree, *, chunk: int = FACE_CHUNK, return_keys: bool = False):
-    """Tetrahedralise the occupied leaves: ``(points [P, 3] float32 world, tets [T, 4] int32)``, positively
-    oriented, on the tree's device. Two passes over the chunks (the first collects the distinct vertex keys, the
-    second writes point indices), so the int64 keys of one chunk only are held beside the int32 output."""
+@dataclass
+class OctreeTets:
+    """The occupied leaves' tetrahedra, made on demand: ``points [P, 3]`` float32 (world) and their sorted lattice
+    ``keys [P]`` int64 are held; the ``count`` tetrahedra are written as int32 indices into ``points``, positively
+    oriented, in **pieces**: :meth:`pieces` cuts the one order of the chunks into consecutive ranges, so pieces
+    ``0 … n-1`` concatenated are :meth:`all` and a caller (or a process of several) can take any of them alone."""
+
+    tree: Octree
+    corners: torch.Tensor  # sorted keys of the leaves' corners (where a face edge can hang a vertex)
+    keys: torch.Tensor  # [P] int64, sorted: point i has lattice key keys[i]
+    points: torch.Tensor  # [P, 3] float32 world positions
+    count: int  # tetrahedra
+    chunk: int = LEAF_CHUNK
+
+    def bounds(self, n_pieces: int) -> list[int]:
+        """Where the ``n_pieces`` pieces start (and the last ends): ``count · k // n_pieces``, ``k = 0 … n_pieces``."""
+        return [self.count * k // n_pieces for k in range(n_pieces + 1)]
+
+    def pieces(self, n_pieces: int, first: int = 0, last: int | None = None):
+        """Yield ``(k, tets [T_k, 4] int32)`` for the pieces ``first <= k < last`` of ``n_pieces`` (sizes differ by at
+        most one tetrahedron). Every chunk is made (to know where each piece starts) but only the wanted pieces'
+        tetrahedra are written as indices, and one piece is held at a time."""
+        if n_pieces < 1:
+            raise GofError(f"n_pieces must be >= 1, got {n_pieces!r}")
+        last = n_pieces if last is None else last
+        if not 0 <= first <= last <= n_pieces:
+            raise GofError(f"pieces [{first}, {last}) do not lie in [0, {n_pieces})")
+        bounds, k, parts, at = self.bounds(n_pieces), first, [], 0
+
+        def piece():
+            out = torch.cat(parts) if parts else torch.zeros(0, 4, dtype=torch.int32, device=self.keys.device)
+            parts.clear()
+            return out
+
+        if k < last:
+            for t in _oriented_chunks(self.tree, self.corners, self.chunk):
+                end = at + t.shape[0]
+                while k < last:
+                    lo, hi = max(bounds[k], at), min(bounds[k + 1], end)
+                    if lo < hi:
+                        parts.append(torch.searchsorted(self.keys, t[lo - at:hi - at]).to(torch.int32))
+                    if bounds[k + 1] > end:
+                        break
+                    yield k, piece()
+                    k += 1
+                at = end
+                if k >= last:
+                    return
+        while k < last:  # pieces that end where the tetrahedra do (or none at all)
+            yield k, piece()
+            k += 1
+
+    def all(self) -> torch.Tensor:
+        """Every tetrahedron, ``[count, 4]`` int32 (one piece)."""
+        return next(self.pieces(1))[1]
+
+
+def octree_tets(tree: Octree, *, chunk: int = LEAF_CHUNK) -> OctreeTets:
+    """The grid's points and how to make its tetrahedra (:class:`OctreeTets`): one pass over the chunks collects the
+    distinct vertex keys and counts the tetrahedra; none is kept."""
     device = tree.lo.device
-    corners = _corner_keys(tree)
-    found, count = [], 0
+    corners = _corner_keys(tree, chunk)
+    found, count = _KeySet(device), 0
     for t in _oriented_chunks(tree, corners, chunk):
-        found.append(torch.unique(t))
+        found.add(torch.unique(t))
         count += t.shape[0]
-    if not count:
-        empty = (torch.zeros(0, 3, dtype=torch.float32, device=device),
-                 torch.zeros(0, 4, dtype=torch.int32, device=device))
-        return (*empty, torch.zeros(0, dtype=torch.int64, device=device)) if return_keys else empty
-    keys = torch.unique(torch.cat(found))
+    keys = found.sorted()
     del found
     if keys.numel() >= 2**31:
         raise GofError(f"octree grid has {keys.numel()} points: more than int32 tetrahedra can index")
-    tets = torch.empty(count, 4, dtype=torch.int32, device=device)
-    at = 0
-    for t in _oriented_chunks(tree, corners, chunk):
-        tets[at:at + t.shape[0]] = torch.searchsorted(keys, t).to(torch.int32)
-        at += t.shape[0]
-    points = (tree.lo + unpack(keys).to(torch.float64) * tree.unit()).to(torch.float32)
-    return (points, tets, keys) if return_keys else (points, tets)
+    points = torch.empty(keys.numel(), 3, dtype=torch.float32, device=device)
+    for s in range(0, keys.numel(), 1 << 24):  # float64 work for 16M points at a time (1.2 GB)
+        points[s:s + (1 << 24)] = (tree.lo + unpack(keys[s:s + (1 << 24)]).to(torch.float64) * tree.unit()).to(torch.float32)
+    return OctreeTets(tree=tree, corners=corners, keys=keys, points=points, count=count, chunk=chunk)
 
 
-def octree_grid(centres, radii, config: OctreeConfig | None = None, stats: dict | None = None
-                ) -> tuple[torch.Tensor, torch.Tensor, Octree]:
-    """Boxes ``centres [N, 3] ± radii [N]`` → ``(points [P, 3] float32, tets [T, 4] int32, tree)`` on their
-    device (see the module docstring); ``stats`` gets the counts."""
+def octree_tetrahedra(tree: Octree, *, chunk: int = LEAF_CHUNK, return_keys: bool = False):
+    """Tetrahedralise the occupied leaves: ``(points [P, 3] float32 world, tets [T, 4] int32)``, positively
+    oriented, on the tree's device (:func:`octree_tets`, all of it at once); with ``return_keys`` also the points'
+    lattice keys ``[P]``."""
+    grid = octree_tets(tree, chunk=chunk)
+    return (grid.points, grid.all(), grid.keys) if return_keys else (grid.points, grid.all())
+
+
+def octree_grid_tets(centres, radii, config: OctreeConfig | None = None, stats: dict | None = None) -> OctreeTets:
+    """Boxes ``centres [N, 3] ± radii [N]`` → the grid (:class:`OctreeTets`: points held, tetrahedra made on demand)
+    on their device (see the module docstring); ``stats`` gets the counts."""
     cfg = config or OctreeConfig()
     cfg.validate()
     centres = torch.as_tensor(centres).to(torch.float64)
@@ -414,10 +522,18 @@ def octree_grid(centres, radii, config: OctreeConfig | None = None, stats: dict 
         inside = ((centres >= lo) & (centres <= lo + size)).all(dim=1)
         centres, radii = centres[inside], radii[inside]
     tree = build_octree(centres, radii, depth=cfg.depth, cell_factor=cfg.cell_factor, lo=lo, size=size)
-    points, tets = octree_tetrahedra(tree)
+    grid = octree_tets(tree)
     if stats is not None:
         stats.update(octree_leaves=tree.n_leaves,
                      octree_occupied=sum(int(o.sum()) for o in tree.occupied),
                      octree_levels={l: int(k.numel()) for l, k in enumerate(tree.leaves) if k.numel()})
-    log.info("octree grid: %d leaves, %d points, %d tetrahedra", tree.n_leaves, points.shape[0], tets.shape[0])
-    return points, tets, tree
+    log.info("octree grid: %d leaves, %d points, %d tetrahedra", tree.n_leaves, grid.points.shape[0], grid.count)
+    return grid
+
+
+def octree_grid(centres, radii, config: OctreeConfig | None = None, stats: dict | None = None
+                ) -> tuple[torch.Tensor, torch.Tensor, Octree]:
+    """:func:`octree_grid_tets` with the tetrahedra made at once: ``(points [P, 3] float32, tets [T, 4] int32,
+    tree)``."""
+    grid = octree_grid_tets(centres, radii, config, stats)
+    return grid.points, grid.all(), grid.tree

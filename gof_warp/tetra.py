@@ -36,7 +36,7 @@ from .camera import Camera
 from .delaunay import default_workers, delaunay
 from .errors import GofError
 from .model import quat_to_rotmat
-from .octree_tets import OctreeConfig, octree_grid
+from .octree_tets import OctreeConfig, OctreeTets, octree_grid_tets
 
 log = logging.getLogger(__name__)
 
@@ -88,7 +88,7 @@ class TetraConfig:
                 raise GofError(f"{', '.join(asked)}: Delaunay-grid settings, but the grid is the octree (the "
                                "default); add --grid delaunay (TetraConfig.grid = 'delaunay') to use them")
         elif self.octree != OctreeConfig():
-            raise GofError(f"octree settings ({self.octree}; --cell-factor) apply to the octree grid, but the grid "
+            raise GofError(f"octree settings ({self.octree}; --cell-factor, --piece-tets) apply to the octree grid, but the grid "
                            "is 'delaunay': drop them or use --grid octree (the default)")
 
     @classmethod
@@ -301,12 +301,11 @@ def grid_points(means, rotations, scales, opacities=None, cameras: Sequence[Came
                         corner_min_extent=cfg.corner_min_extent)
 
 
-def octree_grid_from_gaussians(means, scales, opacities=None, cameras: Sequence[Camera] | None = None,
-                               config: TetraConfig | None = None, stats: dict | None = None
-                               ) -> tuple[torch.Tensor, torch.Tensor]:
+def octree_tets_from_gaussians(means, scales, opacities=None, cameras: Sequence[Camera] | None = None,
+                               config: TetraConfig | None = None, stats: dict | None = None) -> OctreeTets:
     """The octree grid (:mod:`gof_warp.octree_tets`) over the Gaussians' 3σ boxes (radius ``3 max(s)``), with the
-    Delaunay grid's selection: ``opacity_min``, and the frustum mask applied to the centres. Returns ``(points [P, 3]
-    float32, tets [T, 4] int32)`` on the means' device."""
+    Delaunay grid's selection: ``opacity_min``, and the frustum mask applied to the centres. Returns the grid's
+    :class:`~gof_warp.octree_tets.OctreeTets` (points held, tetrahedra made in pieces) on the means' device."""
     cfg = config or TetraConfig()
     mu = _as_tensor(means, "means", (3,))
     s = _checked_scales(scales, mu.shape[0], mu.device)
@@ -317,8 +316,16 @@ def octree_grid_from_gaussians(means, scales, opacities=None, cameras: Sequence[
         raise GofError(f"no Gaussian is left for the octree grid: of {mu.shape[0]}, none has its centre in some camera's "
                        f"view (near {cfg.near:g}, far {cfg.far:g})"
                        + (f" and opacity >= opacity_min {cfg.opacity_min:g}" if cfg.opacity_min is not None else ""))
-    points, tets, _ = octree_grid(mu[keep], BOX_SIGMAS * s[keep].max(dim=1).values, cfg.octree, stats=stats)
-    return points, tets
+    return octree_grid_tets(mu[keep], BOX_SIGMAS * s[keep].max(dim=1).values, cfg.octree, stats=stats)
+
+
+def octree_grid_from_gaussians(means, scales, opacities=None, cameras: Sequence[Camera] | None = None,
+                               config: TetraConfig | None = None, stats: dict | None = None
+                               ) -> tuple[torch.Tensor, torch.Tensor]:
+    """:func:`octree_tets_from_gaussians` with the tetrahedra made at once: ``(points [P, 3] float32, tets [T, 4]
+    int32)`` on the means' device."""
+    grid = octree_tets_from_gaussians(means, scales, opacities, cameras, config, stats)
+    return grid.points, grid.all()
 
 
 def tetrahedral_grid(means, rotations, scales, opacities=None, cameras: Sequence[Camera] | None = None,

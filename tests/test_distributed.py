@@ -156,7 +156,8 @@ def test_two_processes_extract_the_one_process_mesh(one_process_run, two_ranks, 
     """Extraction by two processes: the grid points' field shared out by views (the minimum over ranks is exact), the
     marching split by space (each rank its share of the tetrahedra, joined by edge key on rank 0), the search by views
     (every rank searches the union of the crossing edges over its views), rank 0 writes; the mesh is the one-process
-    mesh exactly on both grids: the octree (the default, built alike on every rank; the CLI under torchrun) and the
+    mesh exactly on both grids: the octree (the default, built alike on every rank, its tetrahedra made and marched
+    in five pieces shared out among the ranks; the CLI under torchrun) and the
     Delaunay grid (computed on rank 0 and broadcast; the command's work in the spawned pair of ``two_ranks``)."""
     import json
 
@@ -169,9 +170,11 @@ def test_two_processes_extract_the_one_process_mesh(one_process_run, two_ranks, 
         # the one-process mesh in this process (a subprocess start costs ~5 s of CI per run); the test sets no
         # process group, so the CLI runs as one process
         assert extract_main([*common, "--out", str(tmp_path / f"one_{grid}.ply")]) == 0
-        if grid == "octree":
+        if grid == "octree":  # in five pieces (--piece-tets): a rank marches several, one at a time
+            made = json.loads((tmp_path / "one_octree.json").read_text())["stages"]["counts"]["tetrahedra_made"]
             _train([sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2",
-                    "-m", "gof_warp.extract", *common, "--out", str(tmp_path / f"two_{grid}.ply")])
+                    "-m", "gof_warp.extract", *common, "--piece-tets", str(-(-made // 5)),
+                    "--out", str(tmp_path / f"two_{grid}.ply")])
             two_path = tmp_path / f"two_{grid}.ply"
         else:
             two_path = Path(two_ranks["extract"]["mesh"])
@@ -188,6 +191,8 @@ def test_two_processes_extract_the_one_process_mesh(one_process_run, two_ranks, 
         assert all(r["host_peak_rss_mb"] > 0 and r["total_time_s"] > 0 for r in info["ranks"]), grid
         if grid == "delaunay":
             assert info["stages"][stage]["substages"]["computed_on_rank"] == 0
+        else:
+            assert counts["pieces"] == 5
 
 
 def _other_points(ranks, result):

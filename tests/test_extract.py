@@ -9,7 +9,7 @@ import pytest
 import trimesh
 
 from gof_warp.camera import look_at
-from gof_warp.extract import MeshConfig, extract_mesh, save_mesh
+from gof_warp.extract import MeshConfig, StageTimer, extract_mesh, save_mesh
 from gof_warp.model import Gaussians
 from gof_warp.octree_tets import OctreeConfig
 from gof_warp.render import RenderConfig
@@ -97,6 +97,26 @@ def test_octree_grid_gives_the_closed_analytic_sphere():
         MeshConfig(tetra=TetraConfig(grid="delaunay", octree=OctreeConfig(cell_factor=0.3))).validate()
     with pytest.raises(ValueError, match="grid"):
         MeshConfig(tetra=TetraConfig(grid="voronoi")).validate()
+
+
+def test_octree_grid_marched_in_pieces_is_the_mesh_marched_at_once():
+    """OctreeConfig.piece_tets: the grid's tetrahedra made, marched and their crossing edges collected a piece at a
+    time, the search run once on the union, the pieces joined by edge key: the same vertices and faces, bit for bit,
+    as the whole grid marched at once; the counts say how many pieces and tetrahedra there were."""
+    cams = _ring_cameras()
+    cfg_render = RenderConfig(alpha_min=0.0, k_max=10.0)
+    meshes, counts = {}, {}
+    for piece_tets in (OctreeConfig.piece_tets, 500):
+        timer = StageTimer("cpu")
+        cfg = MeshConfig(binary_steps=4, tetra=TetraConfig(octree=OctreeConfig(cell_factor=0.25, piece_tets=piece_tets)))
+        (meshes[piece_tets],) = extract_mesh(_one_gaussian(), cams, cfg, render_config=cfg_render, timer=timer)
+        counts[piece_tets] = timer.stages["counts"]
+    whole, pieced = counts[OctreeConfig.piece_tets], counts[500]
+    assert whole["pieces"] == 1 and pieced["pieces"] == -(-pieced["tetrahedra_made"] // 500) >= 4
+    assert whole["tetrahedra"] == pieced["tetrahedra"] > 0
+    assert whole["tetrahedra"] + whole["tetrahedra_out_of_view"] == whole["tetrahedra_made"]
+    (v1, f1), (v2, f2) = meshes[OctreeConfig.piece_tets], meshes[500]
+    assert len(f1) >= 8 and np.array_equal(v1, v2) and np.array_equal(f1, f2)
 
 
 def test_every_method_gives_a_closed_sphere_like_mesh():

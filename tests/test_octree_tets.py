@@ -6,7 +6,8 @@ import torch
 
 from gof_warp.errors import GofError
 from gof_warp.marching import marching_tetrahedra
-from gof_warp.octree_tets import OctreeConfig, build_octree, octree_grid, octree_tetrahedra, unpack
+from gof_warp.octree_tets import (OctreeConfig, build_octree, octree_grid, octree_grid_tets, octree_tetrahedra, octree_tets,
+                                  unpack)
 
 
 def _all_occupied(tree):
@@ -132,6 +133,60 @@ def test_marching_on_the_octree_grid_is_watertight_on_a_sphere():
     assert np.all(count == 2)
     r = np.linalg.norm(verts - 0.5, axis=1)
     assert np.abs(r - 0.3).max() < 1e-3
+
+
+def _random_tree(seed=11, n=30, depth=6):
+    g = torch.Generator().manual_seed(seed)
+    centres = torch.rand(n, 3, generator=g, dtype=torch.float64)
+    radii = torch.exp(torch.randn(n, generator=g, dtype=torch.float64)) * 0.04
+    return build_octree(centres, radii, depth=depth, cell_factor=0.5)
+
+
+def test_pieces_are_consecutive_ranges_of_the_whole_grid():
+    """``OctreeTets.pieces``: any number of pieces, taken all or any range of them, are the consecutive slices
+    ``count · k // n`` of the tetrahedra made at once, so pieces marched apart join into the whole grid's mesh."""
+    grid = octree_tets(_random_tree(), chunk=256)  # small chunks: pieces cut through chunks and chunks through pieces
+    whole = grid.all()
+    assert whole.shape == (grid.count, 4) and grid.count > 1000
+    for n in (1, 2, 7, 23):
+        got = list(grid.pieces(n))
+        assert [k for k, _ in got] == list(range(n))
+        b = grid.bounds(n)
+        assert all(torch.equal(t, whole[b[k]:b[k + 1]]) for k, t in got)
+        assert max(t.shape[0] for _, t in got) - min(t.shape[0] for _, t in got) <= 1
+    mid = list(grid.pieces(7, 2, 5))  # a rank's share alone
+    b = grid.bounds(7)
+    assert [k for k, _ in mid] == [2, 3, 4] and torch.equal(torch.cat([t for _, t in mid]), whole[b[2]:b[5]])
+    assert list(grid.pieces(7, 3, 3)) == []
+    with pytest.raises(GofError, match="n_pieces"):
+        next(grid.pieces(0))
+    with pytest.raises(GofError, match="do not lie"):
+        next(grid.pieces(3, 2, 4))
+
+
+def test_chunk_size_changes_only_the_order_of_the_tetrahedra():
+    """The chunks (leaves and face records made at once, which bound the memory) reorder the tetrahedra but make the
+    same points and the same set of tetrahedra, each positively oriented."""
+    tree = _random_tree(seed=12)
+    a, b = octree_tets(tree), octree_tets(tree, chunk=64)
+    assert torch.equal(a.keys, b.keys) and torch.equal(a.points, b.points) and a.count == b.count
+    ta, tb = a.all(), b.all()
+    assert not torch.equal(ta, tb)  # the chunks did change the order (else this test shows nothing)
+    assert torch.equal(torch.unique(ta, dim=0), torch.unique(tb, dim=0))
+    assert bool((_volumes(b.points, tb) > 0).all())
+
+
+def test_no_piece_holds_more_than_its_share():
+    """``octree_grid_tets`` keeps the points and makes tetrahedra only when asked: one piece of 1/n of them."""
+    g = torch.Generator().manual_seed(13)
+    centres = torch.rand(60, 3, generator=g, dtype=torch.float64)
+    radii = torch.full((60,), 0.05, dtype=torch.float64)
+    grid = octree_grid_tets(centres, radii, OctreeConfig(depth=6))
+    points, tets, _ = octree_grid(centres, radii, OctreeConfig(depth=6))
+    assert torch.equal(grid.points, points) and grid.count == tets.shape[0]
+    assert max(t.shape[0] for _, t in grid.pieces(4)) <= -(-grid.count // 4)
+    with pytest.raises(GofError, match="piece_tets"):
+        OctreeConfig(piece_tets=0).validate()
 
 
 @pytest.mark.parametrize("kwargs, match", [
