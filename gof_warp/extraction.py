@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from .arrays import distinct
 from .camera import Camera
 from .distributed import Ranks
 from .errors import GofError, ModelError
@@ -380,10 +381,10 @@ def _march(points, tets, values, config: MeshConfig, field_fn, ranks: Ranks, cou
     else:
         pieces = [marching_tetrahedra(points, t, values, None, levels=config.levels, binary_steps=0, oriented=True,
                                       return_keys=True) for t in tets.pieces(n_pieces, first, last, tally)]
-        mine = [np.unique(np.concatenate([p[level][2] for p in pieces] + [np.zeros(0, np.int64)]))
+        mine = [distinct(np.concatenate([p[level][2] for p in pieces] + [np.zeros(0, np.int64)]))
                 for level in range(len(config.levels))]
         every = ranks.all_gather_objects(mine)  # each rank's edge keys, per level
-        keys = [np.unique(np.concatenate([e[level] for e in every])) for level in range(len(config.levels))]
+        keys = [distinct(np.concatenate([e[level] for e in every])) for level in range(len(config.levels))]
         vertices = search_edges(points, values, keys, plan.field, levels=config.levels,
                                 binary_steps=config.binary_steps, steps_per_call=plan)
         pieces = [[(vertices[level][np.searchsorted(keys[level], k)], f, k) for level, (_, f, k) in enumerate(p)]

@@ -40,6 +40,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from .arrays import distinct
 from .errors import GofError
 
 log = logging.getLogger(__name__)
@@ -179,11 +180,11 @@ def point_mesh_distance(points, vertices, faces, chunk: int = 4096) -> np.ndarra
         return np.full(len(points), np.inf)
     centroid = tri.mean(axis=1)
     radius = np.linalg.norm(tri - centroid[:, None], axis=2).max(axis=1)
-    on_surface = np.concatenate([np.asarray(vertices, np.float64)[np.unique(faces)], centroid])
+    on_surface = np.concatenate([np.asarray(vertices, np.float64)[distinct(faces)], centroid])
     out, _ = cKDTree(on_surface).query(points, workers=-1)
     slack = 1e-9 * (radius.max() + np.abs(centroid).max())  # rounding in the sphere test
     cls = np.floor(np.log(np.maximum(radius / radius.max(), 1e-12)) / np.log(RADIUS_CLASS_RATIO)).astype(np.int64)
-    classes = [np.flatnonzero(cls == c) for c in np.unique(cls)]
+    classes = [np.flatnonzero(cls == c) for c in distinct(cls)]
     trees = [(cKDTree(centroid[ids]), ids, radius[ids].max()) for ids in classes]
     for s in range(0, len(points), chunk):
         q, u = points[s : s + chunk], out[s : s + chunk]
@@ -345,7 +346,7 @@ def mesh_statistics(geom) -> dict:
     V, nF = len(vertices), len(faces)
     lo = vertices.min(0) if V else np.zeros(3)
     hi = vertices.max(0) if V else np.zeros(3)
-    stats = {"vertices": V, "faces": nF, "unreferenced_vertices": V - len(np.unique(faces)),
+    stats = {"vertices": V, "faces": nF, "unreferenced_vertices": V - len(distinct(faces)),
              "connected_components": 0, "watertight": False, "winding_consistent": True, "edges": 0,
              "boundary_edges": 0, "non_manifold_edges": 0, "degenerate_faces": 0, "euler_characteristic": 0,
              "area": 0.0, "bbox_min": lo.tolist(), "bbox_max": hi.tolist(), "bbox_diagonal": float(np.linalg.norm(hi - lo))}
@@ -365,10 +366,10 @@ def mesh_statistics(geom) -> dict:
     longest = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(1)
     repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
     stats.update(
-        connected_components=len(np.unique(labels[:nF])), edges=E,
+        connected_components=len(distinct(labels[:nF])), edges=E,
         boundary_edges=int((counts == 1).sum()), non_manifold_edges=int((counts > 2).sum()),
         watertight=bool(np.all(counts == 2)),
-        winding_consistent=len(np.unique(directed[:, 0] * V + directed[:, 1])) == len(directed),
+        winding_consistent=len(distinct(directed[:, 0] * V + directed[:, 1])) == len(directed),
         degenerate_faces=int((repeated | (areas <= 1e-12 * longest**2)).sum()),  # 1e-12: float64 rounding of cross products
         euler_characteristic=int(V - stats["unreferenced_vertices"] - E + nF), area=float(areas.sum()),
     )

@@ -51,6 +51,7 @@ import numpy as np
 import warp as wp
 import warp.geometry
 
+from .arrays import distinct
 from .errors import GofError
 from .kernels import marching_tets as mt
 from .marching_inputs import (FIELD_KINDS, Field, FieldCaller, StepsPerCall, TetSource, WarpField,  # noqa: F401
@@ -67,7 +68,7 @@ MC_EDGE_MATCH_TOL = 1e-3  # in cell sizes
 
 def compact_mesh(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Keep only the vertices some face uses. Returns ``(verts [V', 3], faces [F, 3] int32, kept [V'] indices)``."""
-    used = np.unique(faces)
+    used = distinct(faces)
     remap = np.full(len(verts), -1, np.int64)
     remap[used] = np.arange(len(used))
     return verts[used], remap[faces].astype(np.int32), used

@@ -54,6 +54,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .arrays import distinct
 from .camera import Camera
 from .errors import GofError
 from .geometry_metrics import (
@@ -139,7 +140,7 @@ def observe(vertices, faces, cameras, *, supersample: int = DEFAULT_SUPERSAMPLE,
     for c in cameras:
         hits = cast_pinhole_rays(mesh, c.R, c.t, c.fx, c.fy, c.cx, c.cy, c.width, c.height, s)
         face = hits["face"].numpy()
-        views[np.unique(face[face >= 0])] += 1
+        views[distinct(face[face >= 0])] += 1
         d = np.where(face >= 0, hits["depth"].numpy(), np.inf).reshape(c.height, s, c.width, s)
         depths.append(d.max(axis=(1, 3)).astype(np.float32))
     return Observation(views, cameras, depths)

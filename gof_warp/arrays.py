@@ -1,0 +1,22 @@
+"""NumPy helpers shared across layers (no torch, no Warp).
+
+:func:`distinct` is ``np.unique(a)`` by sorting. NumPy 2.4's ``np.unique`` without ``return_*`` flags takes a
+hash-table path that is 20-60x slower than a sort on the int64 keys and int32 face indices this package makes:
+9.5 s against 0.16 s for 6.1M edge keys on the 2-core dev box, 3.4 s a call on 4.6M keys inside a GPU extraction
+(``benchmarks/extract/README.md``, session 20).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def distinct(values) -> np.ndarray:
+    """The sorted distinct values of ``values`` (any shape, flattened): ``np.unique(values)``, computed by a sort."""
+    a = np.sort(np.asarray(values).reshape(-1))
+    if a.size < 2:
+        return a
+    keep = np.empty(a.size, bool)
+    keep[0] = True
+    np.not_equal(a[1:], a[:-1], out=keep[1:])
+    return a[keep]
