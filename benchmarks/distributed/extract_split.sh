@@ -13,13 +13,7 @@ export NCCL_NVLS_ENABLE=0 TORCH_SYMM_MEM_DISABLE_MULTICAST=1 NVSHMEM_DISABLE_NVL
 N=${N:-3000000}; GPUS=${GPUS:-"1 2"}; DATA=${DATA:-../shared/data/gaussians_54k.npz}; EXTRA=${EXTRA:-}  # extract flags
 W=/tmp/extract_split; TAG=${TAG:-}
 t0=$(date +%s)
-if [ -z "${RUN_ONLY:-}" ]; then
-  rm -rf $W; mkdir -p $W
-  python3 benchmarks/distributed/synthetic_run.py "$N" --out $W/run --data "$DATA" || { echo "model failed"; exit 1; }
-  python3 benchmarks/distributed/synthetic_run.py "${WARM:-20000}" --out $W/warm --data "$DATA" >/dev/null
-  python3 -m gof_warp.extract $W/warm --no-pictures --quiet > $W/warm.log 2>&1 || { tail $W/warm.log; exit 1; }
-  echo "model and warm-up at $(( $(date +%s) - t0 )) s"
-fi
+if [ -z "${RUN_ONLY:-}" ]; then source benchmarks/distributed/model_and_warmup.sh; fi
 for n in $GPUS; do
   mkdir -p $W/g$n
   s=$(date +%s.%N)

@@ -12,13 +12,7 @@ set -u
 N=${N:-54275}; DATA=${DATA:-../shared/data/gaussians_54k.npz}; W=/tmp/pieces; TAG=${TAG:-}; LIMIT=${LIMIT:-540}
 RUNS=${RUNS:-"f025_pieces:--cell-factor,0.25 f025_whole:--cell-factor,0.25,--piece-tets,2147483647"}
 t0=$(date +%s)
-if [ ! -f $W/run/point_cloud.ply ]; then
-  rm -rf $W; mkdir -p $W
-  python3 benchmarks/distributed/synthetic_run.py "$N" --out $W/run --data "$DATA" || { echo "model failed"; exit 1; }
-  python3 benchmarks/distributed/synthetic_run.py "${WARM:-20000}" --out $W/warm --data "$DATA" >/dev/null
-  python3 -m gof_warp.extract $W/warm --no-pictures --quiet > $W/warm.log 2>&1 || { tail $W/warm.log; exit 1; }
-  echo "model and warm-up at $(( $(date +%s) - t0 )) s"
-fi
+if [ ! -f $W/run/point_cloud.ply ]; then source benchmarks/distributed/model_and_warmup.sh; fi
 for spec in $RUNS; do
   name=${spec%%:*}; flags=$(echo "${spec#*:}" | tr ',' ' ')
   rm -rf $W/$name; mkdir -p $W/$name
