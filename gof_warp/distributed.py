@@ -38,6 +38,10 @@ import torch
 from .devices import cuda_available
 from .errors import GofError
 
+# points per float64 chunk of check_same_points' checksums (~0.9 GB of work). Whole, the float64 copies took ~56 B per
+# point: at 360M points the two-GPU field stage peaked 12 GB above one GPU's (benchmarks/extract/README.md, session 20)
+CHECKSUM_ROWS = 1 << 24
+
 
 @dataclass(frozen=True)
 class Ranks:
@@ -170,10 +174,14 @@ class Ranks:
         evaluated different points would reduce values of different points into one another."""
         if not self.active:
             return
-        x = torch.as_tensor(points).detach().to(torch.float64)
-        w = torch.arange(1, x.shape[0] + 1, dtype=torch.float64, device=x.device)[:, None]
-        sums = torch.stack([torch.tensor(float(x.shape[0]), dtype=torch.float64, device=x.device), x.sum(),
-                            (x * w).sum()]).to(self._collective_device())
+        x = torch.as_tensor(points).detach()
+        sums = torch.zeros(3, dtype=torch.float64, device=x.device)
+        sums[0] = float(x.shape[0])
+        for s in range(0, x.shape[0], CHECKSUM_ROWS):  # float64 work for CHECKSUM_ROWS points at a time
+            c = x[s:s + CHECKSUM_ROWS].to(torch.float64)
+            w = torch.arange(s + 1, s + 1 + c.shape[0], dtype=torch.float64, device=x.device)[:, None]
+            sums[1:] += torch.stack([c.sum(), (c * w).sum()])
+        sums = sums.to(self._collective_device())
         r = self._first_rank_differing(sums)
         if r is not None:
             raise GofError(f"{what}: rank {r} evaluates other points than rank {self.rank} (the ranks' grids "
