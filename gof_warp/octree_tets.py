@@ -171,8 +171,9 @@ class _KeySet:
 
     def sorted(self) -> torch.Tensor:
         if self.pending:
-            self.keys = torch.unique(torch.cat([self.keys, *self.pending]))
-            self.pending, self.waiting = [], 0
+            merged = torch.cat([self.keys, *self.pending])
+            self.keys, self.pending, self.waiting = None, [], 0  # the parts are freed before the sort, not after
+            self.keys = torch.unique(merged)
         return self.keys
 
 

@@ -241,3 +241,20 @@ def test_same_grid_on_every_device(device):
     p, t, _ = octree_grid(centres.to(device), radii.to(device))
     assert ref_t.shape[0] > 0
     assert torch.equal(p.cpu(), ref_p) and torch.equal(t.cpu(), ref_t)
+
+
+def test_key_set_merges_batches_into_the_distinct_sorted_keys(monkeypatch):
+    """``_KeySet`` (the octree's cells, corners and points gathered chunk by chunk): batches merged whenever they
+    outnumber the set, here every few batches, end as ``torch.unique`` of all of them."""
+    from gof_warp import octree_tets as ot
+
+    monkeypatch.setattr(ot, "KEYSET_MERGE_MIN", 50)
+    g = torch.Generator().manual_seed(17)
+    batches = [torch.randint(0, 400, (int(n),), generator=g) for n in torch.randint(0, 90, (40,), generator=g)]
+    keys, merges = ot._KeySet(torch.device("cpu")), 0
+    for b in batches:
+        before = len(keys.pending)
+        keys.add(b)
+        merges += len(keys.pending) < before + 1
+    assert merges >= 5  # the merges did happen along the way
+    assert torch.equal(keys.sorted(), torch.unique(torch.cat(batches)))
