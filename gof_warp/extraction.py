@@ -213,14 +213,25 @@ def _tetra_grid(gaussians, cameras, config: MeshConfig, tc: TetraConfig, field_f
     return points, values, (_WholeTets(tets) if len(tets) else None), counts
 
 
+def _unmarked(values: torch.Tensor, unseen_value: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(values, seen [P] bool)``: the field with its ``UNSEEN_MARK`` points set to ``unseen_value`` (which the search
+    keeps using), and which points were seen."""
+    seen = values >= 0
+    return torch.where(seen, values, torch.full_like(values, unseen_value)), seen
+
+
+def _in_view(tets: torch.Tensor, seen: torch.Tensor) -> torch.Tensor:
+    """``[T]`` bool: every corner of the tetrahedron ``tets [T, 4]`` is seen."""
+    return seen[tets.long()].all(dim=1)
+
+
 def _drop_unseen_cells(values: torch.Tensor, tets, unseen_value: float):
     """``(values, tets, dropped)``: the tetrahedra ``[T, 4]`` with a corner marked ``UNSEEN_MARK`` left out, and the
-    marks replaced by ``unseen_value`` (which the search keeps using). ``tets`` may be numpy; a torch tensor returns."""
-    seen = values >= 0
+    marks replaced by ``unseen_value`` (:func:`_unmarked`). ``tets`` may be numpy; a torch tensor returns."""
+    values, seen = _unmarked(values, unseen_value)
     tets = torch.as_tensor(tets, device=values.device)
-    in_view = seen[tets.long()].all(dim=1)
-    return (torch.where(seen, values, torch.full_like(values, unseen_value)), tets[in_view],
-            int(tets.shape[0] - int(in_view.sum())))
+    in_view = _in_view(tets, seen)
+    return values, tets[in_view], int(tets.shape[0] - int(in_view.sum()))
 
 
 def _octree_grid(gaussians, cameras, config: MeshConfig, field_fn, timer: StageTimer):
@@ -239,9 +250,8 @@ def _octree_grid(gaussians, cameras, config: MeshConfig, field_fn, timer: StageT
                                           gaussians.opacities.detach(), cameras, config.tetra, stats=sub)
     timer.stages["octree_grid"]["substages"] = sub
     with timer("opacity_field"):
-        values = field_fn(grid.points, dataclasses.replace(config.field, unseen_value=UNSEEN_MARK))
-        seen = values >= 0
-        values = torch.where(seen, values, torch.full_like(values, config.field.unseen_value))
+        values, seen = _unmarked(field_fn(grid.points, dataclasses.replace(config.field, unseen_value=UNSEEN_MARK)),
+                                 config.field.unseen_value)
     counts = {"points": int(grid.points.shape[0]), "tetrahedra_made": grid.count}
     log.info("octree grid: %d points, %d tetrahedra", grid.points.shape[0], grid.count)
     tets = _OctreePieces(grid, seen, config.tetra.octree.piece_tets)
@@ -263,7 +273,7 @@ class _OctreePieces:
         """Yield the tetrahedra in view of pieces ``first … last - 1`` of ``n_pieces``; ``tally`` counts the kept
         (``"tetrahedra"``) and left out (``"tetrahedra_out_of_view"``) ones."""
         for _, t in self.grid.pieces(n_pieces, first, last):
-            in_view = self.seen[t.long()].all(dim=1)
+            in_view = _in_view(t, self.seen)
             kept = int(in_view.sum())
             tally["tetrahedra"] = tally.get("tetrahedra", 0) + kept
             tally["tetrahedra_out_of_view"] = tally.get("tetrahedra_out_of_view", 0) + t.shape[0] - kept
@@ -367,7 +377,7 @@ def _march(points, tets, values, config: MeshConfig, field_fn, ranks: Ranks, cou
     minimum over the ranks at each call. A call's cost is mostly the per-view preparation of every Gaussian (3M
     Gaussians, 48 views: ~7 s a call on one H100, whatever the number of edges), so sharing the views is what divides
     it. The pieces are joined by edge key (on rank 0) into the mesh of every tetrahedron marched at once, bit for bit;
-    the other ranks return their pieces with the searched vertices."""
+    the other ranks return their own pieces joined, with the searched vertices."""
     # automatic on CUDA only: on the 2-core CPU the README job's plan ([1, 3]) made the search slower than one step a
     # call (17.9 s against 13.3 s), its near-surface points costing far more than the grid's (the fit's sample)
     fixed = config.search_steps_per_call or (0 if points.device.type == "cuda" else 1)
@@ -390,8 +400,8 @@ def _march(points, tets, values, config: MeshConfig, field_fn, ranks: Ranks, cou
         pieces = [[(vertices[level][np.searchsorted(keys[level], k)], f, k) for level, (_, f, k) in enumerate(p)]
                   for p in pieces]
         gathered = [p for rank_pieces in ranks.gather_to_main(pieces) or [] for p in rank_pieces]
-        meshes = ([merge_keyed_pieces([p[level] for p in gathered]) for level in range(len(config.levels))]
-                  if ranks.is_main else [(v, f) for v, f, _ in pieces[0]] if pieces else [])
+        own = gathered if ranks.is_main else pieces  # rank 0: every rank's pieces; the others: their own
+        meshes = [merge_keyed_pieces([p[level] for p in own]) for level in range(len(config.levels))]
     counts["search"] = {**plan.decisions, "calls": len(plan.timings)}
     tallies = ranks.all_gather_objects(tally)  # what each rank marched (and, octree, left out of view)
     for name in ("tetrahedra", "tetrahedra_out_of_view"):

@@ -54,6 +54,7 @@ CLAMP_WARN_FRACTION = 0.01  # warn when more Gaussians than this get cells large
 KEYSET_MERGE_MIN = 1 << 22  # keys a _KeySet lets wait before merging them into its sorted set
 LEVEL_BITS = MAX_DEPTH  # bits per axis of a cell of any level (coordinates < 2^depth)
 LEVEL_SHIFT = 3 * LEVEL_BITS  # an asked-for cell's level above its three coordinates: 5 + 57 bits
+POINT_CHUNK = 1 << 24  # points whose world positions are computed at once (1.2 GB of float64 work)
 LEAF_CHUNK = 1 << 18  # leaves (and face records of cone leaves) per tetrahedron chunk: ~0.25 GB of int64 work
 
 # the 26 neighbours and the cell itself
@@ -78,7 +79,6 @@ _EDGE_MIDPOINTS = _edge_midpoints()
 _KUHN = torch.tensor([[[0, 0, 0], list(map(int, [a == 0, a == 1, a == 2])),
                        list(map(int, [a == 0 or b == 0, a == 1 or b == 1, a == 2 or b == 2])), [1, 1, 1]]
                       for a in range(3) for b in range(3) if a != b], dtype=torch.int64)  # [6, 4, 3]
-
 
 
 @dataclass
@@ -208,8 +208,8 @@ def _asked_cells(centres: torch.Tensor, radii: torch.Tensor, lo: torch.Tensor, s
     lv, mask = found >> LEVEL_SHIFT, (1 << LEVEL_BITS) - 1
     keys = pack(torch.stack([found & mask, (found >> LEVEL_BITS) & mask, (found >> (2 * LEVEL_BITS)) & mask], -1))
     asked = [torch.zeros(0, dtype=torch.int64, device=device) for _ in range(depth + 1)]
-    for l in torch.unique(lv).tolist():
-        asked[l] = torch.sort(keys[lv == l]).values
+    for l in torch.unique(lv).tolist():  # sorted already: a level's combined keys order its cells as pack() does
+        asked[l] = keys[lv == l]
     return asked
 
 
@@ -488,8 +488,9 @@ def octree_tets(tree: Octree, *, chunk: int = LEAF_CHUNK) -> OctreeTets:
     if keys.numel() >= 2**31:
         raise GofError(f"octree grid has {keys.numel()} points: more than int32 tetrahedra can index")
     points = torch.empty(keys.numel(), 3, dtype=torch.float32, device=device)
-    for s in range(0, keys.numel(), 1 << 24):  # float64 work for 16M points at a time (1.2 GB)
-        points[s:s + (1 << 24)] = (tree.lo + unpack(keys[s:s + (1 << 24)]).to(torch.float64) * tree.unit()).to(torch.float32)
+    for s in range(0, keys.numel(), POINT_CHUNK):
+        points[s:s + POINT_CHUNK] = (tree.lo + unpack(keys[s:s + POINT_CHUNK]).to(torch.float64) * tree.unit()
+                                     ).to(torch.float32)
     return OctreeTets(tree=tree, corners=corners, keys=keys, points=points, count=count, chunk=chunk)
 
 

@@ -319,15 +319,6 @@ def octree_tets_from_gaussians(means, scales, opacities=None, cameras: Sequence[
     return octree_grid_tets(mu[keep], BOX_SIGMAS * s[keep].max(dim=1).values, cfg.octree, stats=stats)
 
 
-def octree_grid_from_gaussians(means, scales, opacities=None, cameras: Sequence[Camera] | None = None,
-                               config: TetraConfig | None = None, stats: dict | None = None
-                               ) -> tuple[torch.Tensor, torch.Tensor]:
-    """:func:`octree_tets_from_gaussians` with the tetrahedra made at once: ``(points [P, 3] float32, tets [T, 4]
-    int32)`` on the means' device."""
-    grid = octree_tets_from_gaussians(means, scales, opacities, cameras, config, stats)
-    return grid.points, grid.all()
-
-
 def tetrahedral_grid(means, rotations, scales, opacities=None, cameras: Sequence[Camera] | None = None,
                      config: TetraConfig | None = None, stats: dict | None = None
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

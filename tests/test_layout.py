@@ -104,4 +104,3 @@ def test_readme_layout_names_the_folders_that_exist():
     assert folders, "README's layout block lists no folders"
     assert not [f for f in folders if not (ROOT / f).is_dir()], folders
     assert {"gof_warp", "kernels", "configs", "tests", "examples", "benchmarks", "docs"} <= folders
-
