@@ -78,7 +78,7 @@ _DOCS = {
     Fields: ``near`` (view depth, world units), ``alpha_min``, ``alpha_max``, ``transmittance_min``,
     ``k_max`` (Mahalanobis cut-off), ``background: vec3`` (RGB in [0, 1]), ``tile_size`` (pixels),
     ``tiles_x, tiles_y``, ``pixel_pad`` (pixels), ``distortion_ndc`` (1 = GOF's NDC depth), ``far``,
-    ``reduce_min_radius`` (pixels). Build it with ``make_raster_settings(width, height, ...)``.
+    ``reduce_min_lanes``. Build it with ``make_raster_settings(width, height, ...)``.
     """,
 }
 

@@ -18,8 +18,9 @@ Geometry (``x_c = o_g + t* r_g``, ``d² = ‖x_c‖²``, ``t* = −(o_g·r_g)/A`
 * ``r_g = P r``: ``∂L/∂P += ∂L/∂r_g ⊗ r``.
 
 Per (pixel, Gaussian) the kernel atomically adds ``∂L/∂P`` (9), ``∂L/∂o_g`` (3), ``∂L/∂colour`` (3),
-``∂L/∂opacity`` (1) and, when densification statistics are requested, the per-pixel norm of the
-screen-space gradient (1). The chain to ``means, quats, scales, sh`` is the automatic adjoint of the
+``∂L/∂opacity`` (1) — one 16-float row of ``SplatGrads.packed``, four vector atomics on sm_90 (H100/H200), 16 scalar
+ones elsewhere — and, when densification statistics are requested, the per-pixel norm of the screen-space
+gradient (1). The chain to ``means, quats, scales, sh`` is the automatic adjoint of the
 loop-free ``preprocess_gaussians``.
 """
 
@@ -29,7 +30,7 @@ import warp as wp
 
 from .gaussian_math import normal_direction, pixel_ray, ray_gaussian
 from .rasterize import distortion_depth, distortion_depth_grad, gaussian_alpha, tile_pixel
-from .render_types import CameraParams, PixelAux, PixelMaps, RasterSettings, SplatGrads, Splats, TileLists
+from .render_types import GRAD_COLOUR, GRAD_O_G, GRAD_OPACITY, GRAD_P, CameraParams, PixelAux, PixelMaps, RasterSettings, SplatGrads, Splats, TileLists
 
 wp.set_module_options({"enable_backward": False})
 
@@ -119,6 +120,56 @@ def lane_in_warp(lane: int) -> int:
     ...
 
 
+@wp.func_native("""
+float* p = wp::address(buf, i, j);
+#if defined(__CUDA_ARCH__) && (__CUDA_ARCH__ >= 900)
+asm volatile("{ .reg .u64 ga; cvta.to.global.u64 ga, %0; red.global.add.v4.f32 [ga], {%1, %2, %3, %4}; }"
+             :: "l"(p), "f"(v[0]), "f"(v[1]), "f"(v[2]), "f"(v[3]) : "memory");
+#else
+for (int c = 0; c < 4; ++c) wp::atomic_add(p + c, v[c]);
+#endif
+""")
+def atomic_add4(buf: wp.array2d(dtype=float), i: int, j: int, v: wp.vec4):
+    """``buf[i, j:j+4] += v`` atomically: one 16-byte vector reduction on sm_90 (``buf[i, j]`` 16-byte aligned), four
+    scalar atomics on other GPUs and the CPU."""
+    ...
+
+
+vec16 = wp.types.vector(length=16, dtype=float)
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+float a[16];
+#pragma unroll
+for (int k = 0; k < 16; ++k) a[k] = v.c[k];
+const int ln = lane & 31;
+#pragma unroll
+for (int m = 8, off = 16; m >= 1; m >>= 1, off >>= 1) {
+    const bool up = (ln & off) != 0;
+#pragma unroll
+    for (int k = 0; k < m; ++k) {
+        const float send = up ? a[k] : a[k + m];
+        const float keep = up ? a[k + m] : a[k];
+        a[k] = keep + __shfl_xor_sync(0xffffffffu, send, off);
+    }
+}
+const float s = a[0] + __shfl_xor_sync(0xffffffffu, a[0], 1);
+if ((ln & 1) == 0) atomicAdd(wp::address(buf, i, ln >> 1), s);
+#else
+for (int k = 0; k < 16; ++k) wp::atomic_add(wp::address(buf, i, k), v.c[k]);
+#endif
+""")
+def warp_add16(buf: wp.array2d(dtype=float), i: int, v: vec16, lane: int):
+    """``buf[i, 0:16] += Σ_lanes v`` for the whole CUDA warp (every lane must call it, with the same ``i``).
+
+    Recursive halving: at each of the offsets 16, 8, 4, 2 a lane keeps half of its values and sends the other half to
+    its partner, so after 16 shuffles (not 16 × 5) lane ``2c`` holds the warp's sum of value ``c`` and adds it: one
+    16-lane atomic instruction on 16 consecutive floats. On the CPU (one lane per warp) it adds ``v``.
+    """
+    ...
+
+
 @wp.func
 def backward_step(b: BackState, pg: PixelGrads, e: int, g: int, active: int, Pk: wp.mat33, og: wp.vec3, col: wp.vec3, op: float,
                   r: wp.vec3, z: float, cam: CameraParams, settings: RasterSettings, with_stats: int, reduce: int, lane: int,
@@ -126,9 +177,9 @@ def backward_step(b: BackState, pg: PixelGrads, e: int, g: int, active: int, Pk:
     """Un-blend list entry ``e`` (Gaussian ``g``) if ``active`` and add the pair's gradients into ``grads``
     (see the module docstring); ``z`` is the Gaussian's view depth (used only for the statistics).
 
-    With ``reduce`` (warp-uniform; every lane of the warp must make the call, active or not), the
-    gradients are first summed over the CUDA warp and added by one lane: fewer atomics on one address
-    for Gaussians that many pixels of the warp blend.
+    With ``reduce`` (the CUDA shared-memory kernel: every lane of the warp makes the call, active or not, for the same
+    entry), when at least ``settings.reduce_min_lanes`` lanes of the warp blend the entry, the gradients are summed over
+    the warp first (:func:`warp_add16`): fewer atomics on one address for Gaussians that many pixels of the warp blend.
     """
     hit = int(0)
     dP = wp.mat33(0.0)
@@ -136,64 +187,63 @@ def backward_step(b: BackState, pg: PixelGrads, e: int, g: int, active: int, Pk:
     dcol = wp.vec3(0.0)
     dop = float(0.0)
     dabs = float(0.0)
-    h = ray_gaussian(Pk, og, r)
-    alpha = gaussian_alpha(h, op, settings)
-    if active != 0 and alpha >= 0.0:
-        hit = 1
-        b.T = b.T / (1.0 - alpha)
-        w = alpha * b.T
-        m = normal_direction(Pk, h.r_g, h.a)  # = −Pᵀ r_g / √A
-        m_len = wp.max(wp.length(m), 1.0e-30)
-        n_hat = m / m_len
-        f = wp.dot(pg.gc, col) + pg.gD * h.t + wp.dot(pg.gN, n_hat)
-        dL_dalpha = b.T * f - (b.S + pg.bg_term) / (1.0 - alpha)
-        b.S = b.S + w * f
-        A_km1 = pg.A_N - b.suffix_w - w
-        # distortion, weights detached: paper ∂D/∂f_k = 2 w_k (A_{k−1} − (A_N − A_k)); GOF (squared)
-        # ∂D/∂f_k = 2 w_k (f_k A_N − Σ_j w_j f_j); then the chain through f(t)
-        dD_df = 2.0 * w * (A_km1 - b.suffix_w)
-        if settings.distortion_ndc != 0:
-            dD_df = 2.0 * w * (distortion_depth(h.t, settings) * pg.A_N - pg.Bf_N)
-        dL_dt = w * pg.gD + dD_df * distortion_depth_grad(h.t, settings) * pg.gDist
-        if e == pg.median_pos:
-            dL_dt += pg.gMed
-        b.suffix_w = b.suffix_w + w
+    if active != 0:  # a warp whose pixels all ended before this entry skips the ray–Gaussian maths
+        h = ray_gaussian(Pk, og, r)
+        alpha = gaussian_alpha(h, op, settings)
+        if alpha >= 0.0:
+            hit = 1
+            b.T = b.T / (1.0 - alpha)
+            w = alpha * b.T
+            m = normal_direction(Pk, h.r_g, h.a)  # = −Pᵀ r_g / √A
+            m_len = wp.max(wp.length(m), 1.0e-30)
+            n_hat = m / m_len
+            f = wp.dot(pg.gc, col) + pg.gD * h.t + wp.dot(pg.gN, n_hat)
+            dL_dalpha = b.T * f - (b.S + pg.bg_term) / (1.0 - alpha)
+            b.S = b.S + w * f
+            A_km1 = pg.A_N - b.suffix_w - w
+            # distortion, weights detached: paper ∂D/∂f_k = 2 w_k (A_{k−1} − (A_N − A_k)); GOF (squared)
+            # ∂D/∂f_k = 2 w_k (f_k A_N − Σ_j w_j f_j); then the chain through f(t)
+            dD_df = 2.0 * w * (A_km1 - b.suffix_w)
+            if settings.distortion_ndc != 0:
+                dD_df = 2.0 * w * (distortion_depth(h.t, settings) * pg.A_N - pg.Bf_N)
+            dL_dt = w * pg.gD + dD_df * distortion_depth_grad(h.t, settings) * pg.gDist
+            if e == pg.median_pos:
+                dL_dt += pg.gMed
+            b.suffix_w = b.suffix_w + w
 
-        E = wp.exp(-0.5 * h.d2)
-        dL_dd2 = float(0.0)
-        if op * E <= settings.alpha_max:  # true derivative of the clamp: 0 where it is active
-            dop = E * dL_dalpha
-            dL_dd2 = -0.5 * op * E * dL_dalpha
+            E = wp.exp(-0.5 * h.d2)
+            dL_dd2 = float(0.0)
+            if op * E <= settings.alpha_max:  # true derivative of the clamp: 0 where it is active
+                dop = E * dL_dalpha
+                dL_dd2 = -0.5 * op * E * dL_dalpha
 
-        # normal: ∂L/∂m for the unnormalised m = −Pᵀ r_g (= √A · normal_direction)
-        gn = w * pg.gN
-        dL_dm = (gn - n_hat * wp.dot(n_hat, gn)) / (m_len * wp.sqrt(h.a))
-        dog = 2.0 * dL_dd2 * h.x_c - (dL_dt / h.a) * h.r_g
-        dL_drg = (2.0 * dL_dd2 * h.t) * h.x_c - (dL_dt / h.a) * (h.x_c + h.t * h.r_g) - Pk * dL_dm
-        dP = wp.outer(dL_drg, r) - wp.outer(h.r_g, dL_dm)
-        dcol = w * pg.gc
-        if with_stats != 0:
-            dabs = wp.length(screen_gradient(Pk, dog, z, cam))
+            # normal: ∂L/∂m for the unnormalised m = −Pᵀ r_g (= √A · normal_direction)
+            gn = w * pg.gN
+            dL_dm = (gn - n_hat * wp.dot(n_hat, gn)) / (m_len * wp.sqrt(h.a))
+            dog = 2.0 * dL_dd2 * h.x_c - (dL_dt / h.a) * h.r_g
+            dL_drg = (2.0 * dL_dd2 * h.t) * h.x_c - (dL_dt / h.a) * (h.x_c + h.t * h.r_g) - Pk * dL_dm
+            dP = wp.outer(dL_drg, r) - wp.outer(h.r_g, dL_dm)
+            dcol = w * pg.gc
+            if with_stats != 0:
+                dabs = wp.length(screen_gradient(Pk, dog, z, cam))
 
     add = hit
     if reduce != 0:
-        add = 0
-        if warp_count(hit) > 0:
-            for i in range(3):
-                for j in range(3):
-                    dP[i, j] = warp_sum(dP[i, j])
-                dog[i] = warp_sum(dog[i])
-                dcol[i] = warp_sum(dcol[i])
-            dop = warp_sum(dop)
+        lanes = warp_count(hit)  # warp-uniform
+        if lanes >= settings.reduce_min_lanes:
+            add = 0
+            # the row's layout: render_types.GRAD_* (GRAD_OPACITY = GRAD_COLOUR + 3)
+            warp_add16(grads.packed, g, vec16(dP[0, 0], dP[0, 1], dP[0, 2], dP[1, 0], dP[1, 1], dP[1, 2], dP[2, 0], dP[2, 1],
+                                              dP[2, 2], dog[0], dog[1], dog[2], dcol[0], dcol[1], dcol[2], dop), lane)  # fmt: skip
             if with_stats != 0:
                 dabs = warp_sum(dabs)
-            if lane_in_warp(lane) == 0:
-                add = 1
+                if lane_in_warp(lane) == 0:
+                    wp.atomic_add(grads.grad2d_abs, g, dabs)
     if add != 0:
-        wp.atomic_add(grads.P, g, dP)
-        wp.atomic_add(grads.o_g, g, dog)
-        wp.atomic_add(grads.colour, g, dcol)
-        wp.atomic_add(grads.opacity, g, dop)
+        atomic_add4(grads.packed, g, GRAD_P, wp.vec4(dP[0, 0], dP[0, 1], dP[0, 2], dP[1, 0]))
+        atomic_add4(grads.packed, g, GRAD_P + 4, wp.vec4(dP[1, 1], dP[1, 2], dP[2, 0], dP[2, 1]))
+        atomic_add4(grads.packed, g, GRAD_P + 8, wp.vec4(dP[2, 2], dog[0], dog[1], dog[2]))
+        atomic_add4(grads.packed, g, GRAD_COLOUR, wp.vec4(dcol[0], dcol[1], dcol[2], dop))
         if with_stats != 0:
             wp.atomic_add(grads.grad2d_abs, g, dabs)
     return b
@@ -224,13 +274,19 @@ def rasterize_backward(lists: TileLists, splats: Splats, cam: CameraParams, sett
 
 
 @wp.kernel
-def accumulate_grad2d(
+def finish_splat_grads(
+    packed: wp.array2d(dtype=float),
     P: wp.array(dtype=wp.mat33),
-    grad_o_g: wp.array(dtype=wp.vec3),
     mu_v: wp.array(dtype=wp.vec3),
     cam: CameraParams,
+    with_stats: int,
+    grad_opacity: wp.array(dtype=float),
     grad2d: wp.array(dtype=wp.vec2),
 ):
-    """``grad2d[k] += Σ_p g_p`` — linear in ``∂L/∂o_g``, so taken from its per-Gaussian total."""
+    """``grad_opacity[k] += packed[k, GRAD_OPACITY]``; with statistics ``grad2d[k] += Σ_p g_p``, which is linear in
+    ``∂L/∂o_g`` and so taken from its per-Gaussian total."""
     k = wp.tid()
-    grad2d[k] = grad2d[k] + screen_gradient(P[k], grad_o_g[k], mu_v[k][2], cam)
+    grad_opacity[k] = grad_opacity[k] + packed[k, GRAD_OPACITY]
+    if with_stats != 0:
+        dog = wp.vec3(packed[k, GRAD_O_G], packed[k, GRAD_O_G + 1], packed[k, GRAD_O_G + 2])
+        grad2d[k] = grad2d[k] + screen_gradient(P[k], dog, mu_v[k][2], cam)

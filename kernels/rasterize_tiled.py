@@ -25,6 +25,10 @@ wp.set_module_options({"enable_backward": False})
 
 TILE_SIZE = 16
 TILE_PIXELS = wp.constant(TILE_SIZE * TILE_SIZE)
+#: Registers per thread of both kernels: 80 × 256 threads lets three blocks share an SM's 64K registers (two at the
+#: ~120 the compiler chose unbounded). On an H100 this took the DTU step's forward from 3.30 to 2.88 ms and its backward
+#: from 6.8 to 6.3 ms (``benchmarks/render/README.md``, session 21).
+MAX_REGISTERS = 80
 
 
 @wp.func
@@ -34,7 +38,7 @@ def _block_pixel(tile: int, lane: int, settings: RasterSettings) -> wp.vec2i:
     return wp.vec2i(tx * TILE_SIZE + lane % TILE_SIZE, ty * TILE_SIZE + lane / TILE_SIZE)
 
 
-@wp.kernel
+@wp.kernel(cuda_max_registers=MAX_REGISTERS)
 def rasterize_forward_tiled(lists: TileLists, splats: Splats, cam: CameraParams, settings: RasterSettings, out: PixelMaps, aux: PixelAux):
     """``wp.launch_tiled(dim=num_tiles, block_dim=TILE_PIXELS)``; same outputs as ``rasterize_forward``."""
     tile, lane = wp.tid()
@@ -69,7 +73,7 @@ def rasterize_forward_tiled(lists: TileLists, splats: Splats, cam: CameraParams,
         write_pixel(s, p[1] * cam.width + p[0], settings, out, aux)
 
 
-@wp.kernel
+@wp.kernel(cuda_max_registers=MAX_REGISTERS)
 def rasterize_backward_tiled(lists: TileLists, splats: Splats, cam: CameraParams, settings: RasterSettings, aux: PixelAux,
                              gout: PixelMaps, with_stats: int, grads: SplatGrads):  # fmt: skip
     """``wp.launch_tiled(dim=num_tiles, block_dim=TILE_PIXELS)``; same result as ``rasterize_backward``."""
@@ -85,7 +89,6 @@ def rasterize_backward_tiled(lists: TileLists, splats: Splats, cam: CameraParams
     b.T = aux.final_T[pix]
     block_last = wp.tile_extract(wp.tile_max(wp.tile(my_last)), 0)
     mu_v = splats.mu_v
-    radius = splats.radius
     # struct members as locals: tile_load_indexed does not accept struct fields directly (Warp 1.19)
     values = lists.values
     sP = splats.P
@@ -105,10 +108,9 @@ def rasterize_backward_tiled(lists: TileLists, splats: Splats, cam: CameraParams
             z = float(0.0)
             if with_stats != 0:
                 z = mu_v[g][2]
-            # every lane of the block is here (block-uniform loop); the reduce flag is warp-uniform (same g)
-            reduce = wp.where(radius[g] >= settings.reduce_min_radius, 1, 0)
+            # every lane of the block is here (block-uniform loop), so backward_step may reduce over the warp
             b = backward_step(b, pg, e, g, wp.where(e < my_last, 1, 0), wp.tile_extract(tP, i), wp.tile_extract(tO, i),
-                              wp.tile_extract(tC, i), wp.tile_extract(tA, i), r, z, cam, settings, with_stats, reduce, lane,
+                              wp.tile_extract(tC, i), wp.tile_extract(tA, i), r, z, cam, settings, with_stats, 1, lane,
                               grads)  # fmt: skip
         # keep the next batch's loads from overwriting shared data other threads still read
         wp.tile_sum(wp.tile(0))

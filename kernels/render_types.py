@@ -42,7 +42,7 @@ class RasterSettings:
     far: float  # far plane of the NDC depth map m(t) = far (t − ndc_near) / ((far − ndc_near) t)
     ndc_near: float  # near plane of that map (GOF: 0.2); ``near`` above may clip further out for one camera
     linear_from: float  # > 0: m(t) continued by its tangent beyond this depth (0: GOF's m(t) everywhere)
-    reduce_min_radius: int  # CUDA backward: warp-reduce the gradients of Gaussians at least this large (pixels)
+    reduce_min_lanes: int  # CUDA backward: sum an entry's gradients over the warp when at least this many of its lanes blend it
     tile_cull: int  # 1: bin into the tiles the projected ellipse meets; 0: every tile of its bounding box
 
 
@@ -77,7 +77,7 @@ def make_raster_settings(
     k_max: float = DEFAULT_K_MAX,
     background=(0.0, 0.0, 0.0),
     tile_size: int = 16,
-    reduce_min_radius: int = 8,
+    reduce_min_lanes: int = 16,
     pixel_pad: float = 0.0,
     distortion: str = "gof",
     far: float = 100.0,
@@ -106,7 +106,9 @@ def make_raster_settings(
     if not (distortion_linear_from == 0.0 or distortion_linear_from > s.ndc_near):
         raise ValueError(f"distortion_linear_from must be 0 (off) or beyond near {s.ndc_near}, got {distortion_linear_from}")
     s.linear_from = float(distortion_linear_from)
-    s.reduce_min_radius = int(reduce_min_radius)
+    if int(reduce_min_lanes) < 1:
+        raise ValueError(f"reduce_min_lanes must be at least 1, got {reduce_min_lanes}")
+    s.reduce_min_lanes = int(reduce_min_lanes)
     s.tile_cull = 1 if tile_cull else 0
     s.tiles_x = (int(width) + s.tile_size - 1) // s.tile_size
     s.tiles_y = (int(height) + s.tile_size - 1) // s.tile_size
@@ -157,15 +159,21 @@ class PixelAux:
     dist_sum: wp.array(dtype=float)  # Σ w f(t*), f the distortion's depth map (NDC m or t)
 
 
+#: Columns of ``SplatGrads.packed``: ∂L/∂P (9, row-major), ∂L/∂o_g (3), ∂L/∂colour (3), ∂L/∂opacity (1) — 16 floats,
+#: four 16-byte groups, so the CUDA backward adds a pair's gradients with four vector atomics (sm_90) instead of 16.
+GRAD_P = wp.constant(0)
+GRAD_O_G = wp.constant(9)
+GRAD_COLOUR = wp.constant(12)
+GRAD_OPACITY = wp.constant(15)
+GRAD_WIDTH = 16
+
+
 @wp.struct
 class SplatGrads:
-    """Per-Gaussian gradient accumulators of the per-pixel backward (``[N]``, added into)."""
+    """Per-Gaussian gradient accumulators of the per-pixel backward (added into)."""
 
-    P: wp.array(dtype=wp.mat33)
-    o_g: wp.array(dtype=wp.vec3)
-    colour: wp.array(dtype=wp.vec3)
-    opacity: wp.array(dtype=float)
-    grad2d_abs: wp.array(dtype=float)  # Σ_p ‖g_p‖ (written only when statistics are requested)
+    packed: wp.array2d(dtype=float)  # [N, GRAD_WIDTH], 16-byte aligned rows (see GRAD_* above)
+    grad2d_abs: wp.array(dtype=float)  # [N] Σ_p ‖g_p‖ (written only when statistics are requested)
 
 
 def make_struct(cls, **arrays):

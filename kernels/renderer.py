@@ -2,7 +2,7 @@
 
 Pipeline (``docs/rendering.md``): ``preprocess_gaussians`` → ``screen_bounds`` → ``bin_gaussians``
 (scan, keys, radix sort, tile ranges) → ``rasterize_forward``. The backward is
-``rasterize_backward`` (hand-written, per pixel) → ``accumulate_grad2d`` → the automatic adjoint of
+``rasterize_backward`` (hand-written, per pixel) → ``finish_splat_grads`` → the automatic adjoint of
 ``preprocess_gaussians``.
 
 Pure-Warp use with a tape (see ``examples/warp_tape_render.py``)::
@@ -26,9 +26,10 @@ import warp as wp
 from .binning import TileListSizer, bin_gaussians
 from .project import preprocess_gaussians, screen_bounds
 from .rasterize import rasterize_forward
-from .rasterize_backward import accumulate_grad2d, rasterize_backward
+from .rasterize_backward import finish_splat_grads, rasterize_backward
 from .rasterize_tiled import TILE_PIXELS, TILE_SIZE, rasterize_backward_tiled, rasterize_forward_tiled
-from .render_types import CameraParams, PixelAux, PixelMaps, RasterSettings, SplatGrads, Splats, TileLists, make_struct
+from .render_types import (GRAD_COLOUR, GRAD_O_G, GRAD_P, GRAD_WIDTH, CameraParams, PixelAux, PixelMaps, RasterSettings,
+                           SplatGrads, Splats, TileLists, make_struct)
 from .tile_overlap import empty_tile_ellipses
 
 #: Bytes of per-Gaussian renderer state (mu_v 12, P 36, o_g 12, colour 12, rect 16, counts/radii/depth/
@@ -187,6 +188,15 @@ def render_forward(means, quats, scales, opacities, sh, sh_degree: int, cam: Cam
     return out, state
 
 
+def _column_view(packed: wp.array, column: int, dtype) -> wp.array:
+    """``[N]`` view of ``dtype`` starting at ``column`` of every row of the ``[N, W]`` float array ``packed`` (no copy)."""
+    if packed.shape[0] == 0:
+        return wp.empty(0, dtype=dtype, device=packed.device)
+    offset = column * 4
+    return wp.array(ptr=packed.ptr + offset, dtype=dtype, shape=(packed.shape[0],), strides=(packed.strides[0],),
+                    capacity=packed.capacity - offset, device=packed.device)
+
+
 def render_backward(state: RenderState, grad_out: RenderOutputs, grad_in: tuple, grad2d=None, grad2d_abs=None, profile=None):
     """Accumulate the input gradients for the output gradients ``grad_out``.
 
@@ -200,17 +210,19 @@ def render_backward(state: RenderState, grad_out: RenderOutputs, grad_in: tuple,
     _mark(profile, "start", device)
     n = state.mu_v.shape[0]
     cam, settings = state.cam, state.settings
-    gP = wp.zeros(n, dtype=wp.mat33, device=device)
-    g_og = wp.zeros(n, dtype=wp.vec3, device=device)
-    g_col = wp.zeros(n, dtype=wp.vec3, device=device)
+    packed = wp.zeros((n, GRAD_WIDTH), dtype=float, device=device)
+    if n and packed.ptr % 16:
+        raise RuntimeError("render_backward: the packed gradient rows must be 16-byte aligned")
     with_stats = grad2d is not None
     abs_arr = grad2d_abs if with_stats else wp.zeros(1, dtype=float, device=device)
-    grads = make_struct(SplatGrads, P=gP, o_g=g_og, colour=g_col, opacity=grad_in[3], grad2d_abs=abs_arr)
+    grads = make_struct(SplatGrads, packed=packed, grad2d_abs=abs_arr)
     _launch_raster(rasterize_backward, rasterize_backward_tiled, state.tiled, settings,
                    [state.lists, state.splats, cam, settings, state.aux, grad_out.as_struct(), int(with_stats)], [grads], device)  # fmt: skip
     _mark(profile, "raster_backward", device)
-    if with_stats:
-        wp.launch(accumulate_grad2d, dim=n, inputs=[state.P, g_og, state.mu_v, cam], outputs=[grad2d], device=device, record_tape=False)
+    gP, g_og, g_col = (_column_view(packed, col, dtype) for col, dtype in ((GRAD_P, wp.mat33), (GRAD_O_G, wp.vec3), (GRAD_COLOUR, wp.vec3)))
+    wp.launch(finish_splat_grads, dim=n, inputs=[packed, state.P, state.mu_v, cam, int(with_stats)],
+              outputs=[grad_in[3], grad2d if with_stats else wp.zeros(1, dtype=wp.vec2, device=device)], device=device,
+              record_tape=False)  # fmt: skip
     means, quats, scales, _, sh = state.inputs
     wp.launch(preprocess_gaussians, dim=n,
               inputs=[means, quats, scales, sh, state.sh_degree, cam.R, cam.t, cam.centre],

@@ -152,9 +152,9 @@ def test_tape_path_matches_torch_path():
     assert stats.grad2d_abs.sum() > 0
 
 
-def _warp_forward_backward(params, cam, tiled, reduce_min_radius=1 << 30):
+def _warp_forward_backward(params, cam, tiled, reduce_min_lanes=33):
     wpar = [wp.array(p.numpy(), dtype=t, device="cpu", requires_grad=True) for p, t in zip(params, (wp.vec3, wp.vec4, wp.vec3, float, wp.vec3))]
-    settings = make_raster_settings(cam.width, cam.height, reduce_min_radius=reduce_min_radius)
+    settings = make_raster_settings(cam.width, cam.height, reduce_min_lanes=reduce_min_lanes)
     out, state = render_forward(*wpar, 1, camera_params_from(cam), settings, tiled=tiled)
     rng = np.random.default_rng(0)
     grad_out = RenderOutputs(*[wp.array(rng.normal(size=a.numpy().shape).astype(np.float32), dtype=a.dtype, device="cpu") for a in out.arrays()])
@@ -171,7 +171,7 @@ def test_shared_memory_kernels_match_plain_kernels():
     saved = wp.config.enable_cpu_blocks
     wp.config.enable_cpu_blocks = True
     try:  # without and with the warp-reduction path (a no-op on the CPU, where warps have one lane)
-        runs = [_warp_forward_backward(params, cam, tiled=True, reduce_min_radius=m) for m in (1 << 30, 0)]
+        runs = [_warp_forward_backward(params, cam, tiled=True, reduce_min_lanes=m) for m in (33, 1)]
     finally:
         wp.config.enable_cpu_blocks = saved
     for tiled in runs:

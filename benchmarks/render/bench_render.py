@@ -142,10 +142,10 @@ def _time(fn, iters, warmup=2):
     return float(np.median(times)), float(np.min(times))
 
 
-def _stage_times(params, cam, tiled, iters=5, reduce_min_radius=8, tile_cull=True):
+def _stage_times(params, cam, tiled, iters=5, reduce_min_lanes=16, tile_cull=True):
     """Median per-stage milliseconds from ``profile`` events of the Warp entry points, and the number of
     (Gaussian, tile) entries."""
-    settings = make_raster_settings(cam.width, cam.height, reduce_min_radius=reduce_min_radius, tile_cull=tile_cull)
+    settings = make_raster_settings(cam.width, cam.height, reduce_min_lanes=reduce_min_lanes, tile_cull=tile_cull)
     camp = camera_params_from(cam)
     types = (wp.vec3, wp.vec4, wp.vec3, None, wp.vec3)
     wpar = [wp.from_torch(p, dtype=t) for p, t in zip(params, types)]
@@ -212,8 +212,8 @@ def bench_one(n, size, iters, tile_cull=True):
     res["params_mb"] = sum(p.numel() * 4 for p in params) / 2**20
     res["stages_tiled_ms"], res["tile_entries"] = _stage_times(params, cam, tiled=True, tile_cull=tile_cull)
     res["stages_plain_ms"], _ = _stage_times(params, cam, tiled=False, tile_cull=tile_cull)
-    res["raster_backward_ms_by_reduce_min_radius"] = {m: _stage_times(params, cam, tiled=True, reduce_min_radius=m, tile_cull=tile_cull)[0]["raster_backward"]
-                                                      for m in (0, 8, 32, 128, 1 << 30)}  # fmt: skip
+    res["raster_backward_ms_by_reduce_min_lanes"] = {m: _stage_times(params, cam, tiled=True, reduce_min_lanes=m, tile_cull=tile_cull)[0]["raster_backward"]
+                                                     for m in (1, 2, 4, 8, 16, 33)}  # fmt: skip
     out = rasterize(*params, cam, config=config)
     res["mean_alpha"] = float(out["alpha"].mean())
     res["entries_per_tile"] = res["tile_entries"] / (math.ceil(W / 16) * math.ceil(H / 16))

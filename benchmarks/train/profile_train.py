@@ -145,6 +145,8 @@ def main(argv=None) -> int:
     ap.add_argument("--device", default="auto")
     ap.add_argument("--out", type=Path, default=Path("profile_out"))
     ap.add_argument("--label", default="", help="free text stored in the JSON (e.g. the commit)")
+    ap.add_argument("--reduce-min-lanes", type=int, default=None,
+                    help="the CUDA backward's RasterSettings.reduce_min_lanes for every render (default: the kernels' own)")
     ap.add_argument("overrides", nargs="*", help="section.key=value, as for gof_warp.train")
     a = ap.parse_intermixed_args(argv)
 
@@ -154,6 +156,13 @@ def main(argv=None) -> int:
     from gof_warp.preset_choice import resolve_config
     from gof_warp.trainer import Trainer
 
+    if a.reduce_min_lanes is not None:  # a benchmark knob, not a training option: every render's settings get it
+        import functools
+
+        import gof_warp.render
+
+        gof_warp.render.make_raster_settings = functools.partial(gof_warp.render.make_raster_settings,
+                                                                 reduce_min_lanes=a.reduce_min_lanes)
     ranks = ranks_from_environment()  # under torchrun: every rank profiles its own step, into DIR/rank<r>/
     if ranks.active:
         a.out = a.out / f"rank{ranks.rank}"
