@@ -4,7 +4,7 @@
 # snapshot of an earlier commit, e.g.
 #   git archive HEAD gof_warp kernels configs tests/reference_render.py benchmarks/render benchmarks/train | tar -x -C .before
 # Needs Warp staged and benchmarks/device_setup.sh sourced; the DTU scene in DTU.
-#   STEP=check   the working tree's CUDA kernels against the float64 reference (bench_render.py --check)
+#   STEP=check   the CUDA kernels of CHECK_TREE (default the working tree) against the float64 reference (bench_render.py --check)
 #   STEP=render  bench_render.py --one N SIZE for each of POINTS ("N:SIZE ...") and each tree of RENDER_TREES
 #   STEP=model   trains the DTU model the profiles use: MODEL_ITERS iterations of the dtu preset (working tree) → $EX/dtu.ply
 #   STEP=profile profile_train.py at each of STARTS on $EX/dtu.ply for each of VARIANTS ("label:tree[:reduce_min_lanes]"),
@@ -23,7 +23,8 @@ run_tree() {  # run_tree TREE CMD...: CMD from TREE's folder with TREE's sources
 for step in ${STEP:-check render model profile}; do
   case $step in
   check)
-    python3 benchmarks/render/bench_render.py --check --out "$OUT/ab" 2>&1 | tail -n 40 ;;
+    run_tree ${CHECK_TREE:-.} python3 benchmarks/render/bench_render.py --check --out "$OUT/ab/check_$(basename ${CHECK_TREE:-working})" 2>&1 \
+      | tail -n 40 ;;
   render)
     for rep in $(seq 1 $REPS); do for p in $POINTS; do for tree in $RENDER_TREES; do
       IFS=: read -r n size <<< "$p"

@@ -1,21 +1,25 @@
 #!/usr/bin/env bash
-# A copy of the working tree (for ab_trees.sh) whose per-pixel CUDA kernels KERNELS (comma-separated) are compiled with at
-# most REGS registers per thread (Warp's cuda_max_registers, i.e. __maxnreg__): more resident warps, maybe spills. Used to
-# measure occupancy.
-#   bash benchmarks/train/register_variant.sh .r80 80 [rasterize_backward_tiled,rasterize_forward_tiled]
+# A copy of the working tree (for ab_trees.sh) whose per-pixel CUDA kernels (kernels/rasterize_tiled.py) are compiled
+# with at most REGS registers per thread (MAX_REGISTERS, Warp's cuda_max_registers: more resident warps, maybe spills;
+# 0 keeps the tree's value) and, with FAST_MATH=1, Warp's fast_math (approximate division and square root, denormals
+# flushed). Used to measure occupancy and instruction cost tree against tree.
+#   [FAST_MATH=1] bash benchmarks/train/register_variant.sh .r64 64
 set -eu
-dest=$1; regs=$2; kernel=${3:-rasterize_backward_tiled}
+dest=$1; regs=$2
 rm -rf $dest; mkdir -p $dest/tests $dest/benchmarks
 cp -r gof_warp kernels configs $dest/; rm -f $dest/gof_warp/kernels $dest/gof_warp/configs
 cp tests/reference_render.py $dest/tests/; cp -r benchmarks/render benchmarks/train $dest/benchmarks/
-python3 - $dest/kernels/rasterize_tiled.py $kernel $regs <<'PY'
-import sys
-path, kernels, regs = sys.argv[1:]
+python3 - $dest/kernels/rasterize_tiled.py $regs ${FAST_MATH:-0} <<'PY'
+import re, sys
+path, regs, fast = sys.argv[1:]
 s = open(path).read()
-for kernel in kernels.split(","):
-    old = f"@wp.kernel\ndef {kernel}("
-    assert old in s, f"{kernel} not found"
-    s = s.replace(old, f"@wp.kernel(cuda_max_registers={regs})\ndef {kernel}(")
+if fast == "1":
+    old = 'wp.set_module_options({"enable_backward": False})'
+    assert old in s
+    s = s.replace(old, 'wp.set_module_options({"enable_backward": False, "fast_math": True})')
+if regs != "0":
+    s, n = re.subn(r"^MAX_REGISTERS = \d+", f"MAX_REGISTERS = {regs}", s, flags=re.M)
+    assert n == 1, "MAX_REGISTERS not found"
 open(path, "w").write(s)
 PY
-echo "$dest: $kernel capped at $regs registers"
+echo "$dest: registers $regs, fast_math ${FAST_MATH:-0}"
