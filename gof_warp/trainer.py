@@ -112,11 +112,13 @@ class TrainConfig:
     # on CUDA, size the tile lists at this margin over earlier renders' counts instead of waiting for each render's
     # count (kernels.binning.TileListSizer: no host–device synchronisation per iteration); 0: exact sizing
     tile_list_margin: float = 1.25
-    # the loss through torch.compile ("auto": on CUDA, eager if compiling fails; "on"; "off"): losses.TrainingLoss.
-    # Off by default: on an H200 it saves ~0.65 ms of a 16 ms DTU step but costs ~16 s of compiling per fresh
-    # machine (benchmarks/train/README.md, session 9), so it pays off only for long runs. YAML reads a bare on/off
-    # as true/false: those are taken as "on"/"off"
-    compile_loss: str | bool = "off"
+    # the loss through torch.compile (losses.TrainingLoss): "auto" (default) compiles on CUDA for runs of at least
+    # AUTO_COMPILE_MIN_ITERATIONS iterations and falls back to the eager loss if compiling fails; "on"; "off". With the
+    # renderer's kernels faster the DTU step is host-bound, and the compiled loss (a few fused kernels instead of ~130
+    # launches) took a 30k DTU run on an H100 from 505 to 426 s for ~15 s of compiling (benchmarks/train/README.md,
+    # session 21); short runs would spend more on compiling than they save. YAML reads a bare on/off as true/false:
+    # those are taken as "on"/"off"
+    compile_loss: str | bool = "auto"
     # render each training view on a random background colour (3DGS's --random_background) instead of the scene's:
     # a surface can then no longer stay partly transparent with brighter colours over the fixed background, which
     # the photometric loss cannot tell apart on opaque photos and which the opacity field turns into holes and
@@ -167,6 +169,20 @@ def _image_tensor(image: np.ndarray, device) -> torch.Tensor:
     return torch.from_numpy(image).to(device=device, dtype=torch.float32) / 255.0
 
 
+
+#: ``compile_loss="auto"`` compiles only runs at least this long: compiling costs ~15 s on a fresh machine and saves
+#: ~1–2.5 ms per DTU iteration on an H100 (benchmarks/train/README.md, session 21).
+AUTO_COMPILE_MIN_ITERATIONS = 10_000
+
+
+def compile_mode(config: TrainConfig) -> str:
+    """``config.compile_loss`` with ``"auto"`` resolved for the run's length: ``"off"`` below
+    :data:`AUTO_COMPILE_MIN_ITERATIONS` iterations (``TrainingLoss`` itself keeps ``"auto"`` eager off CUDA)."""
+    if config.compile_loss == "auto" and config.iterations < AUTO_COMPILE_MIN_ITERATIONS:
+        return "off"
+    return config.compile_loss
+
+
 class Trainer:
     """One training run on one scene, writing into ``out_dir``.
 
@@ -207,7 +223,7 @@ class Trainer:
         # tile lists sized without waiting for the GPU each iteration (on the CPU there is nothing to overlap)
         self.tile_lists = (TileListSizer(config.tile_list_margin)
                            if self.device.type == "cuda" and config.tile_list_margin else None)
-        self.loss = TrainingLoss(config.loss, self.cameras, self.device, config.compile_loss)
+        self.loss = TrainingLoss(config.loss, self.cameras, self.device, compile_mode(config))
         self._rng = np.random.default_rng(config.seed)
         self._stack: list[int] = []
         self._pending = PendingScalars()  # iterations whose loss terms are still on the device

@@ -7,8 +7,9 @@
 #   STEP=check   the CUDA kernels of CHECK_TREE (default the working tree) against the float64 reference (bench_render.py --check)
 #   STEP=render  bench_render.py --one N SIZE for each of POINTS ("N:SIZE ...") and each tree of RENDER_TREES
 #   STEP=model   trains the DTU model the profiles use: MODEL_ITERS iterations of the dtu preset (working tree) → $EX/dtu.ply
-#   STEP=profile profile_train.py at each of STARTS on $EX/dtu.ply for each of VARIANTS ("label:tree[:reduce_min_lanes]"),
-#                REPS times alternating
+#   STEP=profile profile_train.py at each of STARTS on $EX/dtu.ply for each of VARIANTS
+#                ("label:tree[:reduce_min_lanes[:override,override...]]", e.g. "cl:.::compile_loss=on"), REPS times alternating
+#   STEP=model with /tmp/dtugeo/*.part0.npz present (pack_model.py parts of a trained run) unpacks that model instead
 # Writes everything under $OUT/ab/.
 set -u
 EX=${EX:-/tmp/ex}; DTU=${DTU:-.s18/dtu_scan24}; REPS=${REPS:-1}; MODEL_ITERS=${MODEL_ITERS:-7000}
@@ -36,6 +37,7 @@ print(d['tree'], r['n'], r['size'], 'fwd', round(r['fwd_ms'],2), 'fwd+bwd train'
       {k: {m: round(v,2) for m,v in t.items()} for k,t in r.items() if k.startswith('raster_backward_ms_by')})"
     done; done; done ;;
   model)
+    if [ ! -f $EX/dtu.ply ] && ls /tmp/dtugeo/*.part0.npz >/dev/null 2>&1; then EX=$EX source benchmarks/extract/dtu_model.sh; fi
     if [ ! -f $EX/dtu.ply ]; then
       t0=$(date +%s)
       python3 -m gof_warp.train $DTU --config dtu --iterations $MODEL_ITERS --out $EX/dtu_run --no-pictures --quiet \
@@ -44,8 +46,9 @@ print(d['tree'], r['n'], r['size'], 'fwd', round(r['fwd_ms'],2), 'fwd+bwd train'
     fi ;;
   profile)
     for rep in $(seq 1 $REPS); do for start in $STARTS; do for v in $VARIANTS; do
-      IFS=: read -r label tree lanes <<< "$v"
+      IFS=: read -r label tree lanes overrides <<< "$v"
       extra=(); [ -n "$lanes" ] && extra=(--reduce-min-lanes $lanes)
+      [ -n "$overrides" ] && extra+=(${overrides//,/ })
       d=$EX/prof_${label}_${start}_$rep
       run_tree $tree python3 benchmarks/train/profile_train.py $PWD/$DTU --config dtu --ply $EX/dtu.ply --start $start \
         --iterations 300 --trace 20 --out $d --label $label "${extra[@]}" model.init=random densify.interval=100000 > $d.log 2>&1
