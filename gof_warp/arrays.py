@@ -1,6 +1,6 @@
 """NumPy helpers shared across layers (no torch, no Warp).
 
-:func:`distinct` is ``np.unique(a)`` by sorting. NumPy 2.4's ``np.unique`` without ``return_*`` flags takes a
+:func:`distinct` is ``np.unique(a)`` by sorting; :func:`used_vertices` drops the vertices no face uses. NumPy 2.4's ``np.unique`` without ``return_*`` flags takes a
 hash-table path that is 20-60x slower than a sort on the int64 keys and int32 face indices this package makes:
 9.5 s against 0.16 s for 6.1M edge keys on the 2-core dev box, 3.4 s a call on 4.6M keys inside a GPU extraction
 (``benchmarks/extract/README.md``, session 20).
@@ -20,3 +20,13 @@ def distinct(values) -> np.ndarray:
     keep[0] = True
     np.not_equal(a[1:], a[:-1], out=keep[1:])
     return a[keep]
+
+
+def used_vertices(faces, num_vertices: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(used [V'] int, faces' [F, k] int64)``: the sorted indices of the vertices some face of ``faces [F, k]`` uses,
+    and ``faces`` renumbered into them (``vertices[used][faces'] == vertices[faces]``)."""
+    faces = np.asarray(faces)
+    used = distinct(faces)
+    remap = np.full(int(num_vertices), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    return used, remap[faces]

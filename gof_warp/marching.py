@@ -51,7 +51,7 @@ import numpy as np
 import warp as wp
 import warp.geometry
 
-from .arrays import distinct
+from .arrays import used_vertices
 from .errors import GofError
 from .kernels import marching_tets as mt
 from .marching_inputs import (FIELD_KINDS, Field, FieldCaller, StepsPerCall, TetSource, WarpField,  # noqa: F401
@@ -68,10 +68,8 @@ MC_EDGE_MATCH_TOL = 1e-3  # in cell sizes
 
 def compact_mesh(verts: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Keep only the vertices some face uses. Returns ``(verts [V', 3], faces [F, 3] int32, kept [V'] indices)``."""
-    used = distinct(faces)
-    remap = np.full(len(verts), -1, np.int64)
-    remap[used] = np.arange(len(used))
-    return verts[used], remap[faces].astype(np.int32), used
+    used, faces = used_vertices(faces, len(verts))
+    return verts[used], faces.astype(np.int32), used
 
 
 def _empty_mesh() -> tuple[np.ndarray, np.ndarray]:

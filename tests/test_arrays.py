@@ -12,3 +12,18 @@ def test_distinct_is_np_unique():
               np.zeros(0, np.int32), np.array([3])):
         got = distinct(a)
         assert np.array_equal(got, np.unique(a)) and got.dtype == a.dtype
+
+
+def test_used_vertices_renumbers_faces():
+    """``arrays.used_vertices`` keeps the vertices some face uses, in order, and renumbers the faces so they pick the
+    same points; a hand-built case with unused vertices at the start, middle and end."""
+    from gof_warp.arrays import used_vertices
+
+    vertices = np.arange(8 * 3, dtype=float).reshape(8, 3)
+    faces = np.array([[1, 3, 2], [3, 6, 2]])
+    used, renumbered = used_vertices(faces, len(vertices))
+    assert used.tolist() == [1, 2, 3, 6]
+    assert renumbered.tolist() == [[0, 2, 1], [2, 3, 1]]
+    assert np.array_equal(vertices[used][renumbered], vertices[faces])
+    used, renumbered = used_vertices(np.zeros((0, 3), np.int64), 4)
+    assert used.size == 0 and renumbered.shape == (0, 3)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..arrays import distinct
+from ..arrays import used_vertices
 from ..errors import SceneError
 
 
@@ -291,11 +291,8 @@ def grid_plane(center=(0, 0, 0), half_size=4.0, cell=0.1, material=None, name="g
 
 
 def _without_unused_vertices(mesh: SyntheticMesh) -> SyntheticMesh:
-    used = distinct(mesh.faces)
-    remap = np.full(len(mesh.vertices), -1, np.int64)
-    remap[used] = np.arange(len(used))
-    return replace(mesh, vertices=mesh.vertices[used], vertex_normals=mesh.vertex_normals[used],
-                   faces=remap[mesh.faces])
+    used, faces = used_vertices(mesh.faces, len(mesh.vertices))
+    return replace(mesh, vertices=mesh.vertices[used], vertex_normals=mesh.vertex_normals[used], faces=faces)
 
 
 def cut_below(mesh: SyntheticMesh, z0: float) -> SyntheticMesh:
