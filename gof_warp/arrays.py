@@ -1,6 +1,7 @@
 """NumPy helpers shared across layers (no torch, no Warp).
 
-:func:`distinct` is ``np.unique(a)`` by sorting; :func:`used_vertices` drops the vertices no face uses. NumPy 2.4's ``np.unique`` without ``return_*`` flags takes a
+:func:`distinct` is ``np.unique(a)`` by sorting; :func:`used_vertices` drops the vertices no face uses;
+:func:`even_split` cuts ``n`` items into consecutive ranges. NumPy 2.4's ``np.unique`` without ``return_*`` flags takes a
 hash-table path that is 20-60x slower than a sort on the int64 keys and int32 face indices this package makes:
 9.5 s against 0.16 s for 6.1M edge keys on the 2-core dev box, 3.4 s a call on 4.6M keys inside a GPU extraction
 (``benchmarks/extract/README.md``, session 20).
@@ -30,3 +31,9 @@ def used_vertices(faces, num_vertices: int) -> tuple[np.ndarray, np.ndarray]:
     remap = np.full(int(num_vertices), -1, np.int64)
     remap[used] = np.arange(len(used))
     return used, remap[faces]
+
+
+def even_split(n: int, parts: int) -> list[int]:
+    """Where ``parts`` consecutive ranges of ``n`` items start, and the last ends: ``n · k // parts`` for
+    ``k = 0 … parts`` (the ranges tile ``[0, n)``; their sizes differ by at most one)."""
+    return [n * k // parts for k in range(parts + 1)]

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from .arrays import even_split
 from .devices import cuda_available
 from .errors import GofError
 
@@ -70,7 +71,8 @@ class Ranks:
     def my_range(self, n: int) -> tuple[int, int]:
         """This rank's consecutive share ``[start, end)`` of ``n`` items (the ranks' shares in rank order tile
         ``[0, n)``; sizes differ by at most one)."""
-        return n * self.rank // self.world, n * (self.rank + 1) // self.world
+        bounds = even_split(n, self.world)
+        return bounds[self.rank], bounds[self.rank + 1]
 
     def gather_to_main(self, obj):
         """Every rank's ``obj`` (picklable, e.g. numpy arrays) on rank 0 as a list in rank order; None on the

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from .arrays import distinct
+from .arrays import distinct, even_split
 from .camera import Camera
 from .distributed import Ranks
 from .errors import GofError, ModelError
@@ -290,10 +290,10 @@ class _WholeTets:
         return world
 
     def pieces(self, n_pieces: int, first: int, last: int, tally: dict):
-        n = len(self.tets)
+        bounds = even_split(len(self.tets), n_pieces)
         for k in range(first, last):
-            tally["tetrahedra"] = tally.get("tetrahedra", 0) + n * (k + 1) // n_pieces - n * k // n_pieces
-            yield self.tets[n * k // n_pieces:n * (k + 1) // n_pieces]
+            tally["tetrahedra"] = tally.get("tetrahedra", 0) + bounds[k + 1] - bounds[k]
+            yield self.tets[bounds[k]:bounds[k + 1]]
 
 
 class SearchPlanner:

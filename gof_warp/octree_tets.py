@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 
 import torch
 
+from .arrays import even_split
 from .errors import GofError
 
 log = logging.getLogger(__name__)
@@ -431,20 +432,17 @@ class OctreeTets:
     count: int  # tetrahedra
     chunk: int = LEAF_CHUNK
 
-    def bounds(self, n_pieces: int) -> list[int]:
-        """Where the ``n_pieces`` pieces start (and the last ends): ``count · k // n_pieces``, ``k = 0 … n_pieces``."""
-        return [self.count * k // n_pieces for k in range(n_pieces + 1)]
-
     def pieces(self, n_pieces: int, first: int = 0, last: int | None = None):
-        """Yield ``(k, tets [T_k, 4] int32)`` for the pieces ``first <= k < last`` of ``n_pieces`` (sizes differ by at
-        most one tetrahedron). Every chunk is made (to know where each piece starts) but only the wanted pieces'
-        tetrahedra are written as indices, and one piece is held at a time."""
+        """Yield ``(k, tets [T_k, 4] int32)`` for the pieces ``first <= k < last`` of ``n_pieces`` (the ranges of
+        :func:`~gof_warp.arrays.even_split`: sizes differ by at most one tetrahedron). Every chunk is made (to know
+        where each piece starts) but only the wanted pieces' tetrahedra are written as indices, and one piece is held
+        at a time."""
         if n_pieces < 1:
             raise GofError(f"n_pieces must be >= 1, got {n_pieces!r}")
         last = n_pieces if last is None else last
         if not 0 <= first <= last <= n_pieces:
             raise GofError(f"pieces [{first}, {last}) do not lie in [0, {n_pieces})")
-        bounds, k, parts, at = self.bounds(n_pieces), first, [], 0
+        bounds, k, parts, at = even_split(self.count, n_pieces), first, [], 0
 
         def piece():
             out = torch.cat(parts) if parts else torch.zeros(0, 4, dtype=torch.int32, device=self.keys.device)

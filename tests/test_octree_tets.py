@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import torch
 
+from gof_warp.arrays import even_split
 from gof_warp.errors import GofError
 from gof_warp.marching import marching_tetrahedra
 from gof_warp.octree_tets import (OctreeConfig, build_octree, octree_grid, octree_grid_tets, octree_tetrahedra, octree_tets,
@@ -151,11 +152,11 @@ def test_pieces_are_consecutive_ranges_of_the_whole_grid():
     for n in (1, 2, 7, 23):
         got = list(grid.pieces(n))
         assert [k for k, _ in got] == list(range(n))
-        b = grid.bounds(n)
+        b = even_split(grid.count, n)
         assert all(torch.equal(t, whole[b[k]:b[k + 1]]) for k, t in got)
         assert max(t.shape[0] for _, t in got) - min(t.shape[0] for _, t in got) <= 1
     mid = list(grid.pieces(7, 2, 5))  # a rank's share alone
-    b = grid.bounds(7)
+    b = even_split(grid.count, 7)
     assert [k for k, _ in mid] == [2, 3, 4] and torch.equal(torch.cat([t for _, t in mid]), whole[b[2]:b[5]])
     assert list(grid.pieces(7, 3, 3)) == []
     with pytest.raises(GofError, match="n_pieces"):
