@@ -20,8 +20,8 @@ from .kernels.binning import TileListSizer
 from .kernels.renderer import RenderOutputs, render_backward, render_forward
 
 
-_PARAM_NAMES = ("means", "quats", "scales", "opacities", "sh")
-_PARAM_TYPES = (wp.vec3, wp.vec4, wp.vec3, None, wp.vec3)
+_PARAM_NAMES = ("means", "quats", "scales", "opacities", "sh_dc", "sh_rest")
+_PARAM_TYPES = (wp.vec3, wp.vec4, wp.vec3, None, wp.vec3, wp.vec3)
 
 
 @dataclass
@@ -161,12 +161,14 @@ def _stream_scope(device: torch.device):
 
 
 def _wp(t: torch.Tensor, dtype=None):
+    if t.numel() == 0:  # e.g. sh[:, 1:] of a degree-0 model: torch keeps the parent's strides, Warp wants packed ones
+        t = torch.empty(t.shape, dtype=t.dtype, device=t.device)
     return wp.from_torch(t.contiguous(), dtype=dtype)
 
 
 class _RasterizeFunction(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, means, quats, scales, opacities, sh, cam, settings, sh_degree, stats, sizer):
+    def forward(ctx, means, quats, scales, opacities, sh_dc, sh_rest, cam, settings, sh_degree, stats, sizer):
         device = means.device
         H, W = cam.height, cam.width
         f32 = dict(dtype=torch.float32, device=device)
@@ -174,14 +176,14 @@ class _RasterizeFunction(torch.autograd.Function):
                 torch.empty(H * W, **f32), torch.empty(H * W, 3, **f32), torch.empty(H * W, **f32)]  # fmt: skip
         types = (wp.vec3, None, None, None, wp.vec3, None)
         with _stream_scope(device):
-            args = [_wp(x.detach(), t) for x, t in zip((means, quats, scales, opacities, sh), _PARAM_TYPES)]
+            args = [_wp(x.detach(), t) for x, t in zip((means, quats, scales, opacities, sh_dc, sh_rest), _PARAM_TYPES)]
             out = RenderOutputs(*[_wp(o, t) for o, t in zip(outs, types)])
-            _, state = render_forward(*args, sh_degree, cam, settings, out=out, sizer=sizer)
+            _, state = render_forward(*args[:4], tuple(args[4:]), sh_degree, cam, settings, out=out, sizer=sizer)
             radii = wp.to_torch(state.radii)
             if stats is not None:
                 stats._record_radii(radii)
         ctx.state, ctx.stats, ctx.types = state, stats, types
-        ctx.shapes = [x.shape for x in (means, quats, scales, opacities, sh)]
+        ctx.shapes = [x.shape for x in (means, quats, scales, opacities, sh_dc, sh_rest)]
         ctx.mark_non_differentiable(radii)
         return (*[o.reshape(H, W, -1).squeeze(-1) if o.dim() == 1 else o.reshape(H, W, 3) for o in outs], radii.clone())
 
@@ -203,14 +205,27 @@ class _RasterizeFunction(torch.autograd.Function):
             g2d = g2abs = None
             if stats is not None:
                 g2d, g2abs = _wp(stats.grad2d, wp.vec2), _wp(stats.grad2d_abs)
-            render_backward(state, grad_out, wp_in, g2d, g2abs)
+            render_backward(state, grad_out, (*wp_in[:4], tuple(wp_in[4:])), g2d, g2abs)
         ctx.state = None  # free the forward state
         return (*grad_in, None, None, None, None, None)
 
 
 def _check_params(means, quats, scales, opacities, sh, check_values: bool = True):
-    """Shapes, dtypes and devices of the activated parameters (clear ``ValueError``s)."""
-    params = dict(zip(_PARAM_NAMES, (means, quats, scales, opacities, sh)))
+    """Shapes, dtypes and devices of the activated parameters (clear ``ValueError``s).
+
+    Returns ``(sh_dc [N, 3], sh_rest [N, K−1, 3])``: ``sh`` as given if it is that pair, else two views of the
+    ``[N, K, 3]`` tensor (the autograd graph runs through them)."""
+    if isinstance(sh, (tuple, list)):
+        if len(sh) != 2:
+            raise ValueError(f"rasterize: sh must be an [N, K, 3] tensor or a pair (sh_dc, sh_rest), got {len(sh)} tensors")
+        sh_dc, sh_rest = sh
+    elif isinstance(sh, torch.Tensor):
+        if sh.dim() != 3 or sh.shape[1] < 1:
+            raise ValueError(f"rasterize: sh must have shape [N, K, 3], got {list(sh.shape)}")
+        sh_dc, sh_rest = sh[:, 0], sh[:, 1:]
+    else:
+        raise TypeError(f"rasterize: sh must be a torch.Tensor or a pair of them, got {type(sh).__name__}")
+    params = dict(zip(_PARAM_NAMES, (means, quats, scales, opacities, sh_dc, sh_rest)))
     for name, x in params.items():
         if not isinstance(x, torch.Tensor):
             raise TypeError(f"rasterize: {name} must be a torch.Tensor, got {type(x).__name__}")
@@ -219,24 +234,27 @@ def _check_params(means, quats, scales, opacities, sh, check_values: bool = True
         if x.device != means.device:
             raise ValueError(f"rasterize: {name} is on {x.device} but means is on {means.device}")
     n = means.shape[0] if means.dim() == 2 else -1
-    expected = dict(means=(n, 3), quats=(n, 4), scales=(n, 3), opacities=(n,))
+    expected = dict(means=(n, 3), quats=(n, 4), scales=(n, 3), opacities=(n,), sh_dc=(n, 3))
     for name, shape in expected.items():
         if tuple(params[name].shape) != shape or n < 0:
             raise ValueError(f"rasterize: {name} must have shape {list(shape)} (N={n}), got {list(params[name].shape)}")
-    if sh.dim() != 3 or sh.shape[0] != n or sh.shape[2] != 3 or sh.shape[1] not in (1, 4, 9, 16):
-        raise ValueError(f"rasterize: sh must have shape [N, K, 3] with N={n} and K in (1, 4, 9, 16), got {list(sh.shape)}")
+    if sh_rest.dim() != 3 or sh_rest.shape[0] != n or sh_rest.shape[2] != 3 or sh_rest.shape[1] + 1 not in (1, 4, 9, 16):
+        raise ValueError(f"rasterize: sh must have shape [N, K, 3] (sh_rest [N, K-1, 3]) with N={n} and K in (1, 4, 9, 16), "
+                         f"got sh_rest {list(sh_rest.shape)}")
     if check_values and n > 0 and not bool((scales > 0).all()):  # reads a flag back: a GPU sync
         raise ValueError("rasterize: scales must be positive (activated)")
+    return sh_dc, sh_rest
 
 
 def rasterize(means, quats, scales, opacities, sh, camera: Camera, *, sh_degree=None, config=None, stats=None,
               check_values: bool = True, tile_lists: TileListSizer | None = None) -> dict:
-    """Render activated Gaussian parameters from ``camera`` (differentiable w.r.t. all five tensors).
+    """Render activated Gaussian parameters from ``camera`` (differentiable w.r.t. every tensor).
 
     Args:
         means: ``[N, 3]`` world-space centres. quats: ``[N, 4]`` unit quaternions, wxyz (used as
             given). scales: ``[N, 3]`` positive. opacities: ``[N]`` in (0, 1). sh: ``[N, K, 3]`` SH
-            coefficients, ``K = (D+1)²``, D ≤ 3. All float32 on one device (CPU or CUDA).
+            coefficients, ``K = (D+1)²``, D ≤ 3, or the pair ``(sh_dc [N, 3], sh_rest [N, K−1, 3])`` as a model
+            keeps them (no concatenation per render). All float32 on one device (CPU or CUDA).
         camera: :class:`gof_warp.camera.Camera`.
         sh_degree: active SH degree (default: the maximum ``sh`` holds).
         config: :class:`RenderConfig` (default thresholds of GOF).
@@ -259,11 +277,12 @@ def rasterize(means, quats, scales, opacities, sh, camera: Camera, *, sh_degree=
     if not isinstance(config, RenderConfig):
         raise TypeError(f"rasterize: config must be a RenderConfig, got {type(config).__name__}")
     config.validate()
-    _check_params(means, quats, scales, opacities, sh, check_values)
-    max_degree = int(round(math.sqrt(sh.shape[1]))) - 1
+    sh_dc, sh_rest = _check_params(means, quats, scales, opacities, sh, check_values)
+    num_coeffs = sh_rest.shape[1] + 1
+    max_degree = int(round(math.sqrt(num_coeffs))) - 1
     sh_degree = max_degree if sh_degree is None else int(sh_degree)
     if not 0 <= sh_degree <= max_degree:
-        raise ValueError(f"rasterize: sh_degree {sh_degree} not in [0, {max_degree}] for sh with K={sh.shape[1]}")
+        raise ValueError(f"rasterize: sh_degree {sh_degree} not in [0, {max_degree}] for sh with K={num_coeffs}")
     if stats is not None:
         if not isinstance(stats, DensifyStats):
             raise TypeError(f"rasterize: stats must be a DensifyStats, got {type(stats).__name__}")
@@ -274,7 +293,7 @@ def rasterize(means, quats, scales, opacities, sh, camera: Camera, *, sh_degree=
     if tile_lists is not None and not isinstance(tile_lists, TileListSizer):
         raise TypeError(f"rasterize: tile_lists must be a TileListSizer, got {type(tile_lists).__name__}")
     rgb, alpha, accum, median, normal, dist, radii = _RasterizeFunction.apply(
-        means, quats, scales, opacities, sh, cam, settings, sh_degree, stats, tile_lists
+        means, quats, scales, opacities, sh_dc, sh_rest, cam, settings, sh_degree, stats, tile_lists
     )
     depth = torch.where(alpha > 0, accum / torch.where(alpha > 0, alpha, torch.ones_like(alpha)), torch.zeros_like(alpha))
     return dict(rgb=rgb, alpha=alpha, depth=depth, accum_depth=accum, median_depth=median, normal=normal, distortion=dist, radii=radii)
@@ -282,16 +301,23 @@ def rasterize(means, quats, scales, opacities, sh, camera: Camera, *, sh_degree=
 
 def render(gaussians, camera: Camera, *, config=None, stats=None, sh_degree=None, tile_lists=None) -> dict:
     """Render a Gaussian model (any object with activated ``means``, ``rotations`` (unit wxyz),
-    ``scales``, ``opacities``, ``sh`` and ``active_sh_degree``, e.g. ``gof_warp.model.Gaussians``).
+    ``scales``, ``opacities``, ``active_sh_degree`` and either ``sh_dc``/``sh_rest`` or ``sh``, e.g.
+    ``gof_warp.model.Gaussians``, whose two SH parameters are read as they are, without concatenating them).
 
     The activations are torch ops on the raw parameters, so gradients reach the raw parameters
     (log-scales, opacity logits, unnormalised quaternions) by torch's chain rule. ``sh_degree``
     overrides ``gaussians.active_sh_degree``; ``tile_lists``: see :func:`rasterize`. See :func:`rasterize` for the
     outputs.
     """
-    for attr in ("means", "rotations", "scales", "opacities", "sh", "active_sh_degree"):
+    for attr in ("means", "rotations", "scales", "opacities", "active_sh_degree"):
         if not hasattr(gaussians, attr):
             raise TypeError(f"render: gaussians has no attribute {attr!r} (expected a gof_warp.model.Gaussians)")
+    if hasattr(gaussians, "sh_dc") and hasattr(gaussians, "sh_rest"):
+        sh = (gaussians.sh_dc, gaussians.sh_rest)
+    elif hasattr(gaussians, "sh"):
+        sh = gaussians.sh
+    else:
+        raise TypeError("render: gaussians has neither 'sh_dc'/'sh_rest' nor 'sh' (expected a gof_warp.model.Gaussians)")
     degree = gaussians.active_sh_degree if sh_degree is None else sh_degree
-    return rasterize(gaussians.means, gaussians.rotations, gaussians.scales, gaussians.opacities, gaussians.sh, camera,
+    return rasterize(gaussians.means, gaussians.rotations, gaussians.scales, gaussians.opacities, sh, camera,
                      sh_degree=degree, config=config, stats=stats, check_values=False, tile_lists=tile_lists)  # fmt: skip

@@ -21,7 +21,8 @@ Stable names (module, kind):
 * projection and binning: kernels ``preprocess_gaussians``, ``screen_bounds``; host ``bin_gaussians`` and its
   ``TileListSizer`` (tile lists sized without a host–device synchronisation per render).
 * rendering on ``wp.array``s (host launchers, ``wp.Tape``-aware): ``render_gaussians``,
-  ``render_forward``, ``render_backward``, ``prepare_view``, ``RenderOutputs``, ``RenderState``. The
+  ``render_forward``, ``render_backward``, ``prepare_view``, ``RenderOutputs``, ``RenderState``, ``sh_parts`` (the SH
+  coefficients as one ``[N, K]`` array or a model's ``(sh_dc, sh_rest)`` pair, as the kernels read them). The
   per-pixel kernels behind them (``rasterize.rasterize_forward``, ``rasterize_backward.rasterize_backward``,
   their shared-memory twins in ``rasterize_tiled``) need the launchers' tile lists and state: use them
   through the launchers. (A kernel named like its module could not be re-exported here anyway: the
@@ -49,7 +50,7 @@ _MODULES = {
     "project": ("preprocess_gaussians", "screen_bounds"),
     "binning": ("bin_gaussians", "TileListSizer"),
     "renderer": ("render_gaussians", "render_forward", "render_backward", "prepare_view", "RenderOutputs",
-                 "RenderState"),
+                 "RenderState", "sh_parts"),
     "opacity_field": ("opacity_along_ray", "opacity_along_ray_bounded", "point_view_tile", "opacity_min_over_view",
                       "opacity_min_over_view_whole"),
     "marching_tets": ("make_field_kernel", "field_params_type", "count_triangles", "write_triangle_edges",

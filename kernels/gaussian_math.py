@@ -51,40 +51,44 @@ def quat_to_rotation(q: wp.vec4) -> wp.mat33:
 
 
 @wp.func
-def sh_to_color(sh: wp.array2d(dtype=wp.vec3), k: int, degree: int, d: wp.vec3) -> wp.vec3:
+def sh_to_color(sh_dc: wp.array(dtype=wp.vec3), sh_rest: wp.array2d(dtype=wp.vec3), k: int, degree: int,
+                d: wp.vec3) -> wp.vec3:  # fmt: skip
     """3DGS colour ``max(0, Σ_l≤degree SH_l(d) · sh[k, l] + 0.5)`` at unit direction ``d``.
 
-    ``sh`` is ``[N, (D+1)²]`` RGB coefficients; the real SH basis and constants are those of 3DGS.
-    Loop-free, so Warp's automatic adjoint differentiates it exactly (w.r.t. ``sh`` and ``d``).
+    The RGB coefficients come in two arrays, as a model keeps them (their learning rates differ): ``sh_dc [N]``
+    holds ``sh[:, 0]`` and ``sh_rest [N, (D+1)² − 1]`` holds ``sh[:, 1:]`` (so ``sh[k, l] = sh_rest[k, l − 1]``);
+    :func:`gof_warp.kernels.renderer.sh_parts` makes both views of one ``[N, K]`` array. The real SH basis and
+    constants are those of 3DGS. Loop-free, so Warp's automatic adjoint differentiates it exactly (w.r.t. both
+    arrays and ``d``).
     """
-    c = SH_C0 * sh[k, 0]
+    c = SH_C0 * sh_dc[k]
     if degree > 0:
         x = d[0]
         y = d[1]
         z = d[2]
-        c = c - SH_C1 * y * sh[k, 1] + SH_C1 * z * sh[k, 2] - SH_C1 * x * sh[k, 3]
+        c = c - SH_C1 * y * sh_rest[k, 0] + SH_C1 * z * sh_rest[k, 1] - SH_C1 * x * sh_rest[k, 2]
         if degree > 1:
             xx = x * x
             yy = y * y
             zz = z * z
             c = (
                 c
-                + SH_C2_0 * x * y * sh[k, 4]
-                + SH_C2_1 * y * z * sh[k, 5]
-                + SH_C2_2 * (2.0 * zz - xx - yy) * sh[k, 6]
-                + SH_C2_3 * x * z * sh[k, 7]
-                + SH_C2_4 * (xx - yy) * sh[k, 8]
+                + SH_C2_0 * x * y * sh_rest[k, 3]
+                + SH_C2_1 * y * z * sh_rest[k, 4]
+                + SH_C2_2 * (2.0 * zz - xx - yy) * sh_rest[k, 5]
+                + SH_C2_3 * x * z * sh_rest[k, 6]
+                + SH_C2_4 * (xx - yy) * sh_rest[k, 7]
             )
             if degree > 2:
                 c = (
                     c
-                    + SH_C3_0 * y * (3.0 * xx - yy) * sh[k, 9]
-                    + SH_C3_1 * x * y * z * sh[k, 10]
-                    + SH_C3_2 * y * (4.0 * zz - xx - yy) * sh[k, 11]
-                    + SH_C3_3 * z * (2.0 * zz - 3.0 * xx - 3.0 * yy) * sh[k, 12]
-                    + SH_C3_4 * x * (4.0 * zz - xx - yy) * sh[k, 13]
-                    + SH_C3_5 * z * (xx - yy) * sh[k, 14]
-                    + SH_C3_6 * x * (xx - 3.0 * yy) * sh[k, 15]
+                    + SH_C3_0 * y * (3.0 * xx - yy) * sh_rest[k, 8]
+                    + SH_C3_1 * x * y * z * sh_rest[k, 9]
+                    + SH_C3_2 * y * (4.0 * zz - xx - yy) * sh_rest[k, 10]
+                    + SH_C3_3 * z * (2.0 * zz - 3.0 * xx - 3.0 * yy) * sh_rest[k, 11]
+                    + SH_C3_4 * x * (4.0 * zz - xx - yy) * sh_rest[k, 12]
+                    + SH_C3_5 * z * (xx - yy) * sh_rest[k, 13]
+                    + SH_C3_6 * x * (xx - 3.0 * yy) * sh_rest[k, 14]
                 )
     c = c + wp.vec3(0.5)
     return wp.vec3(wp.max(c[0], 0.0), wp.max(c[1], 0.0), wp.max(c[2], 0.0))

@@ -37,7 +37,8 @@ def preprocess_gaussians(
     means: wp.array(dtype=wp.vec3),
     quats: wp.array(dtype=wp.vec4),
     scales: wp.array(dtype=wp.vec3),
-    sh: wp.array2d(dtype=wp.vec3),
+    sh_dc: wp.array(dtype=wp.vec3),
+    sh_rest: wp.array2d(dtype=wp.vec3),
     sh_degree: int,
     R_cam: wp.mat33,
     t_cam: wp.vec3,
@@ -47,7 +48,8 @@ def preprocess_gaussians(
     o_g: wp.array(dtype=wp.vec3),
     colour: wp.array(dtype=wp.vec3),
 ):
-    """Inputs ``means/scales [N] vec3``, ``quats [N] vec4`` (wxyz), ``sh [N, K] vec3``; outputs ``[N]``."""
+    """Inputs ``means/scales [N] vec3``, ``quats [N] vec4`` (wxyz), ``sh_dc [N] vec3``, ``sh_rest [N, K−1] vec3``
+    (see :func:`~.gaussian_math.sh_to_color`); outputs ``[N]``."""
     k = wp.tid()
     m = means[k]
     mv = R_cam * m + t_cam
@@ -57,7 +59,7 @@ def preprocess_gaussians(
     mu_v[k] = mv
     P[k] = Pk
     o_g[k] = -(Pk * mv)
-    colour[k] = sh_to_color(sh, k, sh_degree, wp.normalize(m - cam_centre))
+    colour[k] = sh_to_color(sh_dc, sh_rest, k, sh_degree, wp.normalize(m - cam_centre))
 
 
 @wp.func

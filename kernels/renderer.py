@@ -68,7 +68,7 @@ class RenderOutputs:
 class RenderState:
     """Everything the backward needs from the forward (kept alive between the two)."""
 
-    inputs: tuple  # (means, quats, scales, opacities, sh)
+    inputs: tuple  # (means, quats, scales, opacities, (sh_dc, sh_rest))
     sh_degree: int
     cam: CameraParams
     settings: RasterSettings
@@ -116,6 +116,38 @@ def use_tiled_kernels(device, settings: RasterSettings, tiled: bool | None = Non
     return bool(tiled)
 
 
+def _strided_view(base: wp.array, offset: int, shape: tuple, strides: tuple) -> wp.array:
+    """``vec3`` view of ``base``'s memory from byte ``offset`` (no copy; ``base`` kept alive by the view)."""
+    if base.size == 0 or 0 in shape:
+        return wp.empty(shape, dtype=wp.vec3, device=base.device)
+    view = wp.array(ptr=base.ptr + offset, dtype=wp.vec3, shape=shape, strides=strides,
+                    capacity=base.capacity - offset, device=base.device)
+    view._base = base  # a pointer view does not own its memory
+    return view
+
+
+def sh_parts(sh) -> tuple[wp.array, wp.array]:
+    """The SH coefficients as the kernels read them: ``(sh_dc [N] vec3, sh_rest [N, K−1] vec3)``.
+
+    ``sh`` is either that pair (a model's two parameters, returned as given after a shape check) or one
+    ``[N, K] vec3`` array, returned as two strided views of it (no copy; gradients written through the views land
+    in the array's own ``grad``-shaped layout).
+    """
+    if isinstance(sh, (tuple, list)):
+        if len(sh) != 2:
+            raise ValueError(f"sh: expected (sh_dc, sh_rest), got {len(sh)} arrays")
+        dc, rest = sh
+        if dc.ndim != 1 or rest.ndim != 2 or rest.shape[0] != dc.shape[0] or dc.dtype != wp.vec3 or rest.dtype != wp.vec3:
+            raise ValueError(f"sh: expected sh_dc [N] vec3 and sh_rest [N, K-1] vec3, got {dc.shape} {dc.dtype.__name__} and "
+                             f"{rest.shape} {rest.dtype.__name__}")
+        return dc, rest
+    if sh.ndim != 2 or sh.dtype != wp.vec3 or sh.shape[1] < 1:
+        raise ValueError(f"sh: expected an [N, K] vec3 array (K >= 1) or (sh_dc, sh_rest), got {sh.shape} {sh.dtype.__name__}")
+    n, k = sh.shape
+    return (_strided_view(sh, 0, (n,), (sh.strides[0],)),
+            _strided_view(sh, sh.strides[1], (n, k - 1), sh.strides))
+
+
 def prepare_view(means, quats, scales, opacities, sh, sh_degree: int, cam: CameraParams, settings: RasterSettings,
                  profile: list | None = None, sizer: TileListSizer | None = None) -> tuple[Splats, TileLists, int]:
     """Per-view preprocessing and tile binning, shared by rendering and the opacity field.
@@ -133,7 +165,8 @@ def prepare_view(means, quats, scales, opacities, sh, sh_degree: int, cam: Camer
     mu_v, P, o_g, colour = empty(wp.vec3), empty(wp.mat33), empty(wp.vec3), empty(wp.vec3)
     rect, touched, radii, depth = empty(wp.vec4i), empty(wp.int32), empty(wp.int32), empty(float)
     ellipse = empty_tile_ellipses(n, device)
-    wp.launch(preprocess_gaussians, dim=n, inputs=[means, quats, scales, sh, int(sh_degree), cam.R, cam.t, cam.centre],
+    sh_dc, sh_rest = sh_parts(sh)
+    wp.launch(preprocess_gaussians, dim=n, inputs=[means, quats, scales, sh_dc, sh_rest, int(sh_degree), cam.R, cam.t, cam.centre],
               outputs=[mu_v, P, o_g, colour], device=device, record_tape=False)  # fmt: skip
     wp.launch(screen_bounds, dim=n, inputs=[mu_v, quats, scales, opacities, cam, settings],
               outputs=[rect, touched, radii, depth, ellipse], device=device, record_tape=False)  # fmt: skip
@@ -154,7 +187,8 @@ def render_forward(means, quats, scales, opacities, sh, sh_degree: int, cam: Cam
 
     Args:
         means ``[N] vec3`` world; quats ``[N] vec4`` unit wxyz; scales ``[N] vec3`` > 0; opacities ``[N]``;
-        sh ``[N, K] vec3`` with ``K ≥ (sh_degree+1)²``; cam, settings: see ``render_types``.
+        sh ``[N, K] vec3`` with ``K ≥ (sh_degree+1)²``, or the pair ``(sh_dc [N] vec3, sh_rest [N, K−1] vec3)``
+        (:func:`sh_parts`); cam, settings: see ``render_types``.
         profile: optional list; on CUDA, ``(stage name, wp.Event)`` pairs marking the end of each stage
             are appended (timings for benchmarks).
         tiled: force the shared-memory (True) or plain (False) per-pixel kernels; default: see
@@ -172,6 +206,7 @@ def render_forward(means, quats, scales, opacities, sh, sh_degree: int, cam: Cam
     def empty(dtype, size=n):
         return wp.empty(size, dtype=dtype, device=device)
 
+    sh = sh_parts(sh)
     splats, lists, count = prepare_view(means, quats, scales, opacities, sh, sh_degree, cam, settings, profile, sizer)
     mu_v, P, o_g, colour, radii = splats.mu_v, splats.P, splats.o_g, splats.colour, splats.radius
 
@@ -202,7 +237,8 @@ def render_backward(state: RenderState, grad_out: RenderOutputs, grad_in: tuple,
 
     Args:
         grad_out: per-pixel output gradients (same layout as :class:`RenderOutputs`).
-        grad_in: ``(means, quats, scales, opacities, sh)`` gradient arrays, added into.
+        grad_in: ``(means, quats, scales, opacities, sh)`` gradient arrays, added into; ``sh``'s as in
+            :func:`render_forward` (one ``[N, K]`` array or the ``(sh_dc, sh_rest)`` pair).
         grad2d ``[N] vec2``, grad2d_abs ``[N]``: densification statistics, added into (optional, together).
         profile: as in :func:`render_forward`.
     """
@@ -223,11 +259,12 @@ def render_backward(state: RenderState, grad_out: RenderOutputs, grad_in: tuple,
     wp.launch(finish_splat_grads, dim=n, inputs=[packed, state.P, state.mu_v, cam, int(with_stats)],
               outputs=[grad_in[3], grad2d if with_stats else wp.zeros(1, dtype=wp.vec2, device=device)], device=device,
               record_tape=False)  # fmt: skip
-    means, quats, scales, _, sh = state.inputs
+    means, quats, scales, _, (sh_dc, sh_rest) = state.inputs
+    grad_dc, grad_rest = sh_parts(grad_in[4])
     wp.launch(preprocess_gaussians, dim=n,
-              inputs=[means, quats, scales, sh, state.sh_degree, cam.R, cam.t, cam.centre],
+              inputs=[means, quats, scales, sh_dc, sh_rest, state.sh_degree, cam.R, cam.t, cam.centre],
               outputs=[state.mu_v, state.P, state.o_g, state.colour],
-              adj_inputs=[grad_in[0], grad_in[1], grad_in[2], grad_in[4], 0, wp.mat33(), wp.vec3(), wp.vec3()],
+              adj_inputs=[grad_in[0], grad_in[1], grad_in[2], grad_dc, grad_rest, 0, wp.mat33(), wp.vec3(), wp.vec3()],
               adj_outputs=[wp.zeros(n, dtype=wp.vec3, device=device), gP, g_og, g_col],
               adjoint=True, device=device, record_tape=False)  # fmt: skip
     _mark(profile, "preprocess_backward", device)
@@ -237,22 +274,25 @@ def render_gaussians(means, quats, scales, opacities, sh, sh_degree: int, cam: C
                      tape: wp.Tape | None = None, grad2d=None, grad2d_abs=None) -> RenderOutputs:  # fmt: skip
     """Forward render; with ``tape``, records the hand-written backward on it (``tape.record_func``).
 
-    The outputs then carry gradient buffers; ``tape.backward`` adds into ``means.grad, quats.grad,
-    scales.grad, opacities.grad, sh.grad`` (each must exist: create the inputs with ``requires_grad=True``)
-    and, when given, into the densification statistics ``grad2d [N] vec2`` / ``grad2d_abs [N]``.
+    ``sh``: one ``[N, K] vec3`` array or the pair ``(sh_dc, sh_rest)`` (:func:`sh_parts`). The outputs then carry
+    gradient buffers; ``tape.backward`` adds into ``means.grad, quats.grad, scales.grad, opacities.grad`` and the SH
+    arrays' ``grad`` (each must exist: create the inputs with ``requires_grad=True``) and, when given, into the
+    densification statistics ``grad2d [N] vec2`` / ``grad2d_abs [N]``.
     Returns the outputs; the forward state is kept by the tape's closure.
     """
     out = RenderOutputs.allocate(cam.width * cam.height, means.device, requires_grad=tape is not None)
     out, state = render_forward(means, quats, scales, opacities, sh, sh_degree, cam, settings, out=out)
     if tape is not None:
-        inputs = (means, quats, scales, opacities, sh)
+        sh_arrays = tuple(sh) if isinstance(sh, (tuple, list)) else (sh,)
+        inputs = (means, quats, scales, opacities, *sh_arrays)
         missing = [i for i, a in enumerate(inputs) if a.grad is None]
         if missing:
             raise ValueError(f"render_gaussians: inputs {missing} (means, quats, scales, opacities, sh) need requires_grad=True to record on a tape")
 
         def backward():
             grad_out = RenderOutputs(*[a.grad for a in out.arrays()])
-            render_backward(state, grad_out, tuple(a.grad for a in inputs), grad2d, grad2d_abs)
+            grad_sh = tuple(a.grad for a in sh_arrays) if len(sh_arrays) == 2 else sh_arrays[0].grad
+            render_backward(state, grad_out, tuple(a.grad for a in inputs[:4]) + (grad_sh,), grad2d, grad2d_abs)
 
         tape.record_func(backward=backward, arrays=out.arrays() + list(inputs))
     return out

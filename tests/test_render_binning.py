@@ -22,6 +22,7 @@ from gof_warp.camera import look_at
 from gof_warp.kernels.binning import bin_gaussians
 from gof_warp.kernels.project import preprocess_gaussians, screen_bounds
 from gof_warp.kernels.render_types import CameraParams, RasterSettings, camera_params_from, make_raster_settings
+from gof_warp.kernels.renderer import sh_parts
 from gof_warp.kernels.tile_overlap import TileEllipses, empty_tile_ellipses, load_ellipse, row_tile_span, row_tile_span_scan
 
 K_MAX = math.sqrt(2.0 * math.log(255.0))
@@ -76,9 +77,9 @@ def _run_binning(cam, means, quats, scales, opac, use_ellipse=True, **cfg):
     camp = camera_params_from(cam)
     n = len(means)
     arr = lambda a, t: wp.array(a.astype(np.float32), dtype=t, device="cpu")  # noqa: E731
-    sh = wp.zeros((n, 1), dtype=wp.vec3, device="cpu")
+    sh_dc, sh_rest = sh_parts(wp.zeros((n, 1), dtype=wp.vec3, device="cpu"))
     mu_v, P, o_g, col = (wp.empty(n, dtype=t, device="cpu") for t in (wp.vec3, wp.mat33, wp.vec3, wp.vec3))
-    wp.launch(preprocess_gaussians, n, inputs=[arr(means, wp.vec3), arr(quats, wp.vec4), arr(scales, wp.vec3), sh, 0, camp.R, camp.t, camp.centre],
+    wp.launch(preprocess_gaussians, n, inputs=[arr(means, wp.vec3), arr(quats, wp.vec4), arr(scales, wp.vec3), sh_dc, sh_rest, 0, camp.R, camp.t, camp.centre],
               outputs=[mu_v, P, o_g, col], device="cpu")  # fmt: skip
     rect, touched, radii, depth = (wp.empty(n, dtype=t, device="cpu") for t in (wp.vec4i, wp.int32, wp.int32, float))
     ellipse = empty_tile_ellipses(n, "cpu")
@@ -538,8 +539,8 @@ def test_closed_form_row_span_equals_the_tile_scan(pad, ts):
     n = len(means)
     arr = lambda a, t: wp.array(a.astype(np.float32), dtype=t, device="cpu")  # noqa: E731
     mu_v, P, o_g, col = (wp.empty(n, dtype=t, device="cpu") for t in (wp.vec3, wp.mat33, wp.vec3, wp.vec3))
-    wp.launch(preprocess_gaussians, n, inputs=[arr(means, wp.vec3), arr(quats, wp.vec4), arr(scales, wp.vec3), wp.zeros((n, 1), dtype=wp.vec3, device="cpu"),
-              0, camp.R, camp.t, camp.centre], outputs=[mu_v, P, o_g, col], device="cpu")  # fmt: skip
+    wp.launch(preprocess_gaussians, n, inputs=[arr(means, wp.vec3), arr(quats, wp.vec4), arr(scales, wp.vec3),
+              *sh_parts(wp.zeros((n, 1), dtype=wp.vec3, device="cpu")), 0, camp.R, camp.t, camp.centre], outputs=[mu_v, P, o_g, col], device="cpu")  # fmt: skip
     rect, touched, radii, depth = (wp.empty(n, dtype=t, device="cpu") for t in (wp.vec4i, wp.int32, wp.int32, float))
     ellipse = empty_tile_ellipses(n, "cpu")
     wp.launch(screen_bounds, n, inputs=[mu_v, arr(quats, wp.vec4), arr(scales, wp.vec3), arr(opac, float), camp, settings],

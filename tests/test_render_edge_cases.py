@@ -13,7 +13,7 @@ import warp as wp
 
 from gof_warp.camera import look_at
 from gof_warp.kernels.render_types import camera_params_from, make_raster_settings
-from gof_warp.kernels.renderer import RenderOutputs, render_backward, render_forward, render_gaussians
+from gof_warp.kernels.renderer import RenderOutputs, render_backward, render_forward, render_gaussians, sh_parts
 from gof_warp.render import DensifyStats, RenderConfig, rasterize
 from reference_render import reference_render
 
@@ -196,6 +196,61 @@ def test_shared_memory_kernels_match_plain_kernels_on_cuda():
         for a, b in zip(plain, tiled):
             assert np.abs(a - b).max() <= TILED_VS_PLAIN_CUDA * max(1.0, np.abs(a).max()), lanes
     assert np.abs(plain[6]).max() > 0  # gradients really flow
+
+@pytest.mark.parametrize("degree", [0, 2])
+def test_sh_pair_renders_as_one_array(degree):
+    """A model's ``(sh_dc, sh_rest)`` pair (what ``render`` passes, no concatenation) gives the images and gradients
+    of the one ``[N, K, 3]`` tensor, bit for bit, through torch and through the Warp tape."""
+    cam = _camera()
+    params = _params(40, seed=5, degree=degree)
+    out, grads = _render_with_grads(params, cam)
+    dc = params[4][:, 0].clone().requires_grad_(True)
+    rest = params[4][:, 1:].clone().requires_grad_(True)
+    leaves = [p.clone().requires_grad_(True) for p in params[:4]]
+    pair_out = rasterize(*leaves, (dc, rest), cam)
+    w = torch.Generator().manual_seed(7)
+    sum((pair_out[k] * torch.randn(pair_out[k].shape, generator=w)).sum() for k in OUTPUTS).backward()
+    for k in OUTPUTS:
+        assert torch.equal(out[k], pair_out[k]), k
+    for a, b in zip(grads[:4], leaves):
+        assert torch.equal(a, b.grad)
+    assert torch.equal(grads[4], torch.cat([dc.grad[:, None], rest.grad], dim=1))
+    assert dc.grad.abs().max() > 0
+    # the Warp tape with two arrays against one
+    settings, cp = make_raster_settings(cam.width, cam.height), camera_params_from(cam)
+    results = []
+    for as_pair in (False, True):
+        wpar = [wp.array(p.numpy(), dtype=t, device="cpu", requires_grad=True) for p, t in zip(params[:4], (wp.vec3, wp.vec4, wp.vec3, float))]
+        sh = params[4].numpy()
+        sh_w = ((wp.array(sh[:, 0], dtype=wp.vec3, device="cpu", requires_grad=True),
+                 wp.array(sh[:, 1:], dtype=wp.vec3, device="cpu", requires_grad=True)) if as_pair
+                else wp.array(sh, dtype=wp.vec3, device="cpu", requires_grad=True))
+        tape = wp.Tape()
+        wout = render_gaussians(*wpar, sh_w, degree, cp, settings, tape=tape)
+        wout.rgb.grad.fill_(1.0)
+        tape.backward()
+        sh_grad = (np.concatenate([sh_w[0].grad.numpy()[:, None], sh_w[1].grad.numpy()], axis=1) if as_pair
+                   else sh_w.grad.numpy())
+        results.append([wout.rgb.numpy(), sh_grad] + [a.grad.numpy() for a in wpar])
+    for a, b in zip(*results):
+        assert np.array_equal(a, b)
+    assert np.abs(results[0][1]).max() > 0
+
+
+def test_sh_parts_views_and_errors():
+    sh = wp.array(np.arange(5 * 4 * 3, dtype=np.float32).reshape(5, 4, 3), dtype=wp.vec3, device="cpu")
+    dc, rest = sh_parts(sh)
+    assert dc.shape == (5,) and rest.shape == (5, 3)
+    assert np.array_equal(dc.numpy(), sh.numpy()[:, 0]) and np.array_equal(rest.numpy(), sh.numpy()[:, 1:])
+    assert sh_parts((dc, rest)) == (dc, rest)
+    assert sh_parts(wp.zeros((3, 1), dtype=wp.vec3, device="cpu"))[1].shape == (3, 0)
+    with pytest.raises(ValueError, match="sh_dc"):
+        sh_parts((rest, dc))
+    with pytest.raises(ValueError, match="vec3"):
+        sh_parts(wp.zeros((3, 4), dtype=float, device="cpu"))
+    with pytest.raises(ValueError, match="pair|2"):
+        rasterize(*_params(4)[:4], (torch.zeros(4, 3),), _camera())
+
 
 def test_validation_errors():
     cam = _camera()

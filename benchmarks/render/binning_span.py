@@ -29,6 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from gof_warp.kernels.binning import conic_tile_count, count_tile_keys  # noqa: E402
 from gof_warp.kernels.project import preprocess_gaussians, screen_bounds  # noqa: E402
 from gof_warp.kernels.render_types import CameraParams, RasterSettings, camera_params_from  # noqa: E402
+from gof_warp.kernels.renderer import sh_parts  # noqa: E402
 from gof_warp.kernels.tile_overlap import TileEllipses, empty_tile_ellipses, load_ellipse, row_tile_span_scan  # noqa: E402
 from gof_warp.render import RenderConfig, raster_settings_for  # noqa: E402
 
@@ -78,7 +79,7 @@ def compare_view(params, camera, config, iters):
     n = means.shape[0]
     wpar = [wp.from_torch(x.contiguous(), dtype=t) for x, t in zip(params, (wp.vec3, wp.vec4, wp.vec3, None, wp.vec3))]
     mu_v, P, o_g, col = (wp.empty(n, dtype=t) for t in (wp.vec3, wp.mat33, wp.vec3, wp.vec3))
-    wp.launch(preprocess_gaussians, dim=n, inputs=[wpar[0], wpar[1], wpar[2], wpar[4], int(round(sh.shape[1] ** 0.5)) - 1, cam.R, cam.t, cam.centre],
+    wp.launch(preprocess_gaussians, dim=n, inputs=[wpar[0], wpar[1], wpar[2], *sh_parts(wpar[4]), int(round(sh.shape[1] ** 0.5)) - 1, cam.R, cam.t, cam.centre],
               outputs=[mu_v, P, o_g, col])  # fmt: skip
     rect, touched, radii, depth = (wp.empty(n, dtype=t) for t in (wp.vec4i, wp.int32, wp.int32, float))
     ellipse = empty_tile_ellipses(n)

@@ -35,6 +35,7 @@ import warp as wp  # noqa: E402
 from gof_warp.kernels.binning import TileListSizer  # noqa: E402
 from gof_warp.kernels.project import preprocess_gaussians, screen_bounds  # noqa: E402
 from gof_warp.kernels.render_types import camera_params_from  # noqa: E402
+from gof_warp.kernels.renderer import sh_parts  # noqa: E402
 from gof_warp.kernels.tile_overlap import empty_tile_ellipses  # noqa: E402
 from gof_warp.render import DensifyStats, RenderConfig, raster_settings_for, rasterize  # noqa: E402
 
@@ -46,7 +47,7 @@ def census(params, camera, config) -> dict:
     cam, settings = camera_params_from(camera), raster_settings_for(camera, config)
     w = [wp.from_torch(x.contiguous(), dtype=t) for x, t in zip(params, (wp.vec3, wp.vec4, wp.vec3, None, wp.vec3))]
     mu_v, P, o_g, col = (wp.empty(n, dtype=t) for t in (wp.vec3, wp.mat33, wp.vec3, wp.vec3))
-    wp.launch(preprocess_gaussians, dim=n, inputs=[w[0], w[1], w[2], w[4], 3, cam.R, cam.t, cam.centre], outputs=[mu_v, P, o_g, col])
+    wp.launch(preprocess_gaussians, dim=n, inputs=[w[0], w[1], w[2], *sh_parts(w[4]), 3, cam.R, cam.t, cam.centre], outputs=[mu_v, P, o_g, col])
     rect, touched, radii, depth = (wp.empty(n, dtype=t) for t in (wp.vec4i, wp.int32, wp.int32, float))
     ellipse = empty_tile_ellipses(n)
     wp.launch(screen_bounds, dim=n, inputs=[mu_v, w[1], w[2], w[3], cam, settings], outputs=[rect, touched, radii, depth, ellipse])
