@@ -119,7 +119,7 @@ def opacity_field(gaussians, cameras: Sequence[Camera], points, *, config: Opaci
             z = pts @ torch.as_tensor(cam.R[2], dtype=pts.dtype, device=device) + float(cam.t[2])
             uv, _ = cam.project(pts.cpu().double().numpy())
             uv = torch.as_tensor(uv, device=device)
-            inside = (z > max(render_config.near, cam.near)) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] < cam.height)
+            inside = (z > render_config.near) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] < cam.height)
             seen += inside.int()
         if ranks is not None:
             ranks.reduce_field(field, seen)

@@ -10,7 +10,8 @@ the field equals that pixel's rendered alpha. Compositing stops once ``T < trans
 remaining contribution is below that bound; GOF composites to the end).
 
 The field of a point over several views is the minimum over the views in whose image it projects (in
-front of the near plane): :func:`opacity_min_over_view` lowers a running minimum, one launch per view. The
+front of the near plane; for a camera with its own, farther clip, see :func:`point_view_tile`):
+:func:`opacity_min_over_view` lowers a running minimum, one launch per view. The
 running minimum bounds each walk (:func:`opacity_along_ray_bounded`): a view stops compositing once its opacity
 reaches the minimum of the views before it, which cannot change the result.
 """
@@ -66,10 +67,17 @@ def opacity_along_ray(lists: TileLists, splats: Splats, tile: int, r: wp.vec3, z
 
 @wp.func
 def point_view_tile(x_v: wp.vec3, cam: CameraParams, settings: RasterSettings) -> int:
-    """The tile of camera-space point ``x_v``'s projection, or −1 when the view does not see it (behind the near
-    plane or outside the image)."""
+    """The tile of camera-space point ``x_v``'s projection, or −1 when the view does not see it (outside the image,
+    or not beyond the scene's near plane ``settings.ndc_near``, i.e. ``render.near``).
+
+    A camera with its own clip (``settings.near`` > ``ndc_near``: the trainer's near planes from the SfM points) still
+    sees the points between the scene's near plane and that clip: the clip keeps Gaussians out of its renders, but the
+    space in front of it is space the camera looked through, where its opacity (the tails of the Gaussians beyond the
+    clip) is low. Counting it as unseen by that camera left the field there to the cameras across the scene, which
+    see it behind the objects (opacity ~1), and the mesh closed around the cameras (session 22, colmap_can).
+    """
     z = x_v[2]
-    if z <= settings.near:
+    if z <= settings.ndc_near:
         return -1
     u = cam.fx * x_v[0] / z + cam.cx
     v = cam.fy * x_v[1] / z + cam.cy

@@ -1,5 +1,6 @@
 """Opacity field: tile-binned Warp evaluation vs a float64 brute force; the analytic isotropic case."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -30,6 +31,7 @@ def reference_field(means, quats, scales, opac, cameras, points, cfg: RenderConf
     out = np.full(len(points), np.inf)
     k2 = cfg.k_max**2
     for cam in cameras:
+        clip = max(cfg.near, cam.near)  # the camera's own clip culls Gaussians; points are seen from cfg.near on
         mu_v = means @ cam.R.T + cam.t
         order = np.argsort(mu_v[:, 2], kind="stable")
         Ps = [np.diag(1 / scales[k]) @ (cam.R @ _rotation(quats[k])).T for k in range(len(means))]
@@ -44,12 +46,12 @@ def reference_field(means, quats, scales, opac, cameras, points, cfg: RenderConf
             r = xv / z
             T, O = 1.0, 0.0
             for k in order:
-                if mu_v[k, 2] <= cfg.near:
+                if mu_v[k, 2] <= clip:
                     continue
                 og, rg = -Ps[k] @ mu_v[k], Ps[k] @ r
                 A, B, C = rg @ rg, og @ rg, og @ og
                 ts = -B / A
-                if ts <= cfg.near or C - B * B / A > k2:
+                if ts <= clip or C - B * B / A > k2:
                     continue
                 xg = og + min(ts, z) * rg
                 alpha = min(cfg.alpha_max, opac[k] * math.exp(-0.5 * xg @ xg))
@@ -99,6 +101,46 @@ def test_field_matches_float64_brute_force():
     np.testing.assert_array_equal(zero.numpy()[seen.numpy() > 0], got.numpy()[seen.numpy() > 0])
     assert zero[-1] == 0.0 and zero[-2] == 0.0
     assert (ref > 0.05).sum() > 50 and (ref < 0.01).sum() > 50, "the scene must exercise both regimes"
+
+
+def _field_and_reference(means, quats, scales, opac, cams, points, **kwargs):
+    """``(field, seen)`` of the Warp kernels and the float64 reference on the activated parameters."""
+    g = Gaussians.from_activated(means, quats, scales, opac, device="cpu")
+    cfg = RenderConfig()
+    field, seen = opacity_field(g, cams, points, render_config=cfg, return_seen=True, **kwargs)
+    ref = reference_field(np.asarray(means, dtype=np.float64), g.rotations.numpy().astype(np.float64),
+                          g.scales.numpy().astype(np.float64), g.opacities.numpy().astype(np.float64), cams, points, cfg)
+    return field.numpy(), seen.numpy(), ref
+
+
+def test_cameras_with_their_own_clip_match_float64_brute_force():
+    """Cameras with near planes of their own (the trainer's, from the SfM points): Gaussians closer than the clip are
+    left out of that view, points between the scene's near plane and the clip are still seen by it."""
+    means, quats, scales, opac = _scene(30, seed=4)
+    cams = [dataclasses.replace(cam, near=clip) for cam, clip in zip(_cameras(), (2.4, 0.0, 2.1, 2.6, 1.0))]
+    rng = np.random.default_rng(5)
+    pts = np.concatenate([rng.uniform(-0.7, 0.7, (150, 3)),
+                          rng.uniform(-2.2, 2.2, (150, 3))])  # the second half reaches the cameras' clips
+    got, seen, want = _field_and_reference(means, quats, scales, opac, cams, pts)
+    np.testing.assert_allclose(got, want, atol=FIELD_TOL)
+    assert (seen > 0).sum() > 200 and (want > 0.05).sum() > 30 and (want < 0.01).sum() > 30
+
+
+def test_space_in_front_of_a_cameras_clip_is_not_closed_off():
+    """Golden case: two cameras facing each other through an opaque blob; a point 0.5 in front of camera A, whose own
+    clip is at 1.5. B sees the point behind the blob (opacity ~1); A looked through it (opacity ~0). The field is
+    the minimum of the two, so the point is free space and no surface closes around camera A."""
+    A = dataclasses.replace(look_at([3.0, 0, 0], [0, 0, 0], fx=40, fy=40, cx=20, cy=20, width=40, height=40), near=1.5)
+    B = look_at([-3.0, 0, 0], [0, 0, 0], fx=40, fy=40, cx=20, cy=20, width=40, height=40)
+    means, quats = np.zeros((1, 3)), np.array([[1.0, 0, 0, 0]])
+    scales, opac = np.full((1, 3), 0.4), np.array([0.99])
+    pts = np.array([[2.5, 0.0, 0.0], [-2.5, 0.0, 0.0]])  # 0.5 in front of A; 0.5 in front of B
+    field, seen, ref = _field_and_reference(means, quats, scales, opac, [A, B], pts)
+    np.testing.assert_allclose(field, ref, atol=FIELD_TOL)
+    assert seen.tolist() == [2, 2]
+    assert field[0] < 0.05 and field[1] < 0.05
+    only_b, _, _ = _field_and_reference(means, quats, scales, opac, [B], pts)
+    assert only_b[0] > 0.9  # what the field was when A did not count: the point closed inside
 
 
 def test_isotropic_gaussian_field_is_closed_form():
