@@ -116,13 +116,14 @@ def use_tiled_kernels(device, settings: RasterSettings, tiled: bool | None = Non
     return bool(tiled)
 
 
-def _strided_view(base: wp.array, offset: int, shape: tuple, strides: tuple) -> wp.array:
-    """``vec3`` view of ``base``'s memory from byte ``offset`` (no copy; ``base`` kept alive by the view)."""
+def _view(base: wp.array, offset: int, dtype, shape: tuple, strides: tuple) -> wp.array:
+    """View of ``base``'s memory as ``dtype`` from byte ``offset`` with ``shape``/``strides`` in bytes (no copy; the
+    view keeps ``base`` alive, since a pointer view does not own its memory)."""
     if base.size == 0 or 0 in shape:
-        return wp.empty(shape, dtype=wp.vec3, device=base.device)
-    view = wp.array(ptr=base.ptr + offset, dtype=wp.vec3, shape=shape, strides=strides,
+        return wp.empty(shape, dtype=dtype, device=base.device)
+    view = wp.array(ptr=base.ptr + offset, dtype=dtype, shape=shape, strides=strides,
                     capacity=base.capacity - offset, device=base.device)
-    view._base = base  # a pointer view does not own its memory
+    view._base = base
     return view
 
 
@@ -144,8 +145,8 @@ def sh_parts(sh) -> tuple[wp.array, wp.array]:
     if sh.ndim != 2 or sh.dtype != wp.vec3 or sh.shape[1] < 1:
         raise ValueError(f"sh: expected an [N, K] vec3 array (K >= 1) or (sh_dc, sh_rest), got {sh.shape} {sh.dtype.__name__}")
     n, k = sh.shape
-    return (_strided_view(sh, 0, (n,), (sh.strides[0],)),
-            _strided_view(sh, sh.strides[1], (n, k - 1), sh.strides))
+    return (_view(sh, 0, wp.vec3, (n,), (sh.strides[0],)),
+            _view(sh, sh.strides[1], wp.vec3, (n, k - 1), sh.strides))
 
 
 def prepare_view(means, quats, scales, opacities, sh, sh_degree: int, cam: CameraParams, settings: RasterSettings,
@@ -225,11 +226,7 @@ def render_forward(means, quats, scales, opacities, sh, sh_degree: int, cam: Cam
 
 def _column_view(packed: wp.array, column: int, dtype) -> wp.array:
     """``[N]`` view of ``dtype`` starting at ``column`` of every row of the ``[N, W]`` float array ``packed`` (no copy)."""
-    if packed.shape[0] == 0:
-        return wp.empty(0, dtype=dtype, device=packed.device)
-    offset = column * 4
-    return wp.array(ptr=packed.ptr + offset, dtype=dtype, shape=(packed.shape[0],), strides=(packed.strides[0],),
-                    capacity=packed.capacity - offset, device=packed.device)
+    return _view(packed, column * 4, dtype, (packed.shape[0],), (packed.strides[0],))
 
 
 def render_backward(state: RenderState, grad_out: RenderOutputs, grad_in: tuple, grad2d=None, grad2d_abs=None, profile=None):

@@ -40,12 +40,21 @@ def _params(n, seed=0, degree=1, scale=(0.05, 0.3), spread=0.8, opacity=(0.1, 0.
     return [means, q, scales, opac, sh]
 
 
+def _loss_weights(out):
+    """Fixed random weights per output (the same on every call): the upstream gradients of :func:`_random_weighted_sum`."""
+    w = torch.Generator().manual_seed(7)
+    return {k: torch.randn(out[k].shape, generator=w) for k in OUTPUTS}
+
+
+def _random_weighted_sum(out):
+    """A loss touching every output with the weights of :func:`_loss_weights`."""
+    return sum((out[k] * weight).sum() for k, weight in _loss_weights(out).items())
+
+
 def _render_with_grads(params, cam, config=None, stats=None):
     leaves = [p.clone().requires_grad_(True) for p in params]
     out = rasterize(*leaves, cam, config=config, stats=stats)
-    w = torch.Generator().manual_seed(7)
-    loss = sum((out[k] * torch.randn(out[k].shape, generator=w)).sum() for k in OUTPUTS)
-    loss.backward()
+    _random_weighted_sum(out).backward()
     return out, [p.grad for p in leaves]
 
 
@@ -135,8 +144,7 @@ def test_tape_path_matches_torch_path():
     g2d, g2abs = wp.zeros(30, dtype=wp.vec2, device="cpu"), wp.zeros(30, dtype=float, device="cpu")
     tape = wp.Tape()
     wout = render_gaussians(*wpar, 2, camera_params_from(cam), make_raster_settings(cam.width, cam.height), tape=tape, grad2d=g2d, grad2d_abs=g2abs)
-    w = torch.Generator().manual_seed(7)
-    upstream = {k: torch.randn(out[k].shape, generator=w) for k in OUTPUTS}
+    upstream = _loss_weights(out)
     # depth = accum/alpha is a torch op: fold its gradient into accum_depth and alpha as torch would
     a = out["alpha"].detach()
     safe = torch.where(a > 0, a, torch.ones_like(a))
@@ -208,8 +216,7 @@ def test_sh_pair_renders_as_one_array(degree):
     rest = params[4][:, 1:].clone().requires_grad_(True)
     leaves = [p.clone().requires_grad_(True) for p in params[:4]]
     pair_out = rasterize(*leaves, (dc, rest), cam)
-    w = torch.Generator().manual_seed(7)
-    sum((pair_out[k] * torch.randn(pair_out[k].shape, generator=w)).sum() for k in OUTPUTS).backward()
+    _random_weighted_sum(pair_out).backward()
     for k in OUTPUTS:
         assert torch.equal(out[k], pair_out[k]), k
     for a, b in zip(grads[:4], leaves):
