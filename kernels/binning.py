@@ -146,8 +146,16 @@ class TileListSizer:
     host instead, pads the unused ones with keys that sort after every tile and own no range, and copies the true
     count into pinned host memory without waiting; later calls read those counts once they have arrived.
 
-    - The first call for a number of Gaussians measures exactly (one synchronisation); ``size`` is then
-      ``margin ×`` the largest count seen since the Gaussians last changed in number.
+    - ``size`` is ``margin ×`` the largest count seen since the Gaussians last changed in number.
+    - Each view (camera pose, intrinsics and image size: :func:`view_key`) also keeps the count of its latest render
+      and the number of Gaussians then. A call for a view seen before gets at least ``margin ×`` that count, scaled
+      up by how much the number of Gaussians grew since (never down: pruning removes mostly transparent Gaussians,
+      which own few entries). Views see very different numbers of entries (a close-up
+      against a wide shot of an unbounded capture): with one size for all, the first views after each
+      densification overflowed whenever they needed more than ``margin ×`` the one view measured so far (28–342
+      renders of a 30k run on the real captures, sessions 11–22).
+    - A call with no estimate (nothing seen yet for this number of Gaussians, and its view never rendered) measures
+      exactly: one synchronisation.
     - A count over the size it was given is an **overflow**: that render dropped the entries past the size (the
       highest-index Gaussians' in some tiles). It is counted in ``overflows`` (found a call or two later) and the
       size grows. Renders without an overflow are bit-identical to exact sizing (stable sort, padding last).
@@ -167,44 +175,59 @@ class TileListSizer:
         self.calls = 0
         self.measured = 0  # calls that synchronised to measure
         self.overflows = 0
-        self._pending: list = []  # (slot, entries allocated, number of Gaussians, event), CUDA only
+        self.entries_allocated = 0  # over the padded calls whose counts have been read: entries given ...
+        self.entries_needed = 0  # ... and entries their true counts needed (the padding's cost: their ratio)
+        self._pending: list = []  # (slot, entries allocated, number of Gaussians, view key, event), CUDA only
         self._host = None  # pinned int32[PENDING] landing slots (CUDA)
         self._next_slot = 0
+        self._views: dict = {}  # view key -> (count, number of Gaussians) of the view's latest render
 
     def stats(self) -> dict:
         return {**self.state_dict(), "size": self.size}
 
     def state_dict(self) -> dict:
         """The counters (a checkpoint's; the size is measured again after a resume)."""
-        return {"calls": self.calls, "measured": self.measured, "overflows": self.overflows}
+        return {"calls": self.calls, "measured": self.measured, "overflows": self.overflows,
+                "entries_allocated": self.entries_allocated, "entries_needed": self.entries_needed}
 
     def load_state_dict(self, state: dict) -> None:
         self.calls, self.measured, self.overflows = (int(state[k]) for k in ("calls", "measured", "overflows"))
+        # absent from checkpoints written before these counters existed
+        self.entries_allocated, self.entries_needed = (int(state.get(k, 0)) for k in ("entries_allocated", "entries_needed"))
 
-    def plan(self, n: int) -> int:
-        """Entries to allocate for a call with ``n`` Gaussians (0: measure exactly)."""
+    def plan(self, n: int, view=None) -> int:
+        """Entries to allocate for a call with ``n`` Gaussians (0: measure exactly); ``view``: the call's
+        :func:`view_key` (None: no per-view estimate)."""
         self._settle()
         self.calls += 1
         if n != self.num_gaussians:
             self.num_gaussians, self.size, self.largest = n, 0, 0
-        return self.size
+        seen = self._views.get(view) if view is not None else None
+        if seen is None or seen[0] == 0:
+            return self.size
+        count, n_then = seen
+        # scaled up with more Gaussians, never down: pruning removes mostly transparent ones, which own few entries
+        return max(self.size, int(math.ceil(self.margin * count * max(1.0, n / max(n_then, 1)))))
 
-    def observe(self, count: int, n: int) -> None:
-        """A true count for ``n`` Gaussians: grows ``size`` to ``margin ×`` the largest one."""
+    def observe(self, count: int, n: int, view=None) -> None:
+        """A true count for ``n`` Gaussians (of ``view``): grows ``size`` to ``margin ×`` the largest one and
+        keeps it as the view's latest."""
         if n == self.num_gaussians and count > self.largest:
             self.largest = count
             self.size = max(self.size, int(math.ceil(count * self.margin)), 1)
+        if view is not None:
+            self._views[view] = (count, n)
 
-    def measure(self, count: int, n: int) -> None:
+    def measure(self, count: int, n: int, view=None) -> None:
         """The count of a call that read it back at once (exact sizing)."""
         self.measured += 1
-        self.observe(count, n)
+        self.observe(count, n, view)
 
-    def record(self, offsets: wp.array, n: int, allocated: int) -> None:
+    def record(self, offsets: wp.array, n: int, allocated: int, view=None) -> None:
         """Queue the read-back of the true count ``offsets[n − 1]`` of a call given ``allocated`` entries (on the CPU
         it is read at once)."""
         if offsets.device.is_cpu:
-            self._take(int(offsets[n - 1 : n].numpy()[0]), allocated, n)
+            self._take(int(offsets[n - 1 : n].numpy()[0]), allocated, n, view)
             return
         if self._host is None:
             self._host = wp.empty(self.PENDING, dtype=wp.int32, device="cpu", pinned=True)
@@ -213,25 +236,33 @@ class TileListSizer:
         slot = self._next_slot
         self._next_slot = (slot + 1) % self.PENDING
         wp.copy(self._host, offsets, dest_offset=slot, src_offset=n - 1, count=1)
-        self._pending.append((slot, allocated, n, wp.record_event()))
+        self._pending.append((slot, allocated, n, view, wp.record_event()))
 
     def _settle(self, wait_oldest: bool = False) -> None:
         """Take the counts that have arrived, in order (waiting for the oldest one if asked)."""
         while self._pending:
-            slot, allocated, n, event = self._pending[0]
+            slot, allocated, n, view, event = self._pending[0]
             if wait_oldest:
                 wp.synchronize_event(event)
                 wait_oldest = False
             elif not event.is_complete:
                 return
             self._pending.pop(0)
-            self._take(int(self._host.numpy()[slot]), allocated, n)
+            self._take(int(self._host.numpy()[slot]), allocated, n, view)
 
-    def _take(self, count: int, allocated: int, n: int) -> None:
+    def _take(self, count: int, allocated: int, n: int, view) -> None:
         """A call's true count against the entries it was given: an overflow when over, then :meth:`observe`."""
         if count > allocated:
             self.overflows += 1
-        self.observe(count, n)
+        self.entries_allocated += allocated
+        self.entries_needed += count
+        self.observe(count, n, view)
+
+
+def view_key(cam: CameraParams) -> bytes:
+    """A hashable key of one view: the bytes of its :class:`CameraParams` (pose, intrinsics, image size), the same
+    for every render of that camera."""
+    return bytes(cam.__ctype__())
 
 
 def bin_gaussians(rect: wp.array, tiles_touched: wp.array, depth: wp.array, tiles_x: int, num_tiles: int,
@@ -259,6 +290,7 @@ def bin_gaussians(rect: wp.array, tiles_touched: wp.array, depth: wp.array, tile
     range_end = wp.zeros(num_tiles, dtype=wp.int32, device=device)
     if n == 0:
         return wp.zeros(0, dtype=wp.int32, device=device), range_start, range_end, 0
+    view = view_key(cam) if sizer is not None and cam is not None else None
     if ellipse is None:  # exact = 0 everywhere: the whole rectangle, counted by screen_bounds
         ellipse = empty_tile_ellipses(n, device, whole_rect=True)
         cam = CameraParams()
@@ -268,19 +300,19 @@ def bin_gaussians(rect: wp.array, tiles_touched: wp.array, depth: wp.array, tile
         wp.launch(count_tile_keys, dim=n, inputs=[rect, ellipse, cam, settings], outputs=[tiles_touched], device=device, record_tape=False)
     offsets = wp.empty(n, dtype=wp.int32, device=device)
     wp.utils.array_scan(tiles_touched, offsets, inclusive=True)
-    count = sizer.plan(n) if sizer is not None else 0
+    count = sizer.plan(n, view) if sizer is not None else 0
     padded = count > 0
     if not padded:
         count = int(offsets[n - 1 : n].numpy()[0])  # one small device-to-host copy (sizes the lists): a sync
         if sizer is not None:
-            sizer.measure(count, n)
+            sizer.measure(count, n, view)
     if count == 0:
         return wp.zeros(0, dtype=wp.int32, device=device), range_start, range_end, 0
     keys = wp.empty(2 * count, dtype=wp.int64, device=device)  # radix sort needs 2x scratch
     values = wp.empty(2 * count, dtype=wp.int32, device=device)
     if padded:
         keys[:count].fill_(num_tiles << 32)  # after every tile's keys; owned by no tile
-        sizer.record(offsets, n, count)
+        sizer.record(offsets, n, count, view)
     wp.launch(write_tile_keys, dim=n, inputs=[rect, ellipse, offsets, tiles_touched, float_bits_view(depth), cam, settings,
               count], outputs=[keys, values], device=device, record_tape=False)  # fmt: skip
     wp.utils.radix_sort_pairs(keys, values, count, begin_bit=0, end_bit=32 + max(1, int(num_tiles).bit_length()))

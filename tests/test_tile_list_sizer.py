@@ -3,8 +3,8 @@
 A training loop's renders size their (Gaussian, tile) lists from earlier renders' counts instead of reading each
 render's count back (which makes the host wait for the GPU). Checked here on the CPU, where the same padded path
 runs: renders and gradients through a sizer are bitwise those of exact sizing; the padding owns no tile; the first
-render of a number of Gaussians measures; a render whose lists outgrow the planned size is counted as an overflow
-and the size grows; bad margins are errors."""
+render of a number of Gaussians measures unless its view was rendered before (each view keeps its latest count); a
+render whose lists outgrow the planned size is counted as an overflow and the size grows; bad margins are errors."""
 
 from __future__ import annotations
 
@@ -66,6 +66,7 @@ def test_padding_owns_no_tile():
     prepare_view(*args, 2, cp, settings, sizer=sizer)  # measures
     _, padded, allocated = prepare_view(*args, 2, cp, settings, sizer=sizer)
     assert allocated == sizer.size >= 2 * count - 1 and count > 100
+    assert (sizer.entries_allocated, sizer.entries_needed) == (allocated, count)  # the padded call's, read at once
     np.testing.assert_array_equal(padded.range_start.numpy(), exact.range_start.numpy())
     np.testing.assert_array_equal(padded.range_end.numpy(), exact.range_end.numpy())
     np.testing.assert_array_equal(padded.values.numpy()[:count], exact.values.numpy())
@@ -81,10 +82,39 @@ def test_overflow_is_counted_and_the_size_grows():
     assert sizer.overflows == 1 and sizer.size > size_far
     _assert_equal(_render_and_grads(scene, close, sizer), _render_and_grads(scene, close, None))
     assert sizer.overflows == 1
-    # other Gaussians (a densification): measured again
+    # fewer Gaussians (a prune): a view rendered before keeps its count (not scaled down), nothing is measured
     fewer = {k: v[:200] for k, v in scene.items()}
-    _render_and_grads(fewer, cam, sizer)
-    assert sizer.measured == 2 and sizer.num_gaussians == 200
+    _assert_equal(_render_and_grads(fewer, cam, sizer), _render_and_grads(fewer, cam, None))
+    assert sizer.measured == 1 and sizer.num_gaussians == 200 and sizer.overflows == 1
+    # another number of Gaussians: a view rendered before is not measured; one never rendered is
+    other = {k: v[:150] for k, v in scene.items()}
+    _render_and_grads(other, close, sizer)
+    assert sizer.measured == 1 and sizer.overflows == 1
+    _render_and_grads({k: v[:120] for k, v in scene.items()}, make_shifted(close), sizer)
+    assert sizer.measured == 2 and sizer.overflows == 1
+
+
+def make_shifted(cam):
+    """``cam`` moved a little sideways: another view (another pose), seeing about as much."""
+    from reference_render import make_camera
+
+    return make_camera(width=cam.width, height=cam.height, fx=cam.fx, fy=cam.fy, eye=(0.45, -2.6, 0.9))
+
+
+def test_views_keep_their_counts_across_a_densification():
+    """One size for all views made the first views after each change in the number of Gaussians overflow whenever
+    they needed more than the one view measured first; each view's own count, scaled by the growth, sizes it. Doubling
+    every Gaussian (an exact copy: every view's count exactly doubles) with no margin: the old rule measured the far
+    view and dropped the close view's entries; now neither is measured nor overflows, and both render bit for bit."""
+    scene, cam, close = _scene_and_cameras()
+    sizer = TileListSizer(margin=1.0)
+    _render_and_grads(scene, cam, sizer)  # measured
+    _render_and_grads(scene, close, sizer)  # overflow: the close view needs ~2.6x the far view's entries
+    assert (sizer.measured, sizer.overflows) == (1, 1)
+    doubled = {k: torch.cat([v, v]) for k, v in scene.items()}
+    for view in (cam, close):
+        _assert_equal(_render_and_grads(doubled, view, sizer), _render_and_grads(doubled, view, None))
+    assert (sizer.measured, sizer.overflows, sizer.num_gaussians) == (1, 1, 600)
 
 
 def test_bad_margins_are_errors():
@@ -101,6 +131,11 @@ def test_bad_margins_are_errors():
 def test_counters_survive_a_checkpoint():
     sizer = TileListSizer()
     sizer.calls, sizer.measured, sizer.overflows, sizer.size = 40, 3, 1, 1000
+    sizer.entries_allocated, sizer.entries_needed = 5000, 4000
     again = TileListSizer()
     again.load_state_dict(sizer.state_dict())
-    assert again.stats() == {"calls": 40, "measured": 3, "overflows": 1, "size": 0}  # the size is measured again
+    assert again.stats() == {"calls": 40, "measured": 3, "overflows": 1, "entries_allocated": 5000,
+                             "entries_needed": 4000, "size": 0}  # the size is measured again
+    older = TileListSizer()  # a checkpoint from before the entry counters
+    older.load_state_dict({"calls": 40, "measured": 3, "overflows": 1})
+    assert (older.calls, older.entries_allocated, older.entries_needed) == (40, 0, 0)
