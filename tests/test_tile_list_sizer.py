@@ -139,3 +139,24 @@ def test_counters_survive_a_checkpoint():
     older = TileListSizer()  # a checkpoint from before the entry counters
     older.load_state_dict({"calls": 40, "measured": 3, "overflows": 1})
     assert (older.calls, older.entries_allocated, older.entries_needed) == (40, 0, 0)
+
+
+def test_counts_that_arrive_later_are_filed_under_their_view():
+    """The CUDA path's bookkeeping, without a GPU: counts copied to pinned slots arrive a render or two later and are
+    taken in order, each with the view and the allocation of its own render (the CPU path reads them at once)."""
+
+    class Arrived:
+        is_complete = True
+
+    sizer = TileListSizer(margin=1.0)
+    assert sizer.plan(10, b"far") == 0  # nothing known: measure
+    sizer.measure(6, 10, b"far")
+    sizer._host = wp.array([7, 30, 0, 0, 0, 0, 0, 0], dtype=wp.int32, device="cpu")
+    sizer._pending = [(0, 6, 10, b"far", Arrived()), (1, 6, 10, b"close", Arrived())]
+    # planning takes what has arrived, in order: far's 7 and close's 30, both over their allocation of 6
+    assert sizer.plan(10, b"close") == 30
+    assert sizer._pending == [] and sizer.overflows == 2
+    assert (sizer.entries_allocated, sizer.entries_needed) == (12, 37)
+    assert sizer.plan(10, b"far") == 30  # the largest since the change covers far
+    assert sizer.plan(20, b"far") == 14 and sizer.plan(20, b"close") == 60  # doubled Gaussians: scaled up
+    assert sizer.plan(20, b"new") == 0  # no count yet for 20 Gaussians, and a view never seen: measure
