@@ -492,7 +492,16 @@ class Trainer:
             "history": self.history,
         }
         write_json_atomic(self.out_dir / "metrics.json", metrics)
+        self._warn_about_overflows()
         return metrics
+
+    def _warn_about_overflows(self) -> None:
+        """Say so when renders dropped tile-list entries (their images, and those steps, were missing Gaussians)."""
+        s = self.tile_lists
+        if s is not None and s.overflows:
+            log.warning("%d of %d training renders overflowed their tile lists and dropped some Gaussians' entries "
+                        "(metrics.json -> tile_lists); a larger tile_list_margin (now %g) or 0 (exact sizing, one "
+                        "synchronisation per render) avoids it", s.overflows, s.calls, s.margin)
 
     def _warm_up(self, started: float | None = None) -> None:
         """A throw-away forward and backward pass of one training view before the clock starts: it loads the

@@ -214,3 +214,24 @@ def test_warm_up_pass_changes_nothing_that_training_reads(tiny_scene, tmp_path, 
     for a, b in zip(warm.appearance.parameters(), cold.appearance.parameters()):
         assert torch.equal(a, b)
     assert warm._rng.bit_generator.state == cold._rng.bit_generator.state
+
+
+def test_overflowed_tile_lists_are_reported(straight_run, caplog):
+    """Renders that dropped tile-list entries (a GPU run's sizer; none on the CPU) are said at the end of training,
+    not only counted in metrics.json."""
+    from gof_warp.kernels.binning import TileListSizer
+
+    trainer = straight_run[0]
+    kept = trainer.tile_lists
+    try:
+        trainer.tile_lists = TileListSizer(1.25)
+        trainer.tile_lists.calls = 40
+        with caplog.at_level("WARNING", logger="gof_warp.trainer"):
+            trainer._warn_about_overflows()
+        assert not caplog.records
+        trainer.tile_lists.overflows = 3
+        with caplog.at_level("WARNING", logger="gof_warp.trainer"):
+            trainer._warn_about_overflows()
+        assert "3 of 40 training renders overflowed" in caplog.text and "tile_list_margin (now 1.25)" in caplog.text
+    finally:
+        trainer.tile_lists = kept
