@@ -31,7 +31,7 @@ PRESET = Path(__file__).resolve().parents[2] / "configs" / "unbounded.yaml"
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("scene")
-    ap.add_argument("--variant", choices=("new", "old"), default="new")
+    ap.add_argument("--variant", choices=("new", "old", "own"), default="new")
     ap.add_argument("--iterations", type=int, default=700)
     ap.add_argument("--downscale", type=int, default=16)
     ap.add_argument("--margin", type=float, default=1.25)
@@ -41,6 +41,15 @@ def main() -> None:
     torch.set_num_threads(1)
     if a.variant == "old":
         binning.view_key = lambda cam: None  # every view under one key: the single size of before
+    if a.variant == "own":  # experiment: a view seen before gets its own scaled count only, not the largest since
+        def plan(self, n, view=None, _plan=TileListSizer.plan):
+            seen = self._views.get(view) if view is not None else None
+            base = _plan(self, n, view)
+            if seen is None or seen[0] == 0:
+                return base
+            count, n_then = seen
+            return max(1, int(-(-self.margin * count * max(1.0, n / max(n_then, 1)) // 1)))
+        TileListSizer.plan = plan
     scene = load_scene(Path(a.scene), DataConfig(downscale=a.downscale))
     cfg = merge(merge(TrainConfig(), load_yaml(PRESET)), {
         "iterations": a.iterations, "checkpoint_every": 0, "compile_loss": "off",
