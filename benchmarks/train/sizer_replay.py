@@ -1,6 +1,7 @@
 """The tile-list sizer over a short training on the CPU: overflows (renders that dropped entries), exact measurements
 (host–device synchronisations on a GPU) and padding, with each view's own count (``--variant new``, today's rule) or
-one size for all views (``--variant old``: the per-view key switched off, the rule before session 23).
+one size for all views (``--variant old``: the per-view key switched off, the rule before session 23), or, as an
+experiment not kept, a seen view's own scaled count alone (``--variant own``).
 
     python benchmarks/train/sizer_replay.py SCENE --variant new --iterations 700 --downscale 16 [--out OUT.json]
 
