@@ -33,6 +33,7 @@ from .camera import Camera
 from .devices import resolve_device, warp_device
 from .errors import GofError
 from .kernels import raycast
+from .render import RenderConfig
 
 log = logging.getLogger(__name__)
 
@@ -100,7 +101,7 @@ def _sample_directions(camera: Camera, samples: int) -> np.ndarray:
 
 
 def shade_mesh(vertices, faces, camera: Camera, *, mode: str = "shaded", supersample: int = 2, device=None,
-               background=BACKGROUND) -> np.ndarray:
+               background=BACKGROUND, near: float = 0.0) -> np.ndarray:
     """Ray cast a triangle mesh from ``camera`` and shade it for viewing.
 
     Each sample ray (``supersample²`` per pixel, on the grid of :mod:`gof_warp.kernels.raycast`; 1 = the
@@ -119,6 +120,7 @@ def shade_mesh(vertices, faces, camera: Camera, *, mode: str = "shaded", supersa
         supersample: samples per pixel axis (≥ 1).
         device: Warp/torch device name; default: the device of ``vertices`` if it is a tensor, else CPU.
         background: RGB in ``[0, 1]``.
+        near: depth in front of which nothing is drawn (the camera's clip; 0: none).
 
     Returns:
         ``[H, W, 3]`` uint8 image.
@@ -143,7 +145,8 @@ def shade_mesh(vertices, faces, camera: Camera, *, mode: str = "shaded", supersa
     points = wp.array(v.astype(np.float32), dtype=wp.vec3, device=dev)
     indices = wp.array(f.astype(np.int32).ravel(), dtype=wp.int32, device=dev)
     mesh = wp.Mesh(points=points, indices=indices)
-    hits = raycast.cast_pinhole_rays(mesh, camera.R, camera.t, camera.fx, camera.fy, camera.cx, camera.cy, w, h, s)
+    hits = raycast.cast_pinhole_rays(mesh, camera.R, camera.t, camera.fx, camera.fy, camera.cx, camera.cy, w, h, s,
+                                     min_depth=float(near))
     face = hits["face"].numpy()
 
     tri = v[f]
@@ -291,6 +294,10 @@ def view_panels(gaussians, cameras: list[Camera], *, photos: list | None = None,
                 distortion: bool = False) -> Panels:
     """One row per camera: photo | Gaussian render | median depth | rendered normal | [distortion |] shaded mesh.
 
+    The mesh is drawn from the same near plane as the render beside it (the larger of ``render_config.near`` and the
+    camera's own clip, :attr:`Camera.near`): what lies in front of that plane the photo never showed, and drawing it
+    would hide the scene behind surfaces the Gaussian render does not have.
+
     Args:
         gaussians: :class:`~gof_warp.model.Gaussians` (rendered on their own device).
         cameras: the views to show (one row each).
@@ -322,6 +329,7 @@ def view_panels(gaussians, cameras: list[Camera], *, photos: list | None = None,
         canvas[MARGIN:MARGIN + HEADER_H, x0:x0 + col_w] = _text_strip(COLUMN_TITLES[name], col_w, HEADER_H)
     labels = labels or [c.name for c in cameras]
     mesh_device = device if device is not None else getattr(gaussians, "device", None)
+    near = (render_config or RenderConfig()).near
     for r, cam in enumerate(cams):
         tiles = render_columns(gaussians, cam, render_config, distortion=distortion)
         if photos is not None:
@@ -329,7 +337,7 @@ def view_panels(gaussians, cameras: list[Camera], *, photos: list | None = None,
             tiles["photo"] = (np.full((cam.height, cam.width, 3), np.round(np.asarray(BACKGROUND) * 255), np.uint8)
                               if p is None else _resize(np.asarray(p, np.uint8), cam.width, cam.height))
         if mesh is not None:
-            tiles["mesh"] = shade_mesh(mesh[0], mesh[1], cam, device=mesh_device)
+            tiles["mesh"] = shade_mesh(mesh[0], mesh[1], cam, device=mesh_device, near=max(near, cam.near))
         x0, y0, _, _ = boxes[(r, columns[0])]
         canvas[y0 - LABEL_H:y0, x0:width - MARGIN] = _text_strip(labels[r], width - MARGIN - x0, LABEL_H)
         for name in columns:

@@ -104,29 +104,30 @@ def cast_pinhole_rays_kernel(
     cx: float,
     cy: float,
     samples: int,
+    min_depth: float,
     max_depth: float,
     face: wp.array2d(dtype=wp.int32),
     bary: wp.array2d(dtype=wp.vec2),
     depth: wp.array2d(dtype=float),
     normal: wp.array2d(dtype=wp.vec3),
 ):
-    """Closest hit per sample. Outputs ``[H*s, W*s]``: ``face`` (-1 = miss), ``bary``, ``depth``
-    (camera z, 0 = miss), ``normal`` (unit geometric face normal in world space, turned to face the
-    camera; 0 = miss)."""
+    """Closest hit per sample with depth in ``(min_depth, max_depth)`` (``min_depth``: a near plane, e.g. the
+    camera's clip). Outputs ``[H*s, W*s]``: ``face`` (-1 = miss), ``bary``, ``depth`` (camera z, 0 = miss),
+    ``normal`` (unit geometric face normal in world space, turned to face the camera; 0 = miss)."""
     row, col = wp.tid()
     inv_s = 1.0 / float(samples)
     u = (float(col) + 0.5) * inv_s
     v = (float(row) + 0.5) * inv_s
     d_cam = wp.vec3((u - cx) / fx, (v - cy) / fy, 1.0)
     d = rot_c2w * d_cam  # camera z of d is 1: the ray parameter is depth
-    q = wp.mesh_query_ray(mesh, origin, d, max_depth)
+    q = wp.mesh_query_ray(mesh, origin + d * min_depth, d, max_depth - min_depth)  # from the near plane on
     if q.result:
         n = wp.normalize(q.normal)
         if wp.dot(n, d) > 0.0:
             n = -n
         face[row, col] = q.face
         bary[row, col] = wp.vec2(q.u, q.v)
-        depth[row, col] = q.t
+        depth[row, col] = min_depth + q.t
         normal[row, col] = n
     else:
         face[row, col] = -1
@@ -236,7 +237,7 @@ def resolve_pixels_kernel(
 
 # ----------------------------------------------------------------------------------------- host side
 def cast_pinhole_rays(mesh: wp.Mesh, R, t, fx, fy, cx, cy, width: int, height: int, samples: int = 1,
-                      max_depth: float = 1.0e6) -> dict:
+                      max_depth: float = 1.0e6, min_depth: float = 0.0) -> dict:
     """Launch :func:`cast_pinhole_rays_kernel` for one camera on ``mesh.device``.
 
     Args:
@@ -246,10 +247,13 @@ def cast_pinhole_rays(mesh: wp.Mesh, R, t, fx, fy, cx, cy, width: int, height: i
         width, height: image size; the sample grid is ``[height * samples, width * samples]``.
         samples: samples per pixel axis (1 = pixel centres).
         max_depth: farthest depth searched.
+        min_depth: nearest depth searched (a near plane: surfaces in front of it are not hit; 0: from the centre).
 
     Returns:
         dict of ``wp.array2d``: ``face`` int32, ``bary`` vec2, ``depth`` float32, ``normal`` vec3.
     """
+    if not 0.0 <= min_depth < max_depth:
+        raise ValueError(f"cast_pinhole_rays: need 0 <= min_depth < max_depth, got {min_depth} and {max_depth}")
     R = np.asarray(R, dtype=np.float64)
     origin = -R.T @ np.asarray(t, dtype=np.float64)
     shape = (int(height) * samples, int(width) * samples)
@@ -264,7 +268,7 @@ def cast_pinhole_rays(mesh: wp.Mesh, R, t, fx, fy, cx, cy, width: int, height: i
         cast_pinhole_rays_kernel,
         dim=shape,
         inputs=[mesh.id, wp.mat33(*R.T.ravel()), wp.vec3(*origin), float(fx), float(fy), float(cx), float(cy),
-                int(samples), float(max_depth)],
+                int(samples), float(min_depth), float(max_depth)],
         outputs=[out["face"], out["bary"], out["depth"], out["normal"]],
         device=device,
     )

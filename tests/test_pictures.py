@@ -13,9 +13,10 @@ BG = np.round(np.asarray(BACKGROUND) * 255).astype(np.uint8)
 
 
 # ------------------------------------------------------------------------------------ numpy reference
-def _reference_hits(vertices, faces, camera: Camera, samples=1):
+def _reference_hits(vertices, faces, camera: Camera, samples=1, near=0.0):
     """Closest hit face (-1 = miss) and whether it is seen from behind, per sample ray, in float64
-    (Möller–Trumbore against every triangle). Rays on the grid of ``kernels/raycast``."""
+    (Möller–Trumbore against every triangle, hits deeper than ``near`` only: the rays' parameter is the depth).
+    Rays on the grid of ``kernels/raycast``."""
     s = samples
     u = (np.arange(camera.width * s) + 0.5) / s
     v = (np.arange(camera.height * s) + 0.5) / s
@@ -35,7 +36,7 @@ def _reference_hits(vertices, faces, camera: Camera, samples=1):
         q = np.cross(tv, e1)
         bv = (d @ q) * inv
         t = (q @ e2) * inv
-        hit = ok & (bu >= 0) & (bv >= 0) & (bu + bv <= 1) & (t > 0) & (t < best_t)
+        hit = ok & (bu >= 0) & (bv >= 0) & (bu + bv <= 1) & (t > near) & (t < best_t)
         best_t[hit], best_f[hit] = t[hit], k
     fn = np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]])
     back = np.zeros(len(d), bool)
@@ -119,6 +120,64 @@ def test_shade_mesh_validates_its_inputs():
         shade_mesh(v, f, CAM, mode="wire")
     empty = shade_mesh(v, np.zeros((0, 3), int), CAM)
     assert np.all(empty == BG)
+
+
+def _two_quads():
+    """A small quad at depth 2 (wound away from the camera: drawn red) in front of a large one at depth 3 facing it,
+    seen by a camera at z = 3 looking straight down."""
+    small = np.array([[-0.3, -0.3, 1.0], [0.3, -0.3, 1.0], [0.3, 0.3, 1.0], [-0.3, 0.3, 1.0]])
+    large = np.array([[-2.0, -2.0, 0.0], [2.0, -2.0, 0.0], [2.0, 2.0, 0.0], [-2.0, 2.0, 0.0]])
+    v = np.concatenate([small, large])
+    f = np.array([[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7]])
+    cam = look_at([0.0, 0.0, 3.0], [0.0, 0.0, 0.0], up=(0, 1, 0), fx=20.0, width=24, height=18, name="down")
+    return v, f, cam
+
+
+def test_near_plane_hides_what_lies_in_front_of_it(device):
+    """A surface in front of the camera's clip is not drawn: the mesh picture then shows what the Gaussian render
+    beside it shows (the renderer clips at the same plane). Golden case: with the clip between the two quads, the
+    pixels of the small one see the large one, at its depth."""
+    import warp as wp
+
+    from gof_warp.kernels import raycast
+
+    v, f, cam = _two_quads()
+    for near, small_seen in ((0.0, True), (1.5, True), (2.5, False)):
+        face, _ = _reference_hits(v, f, cam, near=near)
+        img = shade_mesh(v, f, cam, supersample=1, device=device, near=near)
+        assert np.all(face >= 0)  # the large quad fills the view
+        assert np.isin(face, (0, 1)).any() == small_seen
+        mesh = wp.Mesh(points=wp.array(v.astype(np.float32), dtype=wp.vec3, device=device),
+                       indices=wp.array(f.astype(np.int32).ravel(), dtype=wp.int32, device=device))
+        hits = raycast.cast_pinhole_rays(mesh, cam.R, cam.t, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height,
+                                         min_depth=near)
+        quad = hits["face"].numpy() // 2  # pixel centres on a quad's diagonal may hit either of its triangles
+        np.testing.assert_array_equal(quad, face // 2)
+        depth = hits["depth"].numpy()
+        np.testing.assert_allclose(depth[quad == 1], 3.0, atol=1e-4)  # depths stay camera z, not from the plane
+        np.testing.assert_allclose(depth[quad == 0], 2.0, atol=1e-4)
+        red = (img[..., 0].astype(int) - img[..., 1].astype(int)) > 30
+        np.testing.assert_array_equal(red, face // 2 == 0)
+    with pytest.raises(ValueError, match="min_depth"):
+        raycast.cast_pinhole_rays(mesh, cam.R, cam.t, cam.fx, cam.fy, cam.cx, cam.cy, 4, 3, min_depth=-1.0)
+
+
+def test_mesh_column_is_clipped_where_the_render_is(tiny_run):
+    """view_panels draws the mesh from the larger of render.near and the camera's own clip, as the renderer does."""
+    import dataclasses
+
+    from gof_warp.model import Gaussians
+    from gof_warp.render import RenderConfig
+
+    run, _ = tiny_run
+    g = Gaussians.load_ply(run / "point_cloud.ply", device="cpu")
+    v, f, cam = _two_quads()
+    for cam_near, cfg_near, expect in ((0.0, 0.01, 0.0), (2.5, 0.01, 2.5), (0.0, 2.5, 2.5), (1.0, 2.5, 2.5)):
+        c = dataclasses.replace(cam, near=cam_near)
+        panels = pictures.view_panels(g, [c], mesh=(v, f), render_config=RenderConfig(near=cfg_near), device="cpu")
+        x0, y0, x1, y1 = panels.boxes[(0, "mesh")]
+        np.testing.assert_array_equal(panels.image[y0:y1, x0:x1], shade_mesh(v, f, c, device="cpu", near=expect))
+    assert not np.array_equal(shade_mesh(v, f, cam, device="cpu"), shade_mesh(v, f, cam, device="cpu", near=2.5))
 
 
 # --------------------------------------------------------------------------------------- a tiny run
