@@ -329,7 +329,7 @@ def view_panels(gaussians, cameras: list[Camera], *, photos: list | None = None,
         canvas[MARGIN:MARGIN + HEADER_H, x0:x0 + col_w] = _text_strip(COLUMN_TITLES[name], col_w, HEADER_H)
     labels = labels or [c.name for c in cameras]
     mesh_device = device if device is not None else getattr(gaussians, "device", None)
-    near = (render_config or RenderConfig()).near
+    clip = render_config or RenderConfig()
     for r, cam in enumerate(cams):
         tiles = render_columns(gaussians, cam, render_config, distortion=distortion)
         if photos is not None:
@@ -337,7 +337,7 @@ def view_panels(gaussians, cameras: list[Camera], *, photos: list | None = None,
             tiles["photo"] = (np.full((cam.height, cam.width, 3), np.round(np.asarray(BACKGROUND) * 255), np.uint8)
                               if p is None else _resize(np.asarray(p, np.uint8), cam.width, cam.height))
         if mesh is not None:
-            tiles["mesh"] = shade_mesh(mesh[0], mesh[1], cam, device=mesh_device, near=max(near, cam.near))
+            tiles["mesh"] = shade_mesh(mesh[0], mesh[1], cam, device=mesh_device, near=clip.clip_near(cam))
         x0, y0, _, _ = boxes[(r, columns[0])]
         canvas[y0 - LABEL_H:y0, x0:width - MARGIN] = _text_strip(labels[r], width - MARGIN - x0, LABEL_H)
         for name in columns:

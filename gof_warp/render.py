@@ -72,6 +72,11 @@ class RenderConfig:
     distortion_linear_from: float = 0.0
     near_from_points: float = 0.0
 
+    def clip_near(self, camera: Camera) -> float:
+        """The depth the renderer clips ``camera``'s view at: the larger of ``near`` and the camera's own
+        (:attr:`Camera.near`; 0 when it has none)."""
+        return max(self.near, getattr(camera, "near", 0.0))
+
     def validate(self) -> None:
         if not self.near > 0:
             raise ValueError(f"RenderConfig.near must be > 0, got {self.near}")
@@ -104,8 +109,7 @@ def raster_settings_for(camera: Camera, config: RenderConfig, pixel_pad: float =
     ``gof_warp.kernels.render_types``; 0 for rendering pixel centres). The clipping depth is the larger of
     ``config.near`` and the camera's own ``near`` (:attr:`Camera.near`); the distortion's NDC depth keeps
     ``config.near`` as its near plane, so a camera's clip does not change what the distortion weighs."""
-    near = max(config.near, getattr(camera, "near", 0.0))
-    return make_raster_settings(camera.width, camera.height, near, config.alpha_min, config.alpha_max,
+    return make_raster_settings(camera.width, camera.height, config.clip_near(camera), config.alpha_min, config.alpha_max,
                                 config.transmittance_min, config.k_max, config.background, config.tile_size,
                                 pixel_pad=pixel_pad, distortion=config.distortion, far=config.far,
                                 tile_cull=config.tile_cull,

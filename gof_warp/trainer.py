@@ -365,7 +365,7 @@ class Trainer:
         n = len(self.scene.train)
         self.scene = dataclasses.replace(self.scene, train=placed[:n], test=placed[n:])
         self.cameras = self.scene.train_cameras
-        clip = [max(self.render_config.near, c.near) for c in (v.camera for v in placed)]
+        clip = [self.render_config.clip_near(v.camera) for v in placed]
         log.info("per-camera near planes %.3g–%.3g (fraction %g of the nearest initial point; render.near %g)",
                  min(clip), max(clip), fraction, self.render_config.near)
         self.init_info["camera_near"] = {"fraction": fraction, "min": round(min(clip), 4), "max": round(max(clip), 4)}

@@ -202,12 +202,15 @@ class TileListSizer:
         self.calls += 1
         if n != self.num_gaussians:
             self.num_gaussians, self.size, self.largest = n, 0, 0
-        seen = self._views.get(view) if view is not None else None
-        if seen is None or seen[0] == 0:
-            return self.size
-        count, n_then = seen
+        return max(self.size, self.view_estimate(n, view))
+
+    def view_estimate(self, n: int, view) -> int:
+        """``margin ×`` ``view``'s latest count scaled to ``n`` Gaussians (0: no count of that view, or it was 0)."""
+        count, n_then = self._views.get(view, (0, 0)) if view is not None else (0, 0)
+        if count == 0:
+            return 0
         # scaled up with more Gaussians, never down: pruning removes mostly transparent ones, which own few entries
-        return max(self.size, int(math.ceil(self.margin * count * max(1.0, n / max(n_then, 1)))))
+        return int(math.ceil(self.margin * count * max(1.0, n / max(n_then, 1))))
 
     def observe(self, count: int, n: int, view=None) -> None:
         """A true count for ``n`` Gaussians (of ``view``): grows ``size`` to ``margin ×`` the largest one and

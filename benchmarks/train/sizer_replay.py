@@ -44,12 +44,8 @@ def main() -> None:
         binning.view_key = lambda cam: None  # every view under one key: the single size of before
     if a.variant == "own":  # experiment: a view seen before gets its own scaled count only, not the largest since
         def plan(self, n, view=None, _plan=TileListSizer.plan):
-            seen = self._views.get(view) if view is not None else None
-            base = _plan(self, n, view)
-            if seen is None or seen[0] == 0:
-                return base
-            count, n_then = seen
-            return max(1, int(-(-self.margin * count * max(1.0, n / max(n_then, 1)) // 1)))
+            planned = _plan(self, n, view)  # settles, counts the call, resets on a change in the number
+            return self.view_estimate(n, view) or planned
         TileListSizer.plan = plan
     scene = load_scene(Path(a.scene), DataConfig(downscale=a.downscale))
     cfg = merge(merge(TrainConfig(), load_yaml(PRESET)), {
