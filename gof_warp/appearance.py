@@ -51,12 +51,17 @@ class AppearanceModel(nn.Module):
 
         Images smaller than 32 pixels on a side have no crop; a gain of ones is returned.
         """
+        return self.gain_for(render, self.embedding.weight[image_index])
+
+    def gain_for(self, render: torch.Tensor, embedding: torch.Tensor) -> torch.Tensor:
+        """:meth:`gain` for an image's embedding ``[D]`` given as a tensor (a row of ``embedding.weight``), so that a
+        compiled caller can pick the row on the device instead of specialising on the image's index."""
         crop = self.crop(render)
         _, h, w = crop.shape
         if h == 0 or w == 0:
             return torch.ones_like(render[:, :0, :0])
         small = F.interpolate(crop[None], size=(h // DOWNSAMPLE, w // DOWNSAMPLE), mode="bilinear", align_corners=True)
-        emb = self.embedding.weight[image_index][None, :, None, None].expand(1, -1, small.shape[2], small.shape[3])
+        emb = embedding[None, :, None, None].expand(1, -1, small.shape[2], small.shape[3])
         x = F.relu(self.head(torch.cat([small, emb], dim=1)))
         for conv in self.ups:
             x = F.relu(conv(F.pixel_shuffle(x, 2)))

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import torch
 
+from .appearance import DOWNSAMPLE
 from .camera import Camera
 from .errors import GofError
 from .metrics import ssim
@@ -241,50 +242,93 @@ def loss_terms(rgb, gt_image, l1_pred, l1_target, alpha, median_depth, normal, d
     return loss, terms
 
 
+def appearance_l1_pair(appearance, rgb: torch.Tensor, gt_image: torch.Tensor,
+                       embedding: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """GOF's decoupled-appearance L1 pair ``(gain ⊙ crop(rgb), crop(gt))``, channel-last ``[H', W', 3]`` each, for an
+    :class:`~gof_warp.appearance.AppearanceModel` and the image's embedding row ``[D]``."""
+    chw = rgb.permute(2, 0, 1)
+    corrected = appearance.gain_for(chw, embedding) * appearance.crop(chw)
+    return corrected.permute(1, 2, 0), appearance.crop(gt_image.permute(2, 0, 1)).permute(1, 2, 0)
+
+
+def appearance_loss_terms(appearance, view_index, rgb, gt_image, alpha, median_depth, normal, distortion, intr,
+                          config: LossConfig, regularise: bool) -> tuple[torch.Tensor, dict]:
+    """:func:`loss_terms` with the appearance-corrected L1 pair of the image ``view_index`` (a 0-d integer tensor on
+    the images' device, so that a compiled graph serves every view)."""
+    pred, target = appearance_l1_pair(appearance, rgb, gt_image, appearance.embedding(view_index))
+    return loss_terms(rgb, gt_image, pred, target, alpha, median_depth, normal, distortion, intr, config, regularise)
+
+
 COMPILE_MODES = ("auto", "on", "off")
 
 
 class TrainingLoss:
-    """:func:`total_loss` over a fixed list of cameras, through ``torch.compile`` where asked.
+    """:func:`total_loss` over a fixed list of cameras, through ``torch.compile`` where asked, with GOF's decoupled
+    appearance in the L1 term when given an ``appearance`` model.
 
     The loss is some 60 small tensor operations (SSIM's moments, the normals of the depth map, the products
-    of the consistency term) and as many in its backward: on a GPU the host spends longer issuing them than the
-    GPU takes to run them, and training steps are host-bound (``benchmarks/train/README.md``). Compiled, the
-    forward and the backward are a few fused kernels each. The compiled graph takes the intrinsics as a
-    ``[4]`` tensor per camera (kept on the device) so that views do not trigger recompilation; there is one
-    graph per value of ``regularise``.
+    of the consistency term) and as many in its backward, and the appearance network a dozen layers more: on a GPU
+    the host spends longer issuing them than the GPU takes to run them, and training steps are host-bound
+    (``benchmarks/train/README.md``). Compiled, the forward and the backward are a few fused kernels each. The
+    compiled graph takes the intrinsics as a ``[4]`` tensor per camera and the appearance embedding's row as a device
+    index, so that views do not trigger recompilation; there is one graph per value of ``regularise``.
 
     ``mode``: ``"auto"`` compiles on CUDA and falls back to the eager loss (with a warning) if compiling fails;
     ``"on"`` compiles on any device and raises if it fails; ``"off"`` never compiles. ``backend``: passed to
-    ``torch.compile`` (tests use ``"aot_eager"``, which traces without generating code)."""
+    ``torch.compile`` (tests use ``"aot_eager"``, which traces without generating code). ``cuda_graphs``: on CUDA, compile with
+    ``mode="reduce-overhead"``, which replays the compiled forward and backward as CUDA graphs (one launch each
+    instead of one per kernel); the terms are then copied out of the graph's memory, which the next replay reuses.
+    ``appearance``: an :class:`~gof_warp.appearance.AppearanceModel` whose embedding ``i`` belongs to camera ``i``;
+    views smaller than its 32-pixel crop get the plain L1."""
 
-    def __init__(self, config: LossConfig, cameras, device, mode: str = "auto", backend: str = "inductor"):
+    def __init__(self, config: LossConfig, cameras, device, mode: str = "auto", backend: str = "inductor",
+                 cuda_graphs: bool = False, appearance=None):
         if mode not in COMPILE_MODES:
             raise GofError(f"compile_loss must be one of {COMPILE_MODES}, got {mode!r}")
-        self.config, self.mode = config, mode
+        self.config, self.mode, self.appearance = config, mode, appearance
         device = torch.device(device)
-        self.compiled = None
+        self.corrected = [appearance is not None and min(c.width, c.height) >= DOWNSAMPLE for c in cameras]
+        self.compiled = self.compiled_appearance = None
         self.fallback_reason: str | None = None
         if mode == "on" or (mode == "auto" and device.type == "cuda"):
             self.intr = [torch.tensor(_intrinsics(c), dtype=torch.float64, device=device) for c in cameras]
-            self.compiled = torch.compile(loss_terms, dynamic=False, fullgraph=True, backend=backend)
+            self.view_index = [torch.tensor(i, dtype=torch.int64, device=device) for i in range(len(cameras))]
+            graphs = cuda_graphs and device.type == "cuda"
+            options = dict(dynamic=False, fullgraph=True, backend=backend, **({"mode": "reduce-overhead"} if graphs else {}))
+            self.compiled = torch.compile(loss_terms, **options)
+            if appearance is not None:
+                self.compiled_appearance = torch.compile(appearance_loss_terms, **options)
+        self.cuda_graphs = cuda_graphs and self.compiled is not None and device.type == "cuda"
 
     def __call__(self, out: dict, gt_image, camera: Camera, view: int, iteration: int, *, l1_pair=None):
-        """``total_loss(out, gt_image, camera, config, iteration, l1_pair=l1_pair)``; ``view``: ``camera``'s index
-        in the list given at construction."""
+        """``total_loss(out, gt_image, camera, config, iteration, l1_pair=l1_pair)``, with the appearance's L1 pair
+        when the loss has an appearance model and no ``l1_pair`` is given; ``view``: ``camera``'s index in the list
+        given at construction."""
+        corrected = l1_pair is None and self.corrected[view]
         if self.compiled is not None:
             args, regularise = _loss_inputs(out, gt_image, self.config, iteration, l1_pair)
             try:
-                loss, terms = self.compiled(*args, self.intr[view], self.config, regularise)
+                if self.cuda_graphs:
+                    torch.compiler.cudagraph_mark_step_begin()
+                if corrected:
+                    loss, terms = self.compiled_appearance(self.appearance, self.view_index[view], *args[:2], *args[4:],
+                                                           self.intr[view], self.config, regularise)
+                else:
+                    loss, terms = self.compiled(*args, self.intr[view], self.config, regularise)
+                if self.cuda_graphs:  # one copy out of the graph's memory; the terms are views of it
+                    copied = torch.stack([v.detach() for v in terms.values()])
+                    return loss, dict(zip(terms, copied.unbind()))
                 return loss, {k: v.detach() for k, v in terms.items()}
             except Exception as e:  # noqa: BLE001 - any compiler failure: the eager loss computes the same
                 if self.mode != "auto":
                     raise
                 self.give_up(e)
+        if corrected:
+            l1_pair = appearance_l1_pair(self.appearance, out["rgb"], gt_image, self.appearance.embedding.weight[view])
         return total_loss(out, gt_image, camera, self.config, iteration, l1_pair=l1_pair)
 
     def give_up(self, error: Exception) -> None:
         """Use the eager loss from now on (``mode="auto"`` after ``error`` from the compiler), with a warning."""
         self.fallback_reason = f"{type(error).__name__}: {' '.join(str(error).split())[:400]}"
         log.warning("torch.compile of the loss failed (%s); using the eager loss", self.fallback_reason)
-        self.compiled = None
+        self.compiled = self.compiled_appearance = None

@@ -119,6 +119,11 @@ class TrainConfig:
     # session 21); short runs would spend more on compiling than they save. YAML reads a bare on/off as true/false:
     # those are taken as "on"/"off"
     compile_loss: str | bool = "auto"
+    # a compiled loss on CUDA is replayed as CUDA graphs (torch.compile's "reduce-overhead": the loss and the appearance
+    # network forward and backward, one launch each instead of ~100 kernels issued by the host). On a DTU model at
+    # 20k iterations (H100) the step went from 18.1 to 11.8 ms, the GPU's own 11.4 ms (benchmarks/train/README.md,
+    # session 24). False: the compiled kernels issued one by one
+    loss_cuda_graphs: bool = True
     # render each training view on a random background colour (3DGS's --random_background) instead of the scene's:
     # a surface can then no longer stay partly transparent with brighter colours over the fixed background, which
     # the photometric loss cannot tell apart on opaque photos and which the opacity field turns into holes and
@@ -223,7 +228,6 @@ class Trainer:
         # tile lists sized without waiting for the GPU each iteration (on the CPU there is nothing to overlap)
         self.tile_lists = (TileListSizer(config.tile_list_margin)
                            if self.device.type == "cuda" and config.tile_list_margin else None)
-        self.loss = TrainingLoss(config.loss, self.cameras, self.device, compile_mode(config))
         self._rng = np.random.default_rng(config.seed)
         self._stack: list[int] = []
         self._pending = PendingScalars()  # iterations whose loss terms are still on the device
@@ -244,6 +248,9 @@ class Trainer:
                 {"params": [p for n, p in self.appearance.named_parameters() if not n.startswith("embedding")],
                  "lr": config.optim.appearance_network_lr},
             ], **config.optim.adam_kwargs(self.device))
+        # the loss with the appearance's L1 pair (camera i's embedding is row i), compiled as one graph where asked
+        self.loss = TrainingLoss(config.loss, self.cameras, self.device, compile_mode(config),
+                                 cuda_graphs=config.loss_cuda_graphs, appearance=self.appearance)
 
     # ------------------------------------------------------------------ one iteration
     def _next_view(self) -> int:
@@ -302,10 +309,19 @@ class Trainer:
         loss, terms = self._view_loss(idx, it, stats)
         with _stage("train.backward"):
             (loss if self.views_per_step == 1 else loss / self.views_per_step).backward()
+            if self.views_per_step > 1 and self.loss.cuda_graphs and self.appearance is not None:
+                # the appearance's gradients are the graph's outputs, which the next view's replay overwrites
+                for p in self.appearance.parameters():
+                    p.grad = None if p.grad is None else p.grad.clone()
         if stats is not None:  # per-view gradients, whatever the number of views in the step
             with torch.no_grad():
                 self.densifier.after_backward(stats, it, scale=float(self.views_per_step))
         return terms
+
+    def _clear_gradients(self) -> None:
+        self.optimizer.zero_grad(set_to_none=True)
+        if self.appearance_optimizer is not None:
+            self.appearance_optimizer.zero_grad(set_to_none=True)
 
     def _new_stats(self, it: int) -> DensifyStats | None:
         """Densification statistics for one view of iteration ``it`` (None once they are no longer gathered)."""
@@ -323,12 +339,7 @@ class Trainer:
         with _stage("train.render"):
             out = render(self.gaussians, cam, config=render_config, stats=stats, tile_lists=self.tile_lists)
         with _stage("train.loss"):
-            l1_pair = None
-            if self.appearance is not None:
-                corrected = self.appearance.apply(out["rgb"].permute(2, 0, 1), idx)
-                if corrected.numel():
-                    l1_pair = (corrected.permute(1, 2, 0), AppearanceModel.crop(gt.permute(2, 0, 1)).permute(1, 2, 0))
-            loss, terms = self.loss(out, gt, cam, idx, loss_it, l1_pair=l1_pair)
+            loss, terms = self.loss(out, gt, cam, idx, loss_it)
             terms["psnr"] = psnr(out["rgb"].detach(), gt)
         return loss, terms
 
@@ -523,11 +534,9 @@ class Trainer:
                 if self.loss.compiled is None or self.loss.mode != "auto":
                     raise
                 self.loss.give_up(e)
-                self.optimizer.zero_grad(set_to_none=True)
+                self._clear_gradients()
                 return self._warm_up(t)
-        self.optimizer.zero_grad(set_to_none=True)
-        if self.appearance_optimizer is not None:
-            self.appearance_optimizer.zero_grad(set_to_none=True)
+            self._clear_gradients()  # each pass on its own (CUDA-graph gradients last until the next replay)
         if self.device.type == "cuda":
             torch.cuda.synchronize(self.device)
         # the ranks start the clock together: the first collective also sets up NCCL's communicators, which in the

@@ -229,6 +229,108 @@ def test_compiled_training_loss_equals_the_eager_loss(form):
     assert compiled.compiled is not None and compiled.fallback_reason is None
 
 
+def test_training_loss_with_appearance_compiled_equals_the_eager_correction():
+    """With an appearance model, ``TrainingLoss`` puts GOF's corrected pair ``(gain ⊙ crop(rgb), crop(gt))`` in the L1
+    term, the gain from camera i's embedding row: eager and through ``torch.compile`` (one graph for every view: the
+    row is picked by a device index) it gives the loss, terms and gradients (renders, embedding, network) of
+    ``total_loss`` with the pair built by ``AppearanceModel.apply`` as the trainer built it before; a camera smaller
+    than the 32-pixel crop gets the plain L1."""
+    from gof_warp.appearance import AppearanceModel
+    from gof_warp.losses import TrainingLoss
+
+    h, w = 40, 70  # crop 32 x 64
+    rng = np.random.default_rng(3)
+    torch.manual_seed(0)
+    model = AppearanceModel(3).double()
+    torch.nn.init.normal_(model.embedding.weight, 0.0, 0.5)  # rows that differ enough to tell them apart
+    big = Camera(R=np.eye(3), t=np.zeros(3), fx=60.0, fy=58.0, cx=35.2, cy=19.7, width=w, height=h)
+    cams = [big, Camera(R=np.eye(3), t=np.zeros(3), fx=61.0, fy=57.0, cx=34.0, cy=20.5, width=w, height=h), _camera()]
+
+    def maps(hh, ww):
+        t = lambda a: torch.tensor(a, requires_grad=True)  # noqa: E731
+        return {"rgb": t(rng.random((hh, ww, 3))), "alpha": t(rng.random((hh, ww))),
+                "median_depth": t(2.0 + rng.random((hh, ww))), "normal": t(rng.random((hh, ww, 3)) - 0.5),
+                "distortion": t(rng.random((hh, ww)) * 1e-3)}
+
+    def run(loss_fn, out, gt, view, it, **kw):
+        model.zero_grad(set_to_none=True)
+        loss, terms, grads = _loss_and_grads(loss_fn, out, gt, *kw.pop("args"), **kw)
+        return loss, terms, grads, {n: p.grad.clone() for n, p in model.named_parameters() if p.grad is not None}
+
+    def reference(out, gt, cam, view, it):
+        corrected = model.apply(out["rgb"].permute(2, 0, 1), view)
+        pair = None if not corrected.numel() else (
+            corrected.permute(1, 2, 0), AppearanceModel.crop(gt.permute(2, 0, 1)).permute(1, 2, 0))
+        return total_loss(out, gt, cam, LossConfig(), it, l1_pair=pair)
+
+    eager = TrainingLoss(LossConfig(), cams, "cpu", mode="off", appearance=model)
+    compiled = TrainingLoss(LossConfig(), cams, "cpu", mode="on", backend="aot_eager", appearance=model)
+    for view, it in ((0, 100), (1, 15_000), (2, 15_000), (1, 20_000)):
+        cam = cams[view]
+        out = maps(cam.height, cam.width)
+        gt = torch.tensor(rng.random((cam.height, cam.width, 3)))
+        ref = run(lambda o, g, *a: reference(o, g, cam, view, it), out, gt, view, it, args=())
+        for loss_fn in (eager, compiled):
+            got = run(loss_fn, out, gt, view, it, args=(cam, view, it))
+            assert abs(got[0].item() - ref[0].item()) <= 1e-12 * max(1.0, abs(ref[0].item()))
+            assert set(got[1]) == set(ref[1]) and all(abs(got[1][k].item() - ref[1][k].item()) <= 1e-12 for k in ref[1])
+            for a, b in ((got[2], ref[2]), (got[3], ref[3])):
+                assert set(a) == set(b)
+                for k in b:
+                    assert torch.allclose(a[k], b[k], rtol=1e-9, atol=1e-14), k
+        if view < 2:  # the corrected pair is in use: the embedding's row got a gradient, the other rows none
+            rows = ref[3]["embedding.weight"].abs().sum(1)
+            assert rows[view] > 0 and rows.sum() == rows[view]
+        else:
+            assert "embedding.weight" not in ref[3]
+    assert compiled.compiled_appearance is not None and compiled.fallback_reason is None
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA graphs need a GPU")
+def test_training_loss_as_cuda_graphs_equals_the_eager_loss():
+    """``cuda_graphs=True`` (inductor, ``mode="reduce-overhead"``): over a sequence of views and both graphs (with and
+    without the regularisers), each call's loss, terms and gradients (renders and appearance network) equal the
+    eager loss's, and the terms stay valid after later replays (they are copied out of the graph's memory)."""
+    from gof_warp.appearance import AppearanceModel
+    from gof_warp.losses import TrainingLoss
+
+    dev = torch.device("cuda")
+    h, w = 40, 70
+    rng = np.random.default_rng(4)
+    torch.manual_seed(0)
+    model = AppearanceModel(2).to(dev)
+    cams = [Camera(R=np.eye(3), t=np.zeros(3), fx=60.0 + i, fy=58.0, cx=35.2, cy=19.7, width=w, height=h) for i in range(2)]
+    eager = TrainingLoss(LossConfig(), cams, dev, mode="off", appearance=model)
+    graphs = TrainingLoss(LossConfig(), cams, dev, mode="on", cuda_graphs=True, appearance=model)
+    kept = []
+    for view, it in ((0, 100), (1, 15_000), (0, 15_000), (1, 200), (0, 20_000), (1, 20_000)):
+        t = lambda a: torch.tensor(a, dtype=torch.float32, device=dev, requires_grad=True)  # noqa: E731
+        out = {"rgb": t(rng.random((h, w, 3))), "alpha": t(rng.random((h, w))), "median_depth": t(2 + rng.random((h, w))),
+               "normal": t(rng.random((h, w, 3)) - 0.5), "distortion": t(rng.random((h, w)) * 1e-3)}
+        gt = torch.tensor(rng.random((h, w, 3)), dtype=torch.float32, device=dev)
+        results = []
+        for loss_fn in (eager, graphs):
+            for v in out.values():
+                v.grad = None
+            model.zero_grad(set_to_none=True)
+            loss, terms = loss_fn(out, gt, cams[view], view, it)
+            loss.backward()
+            results.append((loss.item(), {k: v.item() for k, v in terms.items()},
+                            {k: v.grad.clone() for k, v in out.items() if v.grad is not None},
+                            {n: p.grad.clone() for n, p in model.named_parameters() if p.grad is not None}))
+        kept.append((terms, results[1][1]))
+        (l_ref, t_ref, g_ref, a_ref), (l_got, t_got, g_got, a_got) = results
+        assert abs(l_got - l_ref) <= 1e-5 * max(1.0, abs(l_ref)) and set(t_got) == set(t_ref)
+        assert all(abs(t_got[k] - t_ref[k]) <= 1e-5 * max(1.0, abs(t_ref[k])) for k in t_ref)
+        for got, ref in ((g_got, g_ref), (a_got, a_ref)):
+            assert set(got) == set(ref)
+            for k in ref:
+                assert torch.allclose(got[k], ref[k], rtol=1e-3, atol=1e-6), k
+    for terms, values in kept:  # still readable, and unchanged, after every later replay
+        assert {k: v.item() for k, v in terms.items()} == values
+    assert graphs.cuda_graphs and graphs.fallback_reason is None
+
+
 def test_training_loss_modes_and_fallback():
     from gof_warp.losses import TrainingLoss
 

@@ -154,6 +154,21 @@ def test_decoupled_appearance_trains_and_stays_out_of_the_render(tiny_scene, tmp
     assert trainer.appearance.gain(torch.rand(3, 20, 20), 0).numel() == 0  # below 32 px: no crop, no gain
 
 
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA graphs need a GPU")
+def test_loss_as_cuda_graphs_trains_with_appearance_and_several_views(tmp_path):
+    """``loss_cuda_graphs``: the warm-up builds both graphs, two views a step accumulate the appearance's gradients
+    across replays (which reuse the graph's memory), and the run's losses match the compiled loss without graphs."""
+    cfg = dict(iterations=16, appearance=True, checkpoint_every=0, views_per_step=2, compile_loss="on")
+    scene = load_scene(make_scene("default", tmp_path / "s", views=6, resolution=(32, 32), device="cuda"))
+    plain = Trainer(scene, _config(**cfg, loss_cuda_graphs=False), tmp_path / "plain", "cuda")
+    plain_metrics = plain.run()
+    graphs = Trainer(scene, _config(**cfg, loss_cuda_graphs=True), tmp_path / "graphs", "cuda")
+    metrics = graphs.run()
+    assert graphs.loss.cuda_graphs and graphs.loss.compiled is not None and graphs.loss.fallback_reason is None
+    assert metrics["num_gaussians"] > 0
+    assert abs(metrics["final_train_psnr"] - plain_metrics["final_train_psnr"]) <= 0.5
+
+
 def test_snapshots_are_written_and_do_not_change_the_run(tiny_scene, straight_run, tmp_path):
     from gof_warp.model import Gaussians
 
