@@ -143,14 +143,25 @@ def main() -> None:
             opt.step()
         parts["adam"] = adam_part
 
-    results = {"device": torch.cuda.get_device_name(), "torch": torch.__version__, "warp": wp.config.version,
+    torch.cuda.synchronize()
+    start, end = torch.cuda.Event(enable_timing=True), torch.cuda.Event(enable_timing=True)
+    start.record()
+    torch.cuda._sleep(args.sleep_cycles)
+    end.record()
+    end.synchronize()
+    sleep_ms = start.elapsed_time(end)
+    results = {"sleep_ms": round(sleep_ms, 1), "device": torch.cuda.get_device_name(), "torch": torch.__version__, "warp": wp.config.version,
                "gaussians": args.gaussians, "image": [W, H], "calls": args.calls, "reps": args.reps, "parts": {}}
     for name, fn in parts.items():
         samples = [issue_and_gpu_ms(fn, args.calls, args.sleep_cycles) for _ in range(args.reps)]
         host, gpu = (float(np.median([s[i] for s in samples])) for i in (0, 1))
+        # a host time near the sleep's means the calls overfilled the launch queue (~1,000 kernels) and the host
+        # waited for the sleep: not a measurement (fewer --calls)
+        queue_full = host * args.calls > 0.5 * sleep_ms
         results["parts"][name] = {"host_ms": round(host, 3), "gpu_ms": round(gpu, 3),
-                                  "host_ms_all": [round(s[0], 3) for s in samples]}
-        print(f"{name:40s} host {host:7.3f} ms  gpu {gpu:7.3f} ms", flush=True)
+                                  "host_ms_all": [round(s[0], 3) for s in samples], "queue_full": queue_full}
+        print(f"{name:40s} host {host:7.3f} ms  gpu {gpu:7.3f} ms" + ("  (queue full: not a measurement)" if queue_full
+                                                                        else ""), flush=True)
         if args.cprofile:
             import cProfile
             import pstats
