@@ -275,8 +275,8 @@ class TrainingLoss:
 
     ``mode``: ``"auto"`` compiles on CUDA and falls back to the eager loss (with a warning) if compiling fails;
     ``"on"`` compiles on any device and raises if it fails; ``"off"`` never compiles. ``backend``: passed to
-    ``torch.compile`` (tests use ``"aot_eager"``, which traces without generating code). ``cuda_graphs``: on CUDA, compile with
-    ``mode="reduce-overhead"``, which replays the compiled forward and backward as CUDA graphs (one launch each
+    ``torch.compile`` (tests use ``"aot_eager"``, which traces without generating code). ``cuda_graphs``: on CUDA,
+    compile with ``mode="reduce-overhead"``, which replays the compiled forward and backward as CUDA graphs (one launch each
     instead of one per kernel); the terms are then copied out of the graph's memory, which the next replay reuses.
     ``appearance``: an :class:`~gof_warp.appearance.AppearanceModel` whose embedding ``i`` belongs to camera ``i``;
     views smaller than its 32-pixel crop get the plain L1."""
@@ -285,20 +285,25 @@ class TrainingLoss:
                  cuda_graphs: bool = False, appearance=None):
         if mode not in COMPILE_MODES:
             raise GofError(f"compile_loss must be one of {COMPILE_MODES}, got {mode!r}")
+        if appearance is not None and appearance.embedding.num_embeddings < len(cameras):
+            raise GofError(f"TrainingLoss: the appearance model has {appearance.embedding.num_embeddings} embeddings "
+                           f"for {len(cameras)} cameras (camera i uses embedding i)")
         self.config, self.mode, self.appearance = config, mode, appearance
         device = torch.device(device)
         self.corrected = [appearance is not None and min(c.width, c.height) >= DOWNSAMPLE for c in cameras]
         self.compiled = self.compiled_appearance = None
         self.fallback_reason: str | None = None
+        self.cuda_graphs = False
         if mode == "on" or (mode == "auto" and device.type == "cuda"):
             self.intr = [torch.tensor(_intrinsics(c), dtype=torch.float64, device=device) for c in cameras]
             self.view_index = [torch.tensor(i, dtype=torch.int64, device=device) for i in range(len(cameras))]
-            graphs = cuda_graphs and device.type == "cuda"
-            options = dict(dynamic=False, fullgraph=True, backend=backend, **({"mode": "reduce-overhead"} if graphs else {}))
+            self.cuda_graphs = cuda_graphs and device.type == "cuda"
+            options = dict(dynamic=False, fullgraph=True, backend=backend)
+            if self.cuda_graphs:
+                options["mode"] = "reduce-overhead"
             self.compiled = torch.compile(loss_terms, **options)
             if appearance is not None:
                 self.compiled_appearance = torch.compile(appearance_loss_terms, **options)
-        self.cuda_graphs = cuda_graphs and self.compiled is not None and device.type == "cuda"
 
     def __call__(self, out: dict, gt_image, camera: Camera, view: int, iteration: int, *, l1_pair=None):
         """``total_loss(out, gt_image, camera, config, iteration, l1_pair=l1_pair)``, with the appearance's L1 pair
@@ -332,3 +337,4 @@ class TrainingLoss:
         self.fallback_reason = f"{type(error).__name__}: {' '.join(str(error).split())[:400]}"
         log.warning("torch.compile of the loss failed (%s); using the eager loss", self.fallback_reason)
         self.compiled = self.compiled_appearance = None
+        self.cuda_graphs = False

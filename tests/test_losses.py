@@ -339,6 +339,11 @@ def test_training_loss_modes_and_fallback():
     assert TrainingLoss(LossConfig(), cams, "cpu", mode="off").compiled is None
     with pytest.raises(GofError):
         TrainingLoss(LossConfig(), cams, "cpu", mode="sometimes")
+    from gof_warp.appearance import AppearanceModel
+
+    with pytest.raises(GofError, match="1 embeddings for 2 cameras"):
+        TrainingLoss(LossConfig(), cams * 2, "cpu", appearance=AppearanceModel(1))
+    assert not TrainingLoss(LossConfig(), cams, "cpu", mode="on", cuda_graphs=True).cuda_graphs  # CUDA only
 
     def broken_backend(gm, example_inputs):
         raise RuntimeError("no compiler here")
