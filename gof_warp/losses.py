@@ -276,8 +276,8 @@ class TrainingLoss:
     ``mode``: ``"auto"`` compiles on CUDA and falls back to the eager loss (with a warning) if compiling fails;
     ``"on"`` compiles on any device and raises if it fails; ``"off"`` never compiles. ``backend``: passed to
     ``torch.compile`` (tests use ``"aot_eager"``, which traces without generating code). ``cuda_graphs``: on CUDA,
-    compile with ``mode="reduce-overhead"``, which replays the compiled forward and backward as CUDA graphs (one launch each
-    instead of one per kernel); the terms are then copied out of the graph's memory, which the next replay reuses.
+    compile with ``mode="reduce-overhead"``, which replays the compiled forward and backward as CUDA graphs (one launch
+    each instead of one per kernel); the terms are then copied out of the graph's memory, which the next replay reuses.
     ``appearance``: an :class:`~gof_warp.appearance.AppearanceModel` whose embedding ``i`` belongs to camera ``i``;
     views smaller than its 32-pixel crop get the plain L1."""
 

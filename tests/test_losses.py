@@ -299,14 +299,15 @@ def test_training_loss_as_cuda_graphs_equals_the_eager_loss():
     rng = np.random.default_rng(4)
     torch.manual_seed(0)
     model = AppearanceModel(2).to(dev)
-    cams = [Camera(R=np.eye(3), t=np.zeros(3), fx=60.0 + i, fy=58.0, cx=35.2, cy=19.7, width=w, height=h) for i in range(2)]
+    cams = [Camera(R=np.eye(3), t=np.zeros(3), fx=60.0 + i, fy=58.0, cx=35.2, cy=19.7, width=w, height=h)
+            for i in range(2)]
     eager = TrainingLoss(LossConfig(), cams, dev, mode="off", appearance=model)
     graphs = TrainingLoss(LossConfig(), cams, dev, mode="on", cuda_graphs=True, appearance=model)
     kept = []
     for view, it in ((0, 100), (1, 15_000), (0, 15_000), (1, 200), (0, 20_000), (1, 20_000)):
         t = lambda a: torch.tensor(a, dtype=torch.float32, device=dev, requires_grad=True)  # noqa: E731
-        out = {"rgb": t(rng.random((h, w, 3))), "alpha": t(rng.random((h, w))), "median_depth": t(2 + rng.random((h, w))),
-               "normal": t(rng.random((h, w, 3)) - 0.5), "distortion": t(rng.random((h, w)) * 1e-3)}
+        out = {"rgb": t(rng.random((h, w, 3))), "alpha": t(rng.random((h, w))),
+               "median_depth": t(2 + rng.random((h, w))), "normal": t(rng.random((h, w, 3)) - 0.5), "distortion": t(rng.random((h, w)) * 1e-3)}
         gt = torch.tensor(rng.random((h, w, 3)), dtype=torch.float32, device=dev)
         results = []
         for loss_fn in (eager, graphs):

@@ -48,7 +48,8 @@ def main() -> None:
     ap.add_argument("--gaussians", type=int, default=800_000)
     ap.add_argument("--width", type=int, default=800)
     ap.add_argument("--height", type=int, default=600)
-    ap.add_argument("--calls", type=int, default=4, help="calls per measurement (the launch queue, ~1,000 kernels, must hold them)")
+    ap.add_argument("--calls", type=int, default=4,
+                    help="calls per measurement (the launch queue, ~1,000 kernels, must hold them)")
     ap.add_argument("--reps", type=int, default=5, help="measurements per part (the median is reported)")
     ap.add_argument("--sleep-cycles", type=int, default=1_000_000_000, help="~0.5 s of GPU sleep on an H100")
     ap.add_argument("--parts", default="render,loss,appearance,adam")
@@ -90,7 +91,8 @@ def main() -> None:
 
     if "loss" in wanted:
         maps = {"rgb": torch.rand(H, W, 3, generator=rng), "alpha": torch.rand(H, W, generator=rng),
-                "median_depth": 2.0 + torch.rand(H, W, generator=rng), "normal": torch.rand(H, W, 3, generator=rng) - 0.5,
+                "median_depth": 2.0 + torch.rand(H, W, generator=rng),
+                "normal": torch.rand(H, W, 3, generator=rng) - 0.5,
                 "distortion": torch.rand(H, W, generator=rng)}
         maps = {k: v.to(dev).requires_grad_(True) for k, v in maps.items()}
         gt = torch.rand(H, W, 3, generator=rng).to(dev)
@@ -150,7 +152,8 @@ def main() -> None:
     end.record()
     end.synchronize()
     sleep_ms = start.elapsed_time(end)
-    results = {"sleep_ms": round(sleep_ms, 1), "device": torch.cuda.get_device_name(), "torch": torch.__version__, "warp": wp.config.version,
+    results = {"sleep_ms": round(sleep_ms, 1), "device": torch.cuda.get_device_name(), "torch": torch.__version__,
+               "warp": wp.config.version,
                "gaussians": args.gaussians, "image": [W, H], "calls": args.calls, "reps": args.reps, "parts": {}}
     for name, fn in parts.items():
         samples = [issue_and_gpu_ms(fn, args.calls, args.sleep_cycles) for _ in range(args.reps)]
@@ -176,7 +179,8 @@ def main() -> None:
                 for _ in range(args.calls):
                     fn()
                 torch.cuda.synchronize()
-            print(prof.key_averages().table(sort_by="cuda_time_total", row_limit=args.kernels, max_name_column_width=70))
+            table = prof.key_averages().table(sort_by="cuda_time_total", row_limit=args.kernels, max_name_column_width=70)
+            print(table)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(results, indent=1))
 
