@@ -526,10 +526,7 @@ class Trainer:
         it = self.iteration + 1
         regularised = max(it, self.config.loss.regularization_from_iter)  # the regularisers' kernels too
         schedule = [regularised] + ([it] if self.loss.compiled is not None and it < regularised else [])
-        # CUDA graphs are recorded on a graph's second call: two passes each, so that recording happens (and a failure
-        # falls back) here rather than in training
-        passes = 2 if self.loss.cuda_graphs else 1
-        for loss_it in [k for k in schedule for _ in range(passes)]:  # a compiled loss: both of its graphs
+        for loss_it in schedule:  # a compiled loss: both of its graphs (with and without the regularisers)
             loss, _ = self._view_loss(0, loss_it, self._new_stats(it))
             try:
                 loss.backward()  # the compiled loss's backward graph is built here
