@@ -71,4 +71,8 @@ class AppearanceModel(nn.Module):
 
     def apply(self, render: torch.Tensor, image_index: int) -> torch.Tensor:
         """The appearance-corrected centre crop ``gain ⊙ crop(render)`` (compare with ``crop(gt)``)."""
-        return self.gain(render, image_index) * self.crop(render)
+        return self.apply_for(render, self.embedding.weight[image_index])
+
+    def apply_for(self, render: torch.Tensor, embedding: torch.Tensor) -> torch.Tensor:
+        """:meth:`apply` for an image's embedding ``[D]`` given as a tensor (see :meth:`gain_for`)."""
+        return self.gain_for(render, embedding) * self.crop(render)

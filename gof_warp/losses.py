@@ -246,8 +246,7 @@ def appearance_l1_pair(appearance, rgb: torch.Tensor, gt_image: torch.Tensor,
                        embedding: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """GOF's decoupled-appearance L1 pair ``(gain ⊙ crop(rgb), crop(gt))``, channel-last ``[H', W', 3]`` each, for an
     :class:`~gof_warp.appearance.AppearanceModel` and the image's embedding row ``[D]``."""
-    chw = rgb.permute(2, 0, 1)
-    corrected = appearance.gain_for(chw, embedding) * appearance.crop(chw)
+    corrected = appearance.apply_for(rgb.permute(2, 0, 1), embedding)
     return corrected.permute(1, 2, 0), appearance.crop(gt_image.permute(2, 0, 1)).permute(1, 2, 0)
 
 
