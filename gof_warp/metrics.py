@@ -97,6 +97,25 @@ def gaussian_window_1d(window_size: int, sigma: float, dtype=torch.float32, devi
     return (g / g.sum()).to(dtype=dtype)
 
 
+def gaussian_weights(window_size: int, sigma: float) -> tuple[float, ...]:
+    """:func:`gaussian_window_1d` as Python floats (float64), constants that a compiled graph inlines; a float32 image
+    rounds them to float32, as the window tensor is."""
+    g = [math.exp(-((i - window_size // 2) ** 2) / (2.0 * sigma**2)) for i in range(window_size)]
+    total = sum(g)
+    return tuple(v / total for v in g)
+
+
+def _correlate_axis(x: torch.Tensor, weights: tuple[float, ...], dim: int) -> torch.Tensor:
+    """Zero-padded 1-D correlation of ``x`` along ``dim`` (``-1`` or ``-2``) with an odd-length ``weights``, written as
+    a sum of shifted copies: ``out[i] = Σ_k weights[k] · x[i + k − len // 2]`` (``x`` outside the tensor is 0)."""
+    pad, n = len(weights) // 2, x.shape[dim]
+    padded = F.pad(x, (pad, pad) if dim == -1 else (0, 0, pad, pad))
+    out = weights[0] * padded.narrow(dim, 0, n)
+    for k in range(1, len(weights)):
+        out = out + weights[k] * padded.narrow(dim, k, n)
+    return out
+
+
 def ssim(img: torch.Tensor, gt: torch.Tensor, window_size: int = 11, sigma: float = 1.5, *,
          reduction: str = "mean", return_map: bool = False, mask=None) -> torch.Tensor:
     """Structural similarity with a Gaussian window and zero padding (the 3DGS/GOF definition).
@@ -117,11 +136,15 @@ def ssim(img: torch.Tensor, gt: torch.Tensor, window_size: int = 11, sigma: floa
         raise GofError(f"ssim window_size must be a positive odd number, got {window_size}")
     x, y, batched = _as_batch(img, gt)
     B, C, H, W = x.shape
-    g = gaussian_window_1d(window_size, sigma, x.dtype, x.device)
     stack = torch.cat([x, y, x * x, y * y, x * y], dim=1)  # [B, 5C, H, W]
-    pad = window_size // 2
-    stack = F.conv2d(stack, g.view(1, 1, 1, -1).expand(5 * C, 1, 1, window_size), padding=(0, pad), groups=5 * C)
-    stack = F.conv2d(stack, g.view(1, 1, -1, 1).expand(5 * C, 1, window_size, 1), padding=(pad, 0), groups=5 * C)
+    if torch.compiler.is_compiling():  # shifted sums: the compiler fuses each pass (and its backward) into one kernel
+        weights = gaussian_weights(window_size, sigma)
+        stack = _correlate_axis(_correlate_axis(stack, weights, -1), weights, -2)
+    else:  # eager: two depthwise convolutions are fewer launches than 2 × 11 shifted products
+        g = gaussian_window_1d(window_size, sigma, x.dtype, x.device)
+        pad = window_size // 2
+        stack = F.conv2d(stack, g.view(1, 1, 1, -1).expand(5 * C, 1, 1, window_size), padding=(0, pad), groups=5 * C)
+        stack = F.conv2d(stack, g.view(1, 1, -1, 1).expand(5 * C, 1, window_size, 1), padding=(pad, 0), groups=5 * C)
     mu_x, mu_y, e_xx, e_yy, e_xy = stack.split(C, dim=1)
     mu_xx, mu_yy, mu_xy = mu_x * mu_x, mu_y * mu_y, mu_x * mu_y
     num = (2.0 * mu_xy + SSIM_C1) * (2.0 * (e_xy - mu_xy) + SSIM_C2)
