@@ -209,7 +209,7 @@ class _RasterizeFunction(torch.autograd.Function):
             g2d = g2abs = None
             if stats is not None:
                 g2d, g2abs = _wp(stats.grad2d, wp.vec2), _wp(stats.grad2d_abs)
-            render_backward(state, grad_out, (*wp_in[:4], tuple(wp_in[4:])), g2d, g2abs)
+            render_backward(state, grad_out, (*wp_in[:4], tuple(wp_in[4:])), g2d, g2abs, zeroed=True)
         ctx.state = None  # free the forward state
         return (*grad_in, None, None, None, None, None)
 

@@ -1,10 +1,13 @@
 """Per-Gaussian preprocessing: camera-space quantities, colours, exact screen bounds.
 
-Two kernels, one per Gaussian:
+Kernels, one thread per Gaussian:
 
-* :func:`preprocess_gaussians` (differentiable, loop-free: its gradient is Warp's automatic adjoint) —
-  ``μ_v = R_cam μ + t_cam``, ``P = S⁻¹ R_vᵀ`` with ``R_v = R_cam R(q)``, ``o_g = −P μ_v`` and the SH colour
-  seen from the camera centre. These 15 floats + opacity are all the per-pixel loop reads.
+* :func:`preprocess_gaussians` (differentiable, loop-free) — ``μ_v = R_cam μ + t_cam``, ``P = S⁻¹ R_vᵀ`` with
+  ``R_v = R_cam R(q)``, ``o_g = −P μ_v`` and the SH colour seen from the camera centre. These 15 floats + opacity
+  are all the per-pixel loop reads. Its gradient, as the renderer computes it, comes in two parts: Warp's automatic
+  adjoint of :func:`project_frames` (the same kernel without the colour) and :func:`sh_colour_backward` (the
+  colour's gradient written out, a thread per coefficient). Warp's adjoint of the whole kernel gives the same
+  numbers.
 * :func:`screen_bounds` (not differentiable) — culling, the exact bounding box of the projected
   binning ellipsoid ``{x : ‖S⁻¹R_vᵀ(x − μ_v)‖ ≤ k}``, its tile rectangle, radius and sort depth, and the
   conic of its exact silhouette (:mod:`.tile_overlap`) with which the binning keeps only the tiles of the
@@ -24,12 +27,26 @@ from __future__ import annotations
 
 import warp as wp
 
-from .gaussian_math import quat_to_rotation, sh_to_color
+from .gaussian_math import quat_to_rotation, sh_basis, sh_to_color
 from .render_types import CameraParams, RasterSettings
 from .tile_overlap import TileEllipses, store_ellipse, tile_ellipse
 
 # Relative enlargement of k for the box: the per-pixel float32 d² has a relative error ~1e-6.
 BOUNDS_K_MARGIN = wp.constant(1.0e-4)
+
+
+@wp.func
+def _project(means: wp.array(dtype=wp.vec3), quats: wp.array(dtype=wp.vec4), scales: wp.array(dtype=wp.vec3), k: int,
+             R_cam: wp.mat33, t_cam: wp.vec3, mu_v: wp.array(dtype=wp.vec3), P: wp.array(dtype=wp.mat33),
+             o_g: wp.array(dtype=wp.vec3)):  # fmt: skip
+    """Gaussian ``k``'s ``μ_v = R_cam μ + t_cam``, ``P = S⁻¹ R_vᵀ`` (``R_v = R_cam R(q)``) and ``o_g = −P μ_v``."""
+    mv = R_cam * means[k] + t_cam
+    R_v = R_cam * quat_to_rotation(quats[k])
+    s = scales[k]
+    Pk = wp.diag(wp.vec3(1.0 / s[0], 1.0 / s[1], 1.0 / s[2])) * wp.transpose(R_v)
+    mu_v[k] = mv
+    P[k] = Pk
+    o_g[k] = -(Pk * mv)
 
 
 @wp.kernel
@@ -51,15 +68,108 @@ def preprocess_gaussians(
     """Inputs ``means/scales [N] vec3``, ``quats [N] vec4`` (wxyz), ``sh_dc [N] vec3``, ``sh_rest [N, K−1] vec3``
     (see :func:`~.gaussian_math.sh_to_color`); outputs ``[N]``."""
     k = wp.tid()
-    m = means[k]
-    mv = R_cam * m + t_cam
-    R_v = R_cam * quat_to_rotation(quats[k])
-    s = scales[k]
-    Pk = wp.diag(wp.vec3(1.0 / s[0], 1.0 / s[1], 1.0 / s[2])) * wp.transpose(R_v)
-    mu_v[k] = mv
-    P[k] = Pk
-    o_g[k] = -(Pk * mv)
-    colour[k] = sh_to_color(sh_dc, sh_rest, k, sh_degree, wp.normalize(m - cam_centre))
+    _project(means, quats, scales, k, R_cam, t_cam, mu_v, P, o_g)
+    colour[k] = sh_to_color(sh_dc, sh_rest, k, sh_degree, wp.normalize(means[k] - cam_centre))
+
+
+@wp.kernel
+def project_frames(
+    means: wp.array(dtype=wp.vec3),
+    quats: wp.array(dtype=wp.vec4),
+    scales: wp.array(dtype=wp.vec3),
+    R_cam: wp.mat33,
+    t_cam: wp.vec3,
+    mu_v: wp.array(dtype=wp.vec3),
+    P: wp.array(dtype=wp.mat33),
+    o_g: wp.array(dtype=wp.vec3),
+):
+    """:func:`preprocess_gaussians` without the colour. Its automatic adjoint and :func:`sh_colour_backward` together
+    are the gradient of :func:`preprocess_gaussians` (the renderer's backward launches both)."""
+    _project(means, quats, scales, wp.tid(), R_cam, t_cam, mu_v, P, o_g)
+
+
+SH_LANES = wp.constant(16)  # threads per Gaussian in sh_colour_backward: one per SH coefficient (degree ≤ 3)
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+// the launch is a multiple of 16 threads: a warp holds two whole groups, or (the last one) lanes 0-15 only
+const unsigned mask = (tid | 31) < threads ? 0xffffffffu : 0x0000ffffu;
+for (int o = 8; o > 0; o >>= 1) {
+    x[0] += __shfl_xor_sync(mask, x[0], o);
+    x[1] += __shfl_xor_sync(mask, x[1], o);
+    x[2] += __shfl_xor_sync(mask, x[2], o);
+}
+#endif
+return x;
+""")
+def sum_over_sh_lanes(x: wp.vec3, tid: int, threads: int) -> wp.vec3:
+    """Sum of ``x`` over the 16 CUDA lanes of one Gaussian (aligned groups of 16 threads, every thread of the launch
+    calls it; ``threads``: the launch's size, a multiple of 16); identity on the CPU, where :func:`sh_lanes_summed` is 0
+    and every thread adds its own."""
+    ...
+
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+return 1;
+#else
+return 0;
+#endif
+""")
+def sh_lanes_summed() -> int:
+    """1 where :func:`sum_over_sh_lanes` sums over the lanes (CUDA), 0 where it is the identity (CPU)."""
+    ...
+
+
+@wp.kernel
+def sh_colour_backward(
+    means: wp.array(dtype=wp.vec3),
+    sh_rest: wp.array2d(dtype=wp.vec3),
+    sh_degree: int,
+    cam_centre: wp.vec3,
+    colour: wp.array(dtype=wp.vec3),
+    adj_colour: wp.array(dtype=wp.vec3),
+    grad_means: wp.array(dtype=wp.vec3),
+    grad_dc: wp.array(dtype=wp.vec3),
+    grad_rest: wp.array2d(dtype=wp.vec3),
+    accumulate: int,
+):
+    """The colour's part of the gradient of :func:`preprocess_gaussians`, written out. Launch ``N · SH_LANES``
+    threads: thread ``(k, j)`` handles coefficient ``j`` of Gaussian ``k`` (``j = 0``: ``sh_dc``; ``j ≥ 1``:
+    ``sh_rest[:, j − 1]``), so that neighbouring threads read and write neighbouring coefficients.
+
+    Writes ``∂L/∂sh = SH_j(d) · g`` into ``grad_dc``/``grad_rest`` (``accumulate = 1``: added; ``0``: written, for
+    arrays that hold zeros; coefficients above ``sh_degree`` are left as they are), where ``g`` is
+    ``adj_colour = ∂L/∂colour`` on the channels whose forward ``colour`` is > 0 (the clamp at 0 passes no gradient, as
+    the adjoint of ``wp.max``), and adds the view direction's share ``(I − d dᵀ)/‖μ − c‖ · Σ_j ∂SH_j/∂d (sh_j · g)``
+    (``d = normalize(μ − c)``) into ``grad_means``. Warp's automatic adjoint of the whole kernel adds the same numbers
+    with one scattered atomic per coefficient and thread per Gaussian."""
+    tid = wp.tid()
+    k = tid // SH_LANES
+    j = tid - k * SH_LANES
+    v = means[k] - cam_centre
+    length = wp.length(v)
+    d = wp.normalize(v)
+    c = colour[k]
+    a = adj_colour[k]
+    g = wp.vec3(wp.where(c[0] > 0.0, a[0], 0.0), wp.where(c[1] > 0.0, a[1], 0.0), wp.where(c[2] > 0.0, a[2], 0.0))
+    grad_d = wp.vec3(0.0)
+    if j < (sh_degree + 1) * (sh_degree + 1) and j <= sh_rest.shape[1]:
+        basis = sh_basis(j, d)
+        value = basis[3] * g
+        if j == 0:
+            if accumulate != 0:
+                value = value + grad_dc[k]
+            grad_dc[k] = value
+        else:
+            if accumulate != 0:
+                value = value + grad_rest[k, j - 1]
+            grad_rest[k, j - 1] = value
+            grad_d = wp.dot(sh_rest[k, j - 1], g) * wp.vec3(basis[0], basis[1], basis[2])
+    grad_d = sum_over_sh_lanes(grad_d, tid, means.shape[0] * SH_LANES)
+    if length > 0.0 and (j == 0 or sh_lanes_summed() == 0):
+        grad_means[k] = grad_means[k] + (grad_d - d * wp.dot(d, grad_d)) / length
 
 
 @wp.func

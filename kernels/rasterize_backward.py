@@ -20,8 +20,8 @@ Geometry (``x_c = o_g + t* r_g``, ``d² = ‖x_c‖²``, ``t* = −(o_g·r_g)/A`
 Per (pixel, Gaussian) the kernel atomically adds ``∂L/∂P`` (9), ``∂L/∂o_g`` (3), ``∂L/∂colour`` (3),
 ``∂L/∂opacity`` (1) — one 16-float row of ``SplatGrads.packed``, four vector atomics on sm_90 (H100/H200), 16 scalar
 ones elsewhere — and, when densification statistics are requested, the per-pixel norm of the screen-space
-gradient (1). The chain to ``means, quats, scales, sh`` is the automatic adjoint of the
-loop-free ``preprocess_gaussians``.
+gradient (1). The chain to ``means, quats, scales, sh`` is the gradient of the loop-free ``preprocess_gaussians``:
+Warp's adjoint of its camera-space half ``project.project_frames`` and the written-out ``project.sh_colour_backward``.
 """
 
 from __future__ import annotations

@@ -24,7 +24,7 @@ from dataclasses import dataclass, fields
 import warp as wp
 
 from .binning import TileListSizer, bin_gaussians
-from .project import preprocess_gaussians, screen_bounds
+from .project import SH_LANES, preprocess_gaussians, project_frames, screen_bounds, sh_colour_backward
 from .rasterize import rasterize_forward
 from .rasterize_backward import finish_splat_grads, rasterize_backward
 from .rasterize_tiled import TILE_PIXELS, TILE_SIZE, rasterize_backward_tiled, rasterize_forward_tiled
@@ -229,7 +229,8 @@ def _column_view(packed: wp.array, column: int, dtype) -> wp.array:
     return _view(packed, column * 4, dtype, (packed.shape[0],), (packed.strides[0],))
 
 
-def render_backward(state: RenderState, grad_out: RenderOutputs, grad_in: tuple, grad2d=None, grad2d_abs=None, profile=None):
+def render_backward(state: RenderState, grad_out: RenderOutputs, grad_in: tuple, grad2d=None, grad2d_abs=None, profile=None,
+                    zeroed: bool = False):
     """Accumulate the input gradients for the output gradients ``grad_out``.
 
     Args:
@@ -238,6 +239,8 @@ def render_backward(state: RenderState, grad_out: RenderOutputs, grad_in: tuple,
             :func:`render_forward` (one ``[N, K]`` array or the ``(sh_dc, sh_rest)`` pair).
         grad2d ``[N] vec2``, grad2d_abs ``[N]``: densification statistics, added into (optional, together).
         profile: as in :func:`render_forward`.
+        zeroed: the SH gradient arrays of ``grad_in`` hold zeros (fresh buffers): their rows are written instead of
+            added into, which spares a load per coefficient (same result).
     """
     device = state.device
     _mark(profile, "start", device)
@@ -258,12 +261,14 @@ def render_backward(state: RenderState, grad_out: RenderOutputs, grad_in: tuple,
               record_tape=False)  # fmt: skip
     means, quats, scales, _, (sh_dc, sh_rest) = state.inputs
     grad_dc, grad_rest = sh_parts(grad_in[4])
-    wp.launch(preprocess_gaussians, dim=n,
-              inputs=[means, quats, scales, sh_dc, sh_rest, state.sh_degree, cam.R, cam.t, cam.centre],
-              outputs=[state.mu_v, state.P, state.o_g, state.colour],
-              adj_inputs=[grad_in[0], grad_in[1], grad_in[2], grad_dc, grad_rest, 0, wp.mat33(), wp.vec3(), wp.vec3()],
-              adj_outputs=[wp.zeros(n, dtype=wp.vec3, device=device), gP, g_og, g_col],
+    # the gradient of preprocess_gaussians: its camera-space part by Warp's adjoint, the colour's written out
+    wp.launch(project_frames, dim=n, inputs=[means, quats, scales, cam.R, cam.t],
+              outputs=[state.mu_v, state.P, state.o_g],
+              adj_inputs=[grad_in[0], grad_in[1], grad_in[2], wp.mat33(), wp.vec3()],
+              adj_outputs=[wp.zeros(n, dtype=wp.vec3, device=device), gP, g_og],
               adjoint=True, device=device, record_tape=False)  # fmt: skip
+    wp.launch(sh_colour_backward, dim=n * SH_LANES,
+              inputs=[means, sh_rest, state.sh_degree, cam.centre, state.colour, g_col], outputs=[grad_in[0], grad_dc, grad_rest, int(not zeroed)], device=device, record_tape=False)  # fmt: skip
     _mark(profile, "preprocess_backward", device)
 
 
