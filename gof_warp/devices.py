@@ -11,6 +11,7 @@ device. Memory figures and synchronisation take the device from here too, never 
 
 from __future__ import annotations
 
+import contextlib
 import resource
 
 import torch
@@ -50,6 +51,18 @@ def resolve_device(device=None, like=None) -> str:
     if like is not None and getattr(like, "device", None) is not None:
         return resolve_device(like.device)
     return resolve_device("cuda") if cuda_available() else "cpu"
+
+
+@contextlib.contextmanager
+def cudnn_benchmark(on: bool = True):
+    """Within the block, cuDNN times its algorithms for each new convolution shape (``torch.backends.cudnn.benchmark``)
+    when ``on``; the previous setting is restored after it (``on=False`` leaves the setting as it is)."""
+    before = torch.backends.cudnn.benchmark
+    torch.backends.cudnn.benchmark = before or bool(on)
+    try:
+        yield
+    finally:
+        torch.backends.cudnn.benchmark = before
 
 
 def warp_device(device) -> str:

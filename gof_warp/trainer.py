@@ -38,7 +38,7 @@ from .config import ConfigError, dump_yaml, from_dict, to_dict
 from .data import DataConfig
 from .densify import DensifyConfig, Densifier
 from .distributed import Ranks
-from .devices import peak_memory
+from .devices import cudnn_benchmark, peak_memory
 from .errors import GofError
 from .filter3d import update_filter_3d
 from .init_points import initial_point_cloud
@@ -124,6 +124,11 @@ class TrainConfig:
     # 20k iterations (H100) the step went from 18.1 to 11.8 ms, the GPU's own 11.4 ms (benchmarks/train/README.md,
     # session 24). False: the compiled kernels issued one by one
     loss_cuda_graphs: bool = True
+    # while training, let cuDNN time its algorithms for the appearance network's convolutions (torch.backends.cudnn
+    # .benchmark; the image sizes are fixed, so each size is timed once). Without it cuDNN picked a non-tensor-core
+    # kernel for the two full-resolution layers' weight gradients: 0.53 ms of the 11.1 ms DTU step on an H100, 0.08 ms
+    # with it, 0.24 ms less in all (benchmarks/train/README.md, session 25). The setting is restored when training ends
+    cudnn_benchmark: bool = True
     # render each training view on a random background colour (3DGS's --random_background) instead of the scene's:
     # a surface can then no longer stay partly transparent with brighter colours over the fixed background, which
     # the photometric loss cannot tell apart on opaque photos and which the opacity field turns into holes and
@@ -471,10 +476,11 @@ class Trainer:
         cfg = self.config
         if self.ranks.is_main:
             self._write_static_files()
-        if self.iteration < cfg.iterations:
-            self._warm_up()
-        with deferred_interrupt() as interrupted:
-            last = self._train_loop(progress, interrupted, on_snapshot, on_spike)
+        with cudnn_benchmark(cfg.cudnn_benchmark):  # the warm-up records the loss graphs: it chooses the algorithms
+            if self.iteration < cfg.iterations:
+                self._warm_up()
+            with deferred_interrupt() as interrupted:
+                last = self._train_loop(progress, interrupted, on_snapshot, on_spike)
         train_time = self.elapsed
         if not self.ranks.is_main:  # rank 0 writes the run folder
             return {"iterations": cfg.iterations, "train_time_s": round(train_time, 3), "rank": self.ranks.rank}

@@ -59,3 +59,22 @@ def test_no_other_module_decides_the_default_device():
             if pattern.search(line) and "rng_state" not in line and "cuda_rng" not in line:
                 offenders.append(f"{path.relative_to(ROOT)}:{n}: {line.strip()}")
     assert not offenders, "device decided outside gof_warp.devices:\n" + "\n".join(offenders)
+
+
+def test_cudnn_benchmark_is_set_inside_and_restored_after():
+    cudnn_benchmark = devices.cudnn_benchmark
+    before = torch.backends.cudnn.benchmark
+    try:
+        torch.backends.cudnn.benchmark = False
+        with cudnn_benchmark(True):
+            assert torch.backends.cudnn.benchmark is True
+        assert torch.backends.cudnn.benchmark is False
+        with cudnn_benchmark(False):  # off leaves the caller's setting alone
+            assert torch.backends.cudnn.benchmark is False
+        torch.backends.cudnn.benchmark = True
+        with pytest.raises(RuntimeError), cudnn_benchmark(False):
+            assert torch.backends.cudnn.benchmark is True
+            raise RuntimeError("restored on errors too")
+        assert torch.backends.cudnn.benchmark is True
+    finally:
+        torch.backends.cudnn.benchmark = before
