@@ -268,7 +268,8 @@ def render_backward(state: RenderState, grad_out: RenderOutputs, grad_in: tuple,
               adj_outputs=[wp.zeros(n, dtype=wp.vec3, device=device), gP, g_og],
               adjoint=True, device=device, record_tape=False)  # fmt: skip
     wp.launch(sh_colour_backward, dim=n * SH_LANES,
-              inputs=[means, sh_rest, state.sh_degree, cam.centre, state.colour, g_col], outputs=[grad_in[0], grad_dc, grad_rest, int(not zeroed)], device=device, record_tape=False)  # fmt: skip
+              inputs=[means, sh_rest, state.sh_degree, cam.centre, state.colour, g_col],
+              outputs=[grad_in[0], grad_dc, grad_rest, int(not zeroed)], device=device, record_tape=False)  # fmt: skip
     _mark(profile, "preprocess_backward", device)
 
 
