@@ -26,7 +26,7 @@ Images are channel-last ``[H, W, 3]`` floats in ``[0, 1]``, like the renderer's 
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 
@@ -34,6 +34,7 @@ from .appearance import DOWNSAMPLE
 from .camera import Camera
 from .errors import GofError
 from .metrics import ssim
+from .multiview import MultiViewConfig
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +58,9 @@ class LossConfig:
     lambda_normal: float = 0.05
     regularization_from_iter: int = 15_000
     normal_form: str = "paper"  # "paper": Σ ω_i(1 − n_iᵀN); "gof": 1 − normalize(Σ ω_i n_i)ᵀN
+    # a neighbouring photo's patches through the rendered planes (not GOF's; off unless multiview.weight > 0):
+    # gof_warp.multiview, added by the trainer outside the (compiled) terms above
+    multiview: MultiViewConfig = field(default_factory=MultiViewConfig)
 
     def __post_init__(self):
         if self.normal_form not in NORMAL_FORMS:

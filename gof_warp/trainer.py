@@ -49,6 +49,7 @@ from .loss_monitor import LossSpikeMonitor
 from .losses import COMPILE_MODES, LossConfig, TrainingLoss
 from .metrics import image_metrics, psnr
 from .model import Gaussians
+from .multiview import MultiViewTerm
 from .near_camera import (in_front_of_cameras, near_camera_bounds, near_camera_census, near_ray_census,
                           stack_cameras)
 from .optim import OptimConfig, make_optimizer, update_learning_rate
@@ -256,6 +257,9 @@ class Trainer:
         # the loss with the appearance's L1 pair (camera i's embedding is row i), compiled as one graph where asked
         self.loss = TrainingLoss(config.loss, self.cameras, self.device, compile_mode(config),
                                  cuda_graphs=config.loss_cuda_graphs, appearance=self.appearance)
+        # the multi-view photometric term (loss.multiview, off by default), eager beside the compiled terms
+        self.multiview = (MultiViewTerm(config.loss.multiview, self.cameras, self.images, config.seed)
+                          if config.loss.multiview.on else None)
 
     # ------------------------------------------------------------------ one iteration
     def _next_view(self) -> int:
@@ -304,7 +308,8 @@ class Trainer:
         self.iteration = it
         # the opacity reset makes every Gaussian transparent, and the regularisers change what the loss
         # measures: a new baseline for the spike monitor, not a spike
-        restart = report.opacity_reset or it == cfg.loss.regularization_from_iter
+        restart = (report.opacity_reset or it == cfg.loss.regularization_from_iter
+                   or (self.multiview is not None and it == cfg.loss.multiview.from_iter))
         return IterationScalars(it, cam.name, len(g), restart, self.elapsed, {}), terms
 
     def _render_view(self, it: int, idx: int) -> dict[str, torch.Tensor]:
@@ -345,8 +350,22 @@ class Trainer:
             out = render(self.gaussians, cam, config=render_config, stats=stats, tile_lists=self.tile_lists)
         with _stage("train.loss"):
             loss, terms = self.loss(out, gt, cam, idx, loss_it)
+            if self.multiview is not None:
+                loss = self._add_multiview(out, idx, loss_it, loss, terms)
             terms["psnr"] = psnr(out["rgb"].detach(), gt)
         return loss, terms
+
+    def _add_multiview(self, out: dict, idx: int, it: int, loss: torch.Tensor, terms: dict) -> torch.Tensor:
+        """``loss`` plus the weighted multi-view term of view ``idx`` once it is active (its value into ``terms``
+        as ``multiview``); the view's median depth is kept for its neighbours' occlusion tests either way."""
+        mv = self.multiview(out, idx, it) if self.multiview.active(it) else None
+        self.multiview.remember(idx, out["median_depth"])
+        if mv is None:
+            return loss
+        weighted = self.config.loss.multiview.weight * mv[0]
+        terms["multiview"] = mv[0].detach()
+        terms["total"] = terms["total"] + weighted.detach()
+        return loss + weighted
 
     def _random_background(self, idx: int, it: int, gt: torch.Tensor) -> tuple[RenderConfig, torch.Tensor]:
         """``(render config, target)`` of view ``idx`` at iteration ``it`` on a random background colour, drawn from
@@ -543,6 +562,8 @@ class Trainer:
                 self._clear_gradients()
                 return self._warm_up(t)
             self._clear_gradients()  # each pass on its own (CUDA-graph gradients last until the next replay)
+        if self.multiview is not None:  # the throw-away render's depth is not one training made
+            self.multiview.forget()
         if self.device.type == "cuda":
             torch.cuda.synchronize(self.device)
         # the ranks start the clock together: the first collective also sets up NCCL's communicators, which in the

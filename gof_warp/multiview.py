@@ -1,0 +1,306 @@
+"""Multi-view photometric consistency: the rendered surface must look the same from a neighbouring photo.
+
+A regulariser used by planar-Gaussian surface methods (PGSR and its successors) and not part of GOF. The colour
+loss compares each view's render with its own photo only, so where one or two cameras see a surface the
+Gaussians can sit anywhere along their rays that keeps each photo's colours. This term ties the rendered
+geometry to a second photo directly:
+
+* At ``P`` random pixels ``p`` of the reference view ``r``, the rendered **median depth** ``D(p)`` and normal
+  ``n(p)`` (camera space) define a local plane ``nᵀX = ρ`` with ``ρ = nᵀ D(p) K⁻¹p̃`` (z-depth, pixel centres at
+  ``i + ½``).
+* A ``s × s`` patch of pixels ``q`` around ``p`` is cast onto that plane, ``X_q = ρ / (nᵀ K⁻¹q̃) · K⁻¹q̃``, and
+  projected into a neighbour view ``m``: the plane-induced homography ``H = K_m (R_rel − t_rel nᵀ/ρ) K_r⁻¹``,
+  written out as cast-then-project.
+* The loss of a patch is ``1 − NCC`` between the reference photo's grey values at ``q`` and the neighbour photo's at
+  the projected points (bilinear): 0 when the plane carries the reference patch onto the same texture in the
+  neighbour. NCC ignores gain and offset, so exposure changes between photos cost nothing.
+* A patch counts only where it is informative and its neighbour sees it: reference alpha above ``alpha_min`` at
+  ``p``, every projected point in front of the neighbour and inside its image, a textured reference patch (grey
+  standard deviation above ``min_std``), and not occluded in the neighbour — the plane's point farther than
+  ``(1 + occlusion_tolerance)`` × the neighbour's own last rendered median depth there is hidden behind
+  something else (the depth comes from when that view was last trained on, so no second render is needed).
+
+The gradient reaches ``D(p)`` and ``n(p)`` through the projected coordinates (the neighbour photo's spatial
+gradient), and so the Gaussians through the renderer's median-depth and normal outputs.
+
+Neighbours (:func:`neighbour_views`): for each training camera, the ``k`` nearest camera centres among the cameras
+whose viewing directions lie within ``max_angle_deg`` of its own.
+
+Shapes: images are channel-last ``[H, W, 3]`` in ``[0, 1]`` (grey ``[H, W]``); depth ``[H, W]``; normals
+``[H, W, 3]``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from .camera import Camera
+from .errors import GofError
+
+GREY_WEIGHTS = (0.299, 0.587, 0.114)  # ITU-R BT.601 luma
+
+
+@dataclass
+class MultiViewConfig:
+    """Settings of the multi-view photometric term (``loss.multiview`` in a preset). ``weight`` 0 (default) is off.
+
+    Attributes:
+        weight: λ of the term in the loss (PGSR uses 0.15 for its photometric part).
+        from_iter: first iteration it acts (PGSR's multi-view terms start at 7,000; GOF's regularisers at 15,000).
+        pixels: patch centres sampled per view and step.
+        patch: patch side in pixels (odd).
+        neighbours: candidate neighbours per view; one is drawn per step.
+        max_angle_deg: neighbours' viewing directions within this angle of the reference's.
+        alpha_min: reference alpha at the patch centre below which the patch is left out.
+        min_std: reference patches whose grey standard deviation is below this are textureless: left out.
+        occlusion_tolerance: relative depth margin of the occlusion test.
+    """
+
+    weight: float = 0.0
+    from_iter: int = 7_000
+    pixels: int = 4096
+    patch: int = 7
+    neighbours: int = 8
+    max_angle_deg: float = 45.0
+    alpha_min: float = 0.5
+    min_std: float = 0.01
+    occlusion_tolerance: float = 0.05
+
+    def __post_init__(self):
+        if not (self.weight >= 0 and math.isfinite(self.weight)):
+            raise GofError(f"loss.multiview.weight must be a finite number >= 0, got {self.weight!r}")
+        if int(self.patch) != self.patch or self.patch < 3 or self.patch % 2 == 0:
+            raise GofError(f"loss.multiview.patch must be an odd integer >= 3, got {self.patch!r}")
+        if self.pixels < 1 or self.neighbours < 1:
+            raise GofError("loss.multiview: pixels and neighbours must be >= 1")
+        if not 0.0 < self.max_angle_deg <= 180.0:
+            raise GofError(f"loss.multiview.max_angle_deg must be in (0, 180], got {self.max_angle_deg!r}")
+        if self.min_std < 0 or self.occlusion_tolerance < 0 or not 0.0 <= self.alpha_min < 1.0:
+            raise GofError("loss.multiview: min_std and occlusion_tolerance must be >= 0, alpha_min in [0, 1)")
+
+    @property
+    def on(self) -> bool:
+        return self.weight > 0
+
+
+def grey(image: torch.Tensor) -> torch.Tensor:
+    """``[H, W]`` luma of a channel-last ``[H, W, 3]`` image."""
+    if image.ndim != 3 or image.shape[-1] != 3:
+        raise GofError(f"grey: expected a channel-last [H, W, 3] image, got {list(image.shape)}")
+    w = torch.tensor(GREY_WEIGHTS, dtype=image.dtype, device=image.device)
+    return image @ w
+
+
+def neighbour_views(cameras, k: int, max_angle_deg: float) -> list[list[int]]:
+    """For each camera, the indices of up to ``k`` other cameras with the nearest centres among those whose
+    viewing direction (the camera's +z axis) lies within ``max_angle_deg`` of its own; ``[]`` for a camera that has
+    none. Camera pairs at the same centre (no baseline, no parallax) are never neighbours."""
+    if len(cameras) == 0:
+        return []
+    centres = np.stack([c.center for c in cameras])
+    axes = np.stack([np.asarray(c.R, np.float64)[2] for c in cameras])
+    dist = np.linalg.norm(centres[:, None] - centres[None], axis=-1)
+    cos = np.clip(axes @ axes.T, -1.0, 1.0)
+    allowed = (cos >= math.cos(math.radians(max_angle_deg))) & (dist > 1e-9 * max(float(dist.max()), 1e-30))
+    out = []
+    for i in range(len(cameras)):
+        cand = np.flatnonzero(allowed[i])
+        out.append(cand[np.argsort(dist[i, cand], kind="stable")][:k].tolist())
+    return out
+
+
+def _relative_pose(ref: Camera, nbr: Camera, dtype, device) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(R_rel, t_rel)`` taking reference camera coordinates to the neighbour's (computed in float64)."""
+    r_ref, r_nbr = np.asarray(ref.R, np.float64), np.asarray(nbr.R, np.float64)
+    rot = r_nbr @ r_ref.T
+    trans = np.asarray(nbr.t, np.float64) - rot @ np.asarray(ref.t, np.float64)
+    return (torch.tensor(rot, dtype=dtype, device=device), torch.tensor(trans, dtype=dtype, device=device))
+
+
+def patch_offsets(patch: int, dtype=torch.float32, device=None) -> torch.Tensor:
+    """``[s·s, 2]`` integer pixel offsets ``(du, dv)`` of an ``s × s`` patch around its centre, row-major."""
+    r = patch // 2
+    d = torch.arange(-r, r + 1, dtype=dtype, device=device)
+    dv, du = torch.meshgrid(d, d, indexing="ij")
+    return torch.stack([du.reshape(-1), dv.reshape(-1)], dim=-1)
+
+
+def sample_centres(height: int, width: int, count: int, patch: int, generator: torch.Generator | None = None,
+                   device=None) -> torch.Tensor:
+    """``[count, 2]`` integer pixel coordinates ``(u, v)`` drawn uniformly among the pixels whose ``patch × patch``
+    neighbourhood lies inside a ``width × height`` image (with replacement), on ``generator``'s device (no copy from
+    the host, so no wait for the GPU) or, without one, on ``device``."""
+    r = patch // 2
+    if width <= 2 * r or height <= 2 * r:
+        raise GofError(f"multi-view patches of {patch} px do not fit a {width}x{height} image")
+    on = generator.device if generator is not None else device
+    u = torch.randint(r, width - r, (count,), generator=generator, device=on)
+    v = torch.randint(r, height - r, (count,), generator=generator, device=on)
+    return torch.stack([u, v], dim=-1)
+
+
+def plane_warp(centres: torch.Tensor, depth: torch.Tensor, normal: torch.Tensor, ref: Camera, nbr: Camera,
+               patch: int, pose: tuple[torch.Tensor, torch.Tensor] | None = None
+               ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Project the patches around ``centres`` through their local planes into ``nbr``.
+
+    Args:
+        centres: ``[P, 2]`` integer pixels ``(u, v)`` of the reference view.
+        depth: ``[P]`` z-depths at the centres; normal: ``[P, 3]`` camera-space unit normals there.
+        pose: ``(R_rel [3, 3], t_rel [3])`` from the reference's camera coordinates to the neighbour's, on the
+            depth's device and dtype (computed from the cameras when None).
+    Returns:
+        ``(uv, z, ok)``: ``[P, S, 2]`` continuous pixel coordinates in ``nbr`` (pixel ``i`` spans ``[i, i + 1]``),
+        ``[P, S]`` depths in ``nbr``, ``[P, S]`` whether the ray meets the plane in front of the reference camera
+        and the point lies in front of the neighbour; ``S = patch²``.
+    """
+    dt, dev = depth.dtype, depth.device
+    off = patch_offsets(patch, dt, dev)
+    q = centres.to(dt)[:, None, :] + off[None]  # [P, S, 2]
+    rays = torch.stack([(q[..., 0] + 0.5 - ref.cx) / ref.fx, (q[..., 1] + 0.5 - ref.cy) / ref.fy,
+                        torch.ones_like(q[..., 0])], dim=-1)  # [P, S, 3]
+    centre_ray = rays[:, (patch * patch) // 2]  # [P, 3]
+    rho = (normal * centre_ray).sum(-1) * depth  # nᵀX0
+    denom = (normal[:, None, :] * rays).sum(-1)  # nᵀr_q
+    # the plane must face the same way along every ray of the patch, and not be seen edge-on
+    ok = (denom * (normal * centre_ray).sum(-1)[:, None] > 0) & (denom.abs() > 1e-4)
+    scale = rho[:, None] / torch.where(ok, denom, torch.ones_like(denom))
+    ok = ok & (scale > 0)
+    points = scale[..., None] * rays  # [P, S, 3] reference camera coordinates
+    rot, trans = _relative_pose(ref, nbr, dt, dev) if pose is None else pose
+    x = points @ rot.T + trans
+    z = x[..., 2]
+    ok = ok & (z > 1e-6)
+    zs = torch.where(ok, z, torch.ones_like(z))
+    uv = torch.stack([nbr.fx * x[..., 0] / zs + nbr.cx, nbr.fy * x[..., 1] / zs + nbr.cy], dim=-1)
+    return uv, z, ok
+
+
+def _bilinear(image: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
+    """``image [H, W]`` at continuous pixel coordinates ``uv [..., 2]`` (pixel ``i`` spans ``[i, i + 1]``), bilinear,
+    border-clamped; differentiable in ``uv``."""
+    h, w = image.shape
+    grid = torch.stack([2.0 * uv[..., 0] / w - 1.0, 2.0 * uv[..., 1] / h - 1.0], dim=-1)
+    flat = grid.reshape(1, 1, -1, 2).to(image.dtype)
+    out = torch.nn.functional.grid_sample(image[None, None], flat, mode="bilinear", padding_mode="border",
+                                          align_corners=False)
+    return out.reshape(uv.shape[:-1])
+
+
+def ncc(a: torch.Tensor, b: torch.Tensor, eps: float = 1e-8) -> torch.Tensor:
+    """Normalised cross-correlation of patches ``a, b [P, S]`` along ``S``: ``[P]`` in ``[-1, 1]``."""
+    a = a - a.mean(-1, keepdim=True)
+    b = b - b.mean(-1, keepdim=True)
+    cov = (a * b).mean(-1)
+    return cov / torch.sqrt((a * a).mean(-1) * (b * b).mean(-1) + eps)
+
+
+def multiview_loss(median_depth: torch.Tensor, normal: torch.Tensor, alpha: torch.Tensor, grey_ref: torch.Tensor,
+                   grey_nbr: torch.Tensor, ref: Camera, nbr: Camera, centres: torch.Tensor, config: MultiViewConfig,
+                   nbr_depth: torch.Tensor | None = None,
+                   pose: tuple[torch.Tensor, torch.Tensor] | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+    """The term for one reference view and one neighbour (module docstring).
+
+    Args:
+        median_depth: ``[H, W]`` rendered median depth of ``ref`` (differentiable); normal: ``[H, W, 3]`` its
+            rendered camera-space normal (``Σ ω_i n_i``, normalised here); alpha: ``[H, W]``.
+        grey_ref, grey_nbr: ``[H, W]`` / ``[H', W']`` grey photos of the two views.
+        centres: ``[P, 2]`` patch centres from :func:`sample_centres`.
+        nbr_depth: ``[H', W']`` the neighbour's last rendered median depth (occlusion test), or None (no test).
+        pose: the pair's relative pose as :func:`plane_warp` takes it (None: from the cameras).
+    Returns:
+        ``(loss, used)``: the mean ``1 − NCC`` over the patches that count (0 with a zero gradient when none
+        does), and how many counted (a 0-d tensor).
+    """
+    s = config.patch
+    u, v = centres[:, 0], centres[:, 1]
+    d = median_depth[v, u]
+    n = normal[v, u]
+    n = n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    uv, z, ok = plane_warp(centres, d, n, ref, nbr, s, pose)
+    h, w = grey_nbr.shape
+    inside = (uv[..., 0] >= 0.5) & (uv[..., 0] <= w - 0.5) & (uv[..., 1] >= 0.5) & (uv[..., 1] <= h - 0.5)
+    off = patch_offsets(s, torch.long, centres.device)
+    ref_patch = grey_ref[v[:, None] + off[None, :, 1], u[:, None] + off[None, :, 0]]  # [P, S]
+    nbr_patch = _bilinear(grey_nbr, uv)
+    keep = (ok & inside).all(-1) & (alpha[v, u] > config.alpha_min) & (d > 0)
+    keep = keep & (ref_patch.std(-1) > config.min_std)
+    if nbr_depth is not None:
+        c = (s * s) // 2
+        seen = _nearest(nbr_depth, uv[:, c].detach())
+        keep = keep & (z[:, c].detach() <= seen * (1.0 + config.occlusion_tolerance))
+    per_patch = 1.0 - ncc(ref_patch, nbr_patch)
+    used = keep.sum()
+    loss = torch.where(keep, per_patch, torch.zeros_like(per_patch)).sum() / used.clamp_min(1)
+    return loss, used
+
+
+class MultiViewTerm:
+    """The term over a fixed list of training views, as the trainer uses it.
+
+    Holds each view's grey photo, its neighbours (:func:`neighbour_views`) and the median depth of its last render
+    (the occlusion test). :meth:`__call__` draws a neighbour and the patch centres from ``(seed, iteration, view)``
+    alone, so a resumed run draws the same ones.
+
+    Args:
+        config: :class:`MultiViewConfig`; cameras: the training cameras; images: their ``[H, W, 3]`` photos on the
+            training device; seed: the run's seed.
+    """
+
+    def __init__(self, config: MultiViewConfig, cameras, images, seed: int):
+        self.config, self.cameras, self.seed = config, list(cameras), int(seed)
+        self.grey = [grey(im) for im in images]
+        self.neighbours = neighbour_views(self.cameras, config.neighbours, config.max_angle_deg)
+        self.depth: list[torch.Tensor | None] = [None] * len(self.cameras)
+        self.poses: dict[tuple[int, int], tuple[torch.Tensor, torch.Tensor]] = {}  # (view, neighbour) on the device
+
+    def active(self, iteration: int) -> bool:
+        """Whether the term acts at ``iteration`` (on, and from ``from_iter``)."""
+        return self.config.on and iteration >= self.config.from_iter
+
+    def remember(self, view: int, median_depth: torch.Tensor) -> None:
+        """Keep view ``view``'s rendered median depth ``[H, W]`` (a detached copy) for later occlusion tests."""
+        self.depth[view] = median_depth.detach().clone()
+
+    def forget(self) -> None:
+        """Drop every kept depth (a resumed run starts without them: until a view is rendered again, the pairs
+        whose neighbour it is are skipped)."""
+        self.depth = [None] * len(self.cameras)
+
+    def __call__(self, out: dict, view: int, iteration: int) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """``(loss, used)`` of view ``view`` at ``iteration`` from the renderer's ``out`` (``median_depth``,
+        ``normal``, ``alpha``), against one of its neighbours; None when it has none, or when the drawn neighbour
+        has not been rendered yet (no depth for the occlusion test)."""
+        choices = self.neighbours[view]
+        if not choices:
+            return None
+        rng = np.random.default_rng([self.seed, iteration, view])
+        m = choices[int(rng.integers(len(choices)))]
+        if self.depth[m] is None:
+            return None
+        depth = out["median_depth"]
+        h, w = depth.shape
+        # drawn on the depth's device: a host-side draw copied over would wait for the GPU every step
+        gen = torch.Generator(device=depth.device).manual_seed(int(rng.integers(2**62)))
+        centres = sample_centres(h, w, self.config.pixels, self.config.patch, gen)
+        key = (view, m)
+        if key not in self.poses:
+            self.poses[key] = _relative_pose(self.cameras[view], self.cameras[m], depth.dtype, depth.device)
+        return multiview_loss(depth, out["normal"], out["alpha"], self.grey[view], self.grey[m], self.cameras[view],
+                              self.cameras[m], centres, self.config, nbr_depth=self.depth[m], pose=self.poses[key])
+
+
+def _nearest(image: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:
+    """``image [H, W]`` at the pixel holding each continuous coordinate ``uv [P, 2]`` (clamped to the image)."""
+    h, w = image.shape
+    i = uv[:, 0].floor().long().clamp(0, w - 1)
+    j = uv[:, 1].floor().long().clamp(0, h - 1)
+    return image[j, i]
+
+
+__all__ = ["MultiViewConfig", "MultiViewTerm", "grey", "multiview_loss", "ncc", "neighbour_views", "patch_offsets", "plane_warp",
+           "sample_centres"]

@@ -1,0 +1,214 @@
+"""Multi-view photometric term (gof_warp.multiview): the plane warp against float64 geometry, the loss on an
+analytic textured plane (zero at the true depth, gradients towards it, float64 central differences), the masks,
+neighbour selection, config checks and a training run with the term on."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from gof_warp.camera import look_at
+from gof_warp.config import merge
+from gof_warp.errors import GofError
+from gof_warp.multiview import (MultiViewConfig, MultiViewTerm, grey, multiview_loss, ncc, neighbour_views,
+                                plane_warp, sample_centres)
+
+PLANE_Z = 5.0  # the world plane z = 5, textured by _texture
+
+
+def _texture(x, y):
+    return 0.5 + 0.2 * np.sin(3.1 * x + 0.4) + 0.15 * np.cos(4.3 * y + 1.3 * x) + 0.1 * np.sin(7.7 * (x - y))
+
+
+def _camera(x, size=48, name=""):
+    return look_at((x, 0.3 * x, 0.0), (0.1, -0.05, PLANE_Z), fx=40.0, width=size, height=size, name=name)
+
+
+def _plane_view(cam):
+    """``(grey [H, W], z-depth [H, W], camera-space normal [3] facing the camera)`` of the textured plane, float64."""
+    h, w = cam.height, cam.width
+    v, u = np.mgrid[0:h, 0:w]
+    rays_cam = np.stack([(u + 0.5 - cam.cx) / cam.fx, (v + 0.5 - cam.cy) / cam.fy, np.ones_like(u, float)], -1)
+    rays = rays_cam @ np.asarray(cam.R)  # world directions (R^T r)
+    s = (PLANE_Z - cam.center[2]) / rays[..., 2]
+    hit = cam.center + s[..., None] * rays
+    n_cam = np.asarray(cam.R) @ np.array([0.0, 0.0, 1.0])
+    if n_cam @ np.array([0.0, 0.0, 1.0]) > 0:
+        n_cam = -n_cam
+    return _texture(hit[..., 0], hit[..., 1]), s, n_cam  # z-depth = s (rays_cam has z = 1)
+
+
+def _pair(dtype=torch.float64):
+    ref, nbr = _camera(-0.4, name="ref"), _camera(0.5, name="nbr")
+    g_ref, d_ref, n_ref = _plane_view(ref)
+    g_nbr, d_nbr, _ = _plane_view(nbr)
+    t = lambda a: torch.tensor(a, dtype=dtype)  # noqa: E731
+    return ref, nbr, t(g_ref), t(g_nbr), t(d_ref), t(d_nbr), t(n_ref)
+
+
+def _maps(depth, n_cam):
+    h, w = depth.shape
+    normal = n_cam.expand(h, w, 3).clone()
+    return normal, torch.ones(h, w, dtype=depth.dtype)
+
+
+def test_plane_warp_matches_the_ray_plane_intersection():
+    ref, nbr, *_ , d_ref, _, n_ref = _pair()
+    centres = torch.tensor([[10, 12], [30, 25], [24, 24]])
+    patch = 5
+    d = d_ref[centres[:, 1], centres[:, 0]]
+    uv, z, ok = plane_warp(centres, d, n_ref.expand(3, 3), ref, nbr, patch)
+    assert ok.all()
+    # float64 by hand: each patch pixel's ray meets the world plane; project that point into nbr
+    for p, (cu, cv) in enumerate(centres.tolist()):
+        for s, (du, dv) in enumerate([(a, b) for b in range(-2, 3) for a in range(-2, 3)]):
+            r = np.array([(cu + du + 0.5 - ref.cx) / ref.fx, (cv + dv + 0.5 - ref.cy) / ref.fy, 1.0])
+            rw = np.asarray(ref.R).T @ r
+            x = ref.center + (PLANE_Z - ref.center[2]) / rw[2] * rw
+            xc = np.asarray(nbr.R) @ x + np.asarray(nbr.t)
+            expect = [nbr.fx * xc[0] / xc[2] + nbr.cx, nbr.fy * xc[1] / xc[2] + nbr.cy]
+            assert np.allclose(uv[p, s].numpy(), expect, atol=1e-9), (p, s)
+            assert math.isclose(float(z[p, s]), xc[2], rel_tol=1e-12)
+
+
+def test_loss_is_zero_at_the_true_plane_and_grows_off_it():
+    ref, nbr, g_ref, g_nbr, d_ref, d_nbr, n_ref = _pair()
+    normal, alpha = _maps(d_ref, n_ref)
+    cfg = MultiViewConfig(weight=1.0, patch=7, min_std=1e-3)
+    centres = sample_centres(48, 48, 256, 7, torch.Generator().manual_seed(0))
+    at, used = multiview_loss(d_ref, normal, alpha, g_ref, g_nbr, ref, nbr, centres, cfg, nbr_depth=d_nbr)
+    assert int(used) > 100
+    assert float(at) < 5e-3  # bilinear sampling of point-sampled photos: not exactly 0
+    losses = [float(multiview_loss(d_ref * k, normal, alpha, g_ref, g_nbr, ref, nbr, centres, cfg)[0])
+              for k in (0.9, 0.95, 0.98, 1.02, 1.05, 1.12)]
+    assert losses[0] > losses[1] > losses[2] > float(at) < losses[3] < losses[4] < losses[5]
+    assert min(losses[0], losses[5]) > 10 * float(at)
+
+
+def test_gradient_points_back_to_the_true_depth():
+    """Gradient descent on a depth scale factor, started 6 % in front of the plane, walks back to it."""
+    ref, nbr, g_ref, g_nbr, d_ref, _, n_ref = _pair()
+    normal, alpha = _maps(d_ref, n_ref)
+    cfg = MultiViewConfig(weight=1.0, patch=7, min_std=1e-3)
+    centres = sample_centres(48, 48, 256, 7, torch.Generator().manual_seed(1))
+    k = torch.tensor(0.94, dtype=torch.float64, requires_grad=True)
+    opt = torch.optim.Adam([k], lr=0.01)
+    for _ in range(60):
+        opt.zero_grad()
+        loss, _ = multiview_loss(d_ref * k, normal, alpha, g_ref, g_nbr, ref, nbr, centres, cfg)
+        loss.backward()
+        opt.step()
+    assert abs(float(k.detach()) - 1.0) < 0.01, float(k.detach())
+
+
+def test_gradient_matches_float64_central_differences():
+    """Through the depth and the (un-normalised) normal at the patch centres, the only pixels the term reads."""
+    ref, nbr, g_ref, g_nbr, d_ref, _, n_ref = _pair()
+    cfg = MultiViewConfig(weight=1.0, patch=5, min_std=1e-3)
+    centres = torch.tensor([[12, 14], [30, 20], [22, 33], [35, 35]])
+    u, v = centres[:, 0], centres[:, 1]
+    gen = torch.Generator().manual_seed(3)
+    d0 = (d_ref[v, u] * (1 + 0.03 * torch.rand(4, generator=gen, dtype=torch.float64))).requires_grad_()
+    n0 = (1.7 * (n_ref + 0.1 * torch.randn(4, 3, generator=gen, dtype=torch.float64))).requires_grad_()
+    alpha = torch.ones(48, 48, dtype=torch.float64)
+
+    def f(dc, nc):
+        depth = d_ref.index_put((v, u), dc)
+        normal = n_ref.expand(48, 48, 3).index_put((v, u), nc)
+        return multiview_loss(depth, normal, alpha, g_ref, g_nbr, ref, nbr, centres, cfg)
+
+    assert int(f(d0, n0)[1]) == 4
+    assert torch.autograd.gradcheck(lambda dc, nc: f(dc, nc)[0], (d0, n0), eps=1e-6, atol=1e-7, rtol=1e-4)
+
+
+def test_masks_leave_out_what_cannot_be_compared():
+    ref, nbr, g_ref, g_nbr, d_ref, d_nbr, n_ref = _pair()
+    normal, alpha = _maps(d_ref, n_ref)
+    cfg = MultiViewConfig(weight=1.0, patch=7, min_std=1e-3)
+    centres = sample_centres(48, 48, 128, 7, torch.Generator().manual_seed(2))
+    full = int(multiview_loss(d_ref, normal, alpha, g_ref, g_nbr, ref, nbr, centres, cfg, nbr_depth=d_nbr)[1])
+    assert full > 0
+    # the neighbour saw something 20 % nearer everywhere: every patch is occluded there
+    loss, used = multiview_loss(d_ref, normal, alpha, g_ref, g_nbr, ref, nbr, centres, cfg, nbr_depth=0.8 * d_nbr)
+    assert int(used) == 0 and float(loss) == 0.0
+    # transparent reference pixels, and a flat grey reference photo (no texture), count for nothing
+    assert int(multiview_loss(d_ref, normal, 0.3 * alpha, g_ref, g_nbr, ref, nbr, centres, cfg)[1]) == 0
+    depth = d_ref.clone().requires_grad_()
+    loss, used = multiview_loss(depth, normal, alpha, torch.full_like(g_ref, 0.5), g_nbr, ref, nbr, centres, cfg)
+    loss.backward()
+    assert int(used) == 0 and torch.equal(depth.grad, torch.zeros_like(depth))
+    # a neighbour looking away sees none of the patches
+    away = look_at((0.0, 0.0, 0.0), (0.0, 0.0, -5.0), fx=40.0, width=48, height=48)
+    assert int(multiview_loss(d_ref, normal, alpha, g_ref, g_nbr, ref, away, centres, cfg)[1]) == 0
+
+
+def test_ncc_ignores_gain_and_offset():
+    a = torch.rand(5, 49, dtype=torch.float64)
+    assert torch.allclose(ncc(a, 0.3 * a + 0.2), torch.ones(5, dtype=torch.float64), atol=1e-4)
+    assert torch.allclose(ncc(a, -a), -torch.ones(5, dtype=torch.float64), atol=1e-4)
+
+
+def test_neighbours_are_the_nearest_cameras_looking_the_same_way():
+    ring = [look_at((4 * math.cos(a), 4 * math.sin(a), 0.0), (0, 0, 0), width=8, height=8)
+            for a in np.deg2rad(np.arange(0, 360, 30))]
+    twin = look_at((4.0, 0.0, 0.0), (0, 0, 0), width=8, height=8)  # at camera 0's centre: no baseline
+    nb = neighbour_views(ring + [twin], k=2, max_angle_deg=45)
+    assert sorted(nb[0]) == [1, 11] and sorted(nb[6]) == [5, 7]
+    assert 12 not in nb[0] and 0 not in nb[12]
+    assert neighbour_views(ring, k=3, max_angle_deg=20) == [[] for _ in ring]  # 30 degrees apart: none qualifies
+
+
+@pytest.mark.parametrize("bad", [{"weight": -1.0}, {"weight": float("nan")}, {"patch": 4}, {"patch": 1},
+                                 {"pixels": 0}, {"max_angle_deg": 0.0}, {"alpha_min": 1.0}])
+def test_config_is_validated(bad):
+    with pytest.raises(GofError):
+        MultiViewConfig(**bad)
+
+
+def test_grey_and_patches_that_do_not_fit():
+    img = torch.rand(4, 5, 3)
+    assert torch.allclose(grey(img), 0.299 * img[..., 0] + 0.587 * img[..., 1] + 0.114 * img[..., 2])
+    with pytest.raises(GofError):
+        grey(torch.rand(4, 5))
+    with pytest.raises(GofError, match="do not fit"):
+        sample_centres(6, 40, 8, 7)
+
+
+def test_term_draws_the_same_pair_for_the_same_iteration():
+    cams = [_camera(x, name=f"c{i}") for i, x in enumerate((-0.5, -0.2, 0.1, 0.4))]
+    views = [_plane_view(c) for c in cams]
+    images = [torch.tensor(g, dtype=torch.float32)[..., None].expand(48, 48, 3).contiguous() for g, _, _ in views]
+    term = MultiViewTerm(MultiViewConfig(weight=0.5, from_iter=3, neighbours=2), cams, images, seed=7)
+    assert not term.active(2) and term.active(3)
+    _, d0, n0 = views[0]
+    out = {"median_depth": torch.tensor(d0, dtype=torch.float32), "alpha": torch.ones(48, 48),
+           "normal": torch.tensor(n0, dtype=torch.float32).expand(48, 48, 3)}
+    assert term(out, 0, 5) is None  # no neighbour rendered yet
+    for i, (_, d, _) in enumerate(views):
+        term.remember(i, torch.tensor(d, dtype=torch.float32))
+    a, b = term(out, 0, 5), term(out, 0, 5)
+    assert torch.equal(a[0], b[0]) and int(a[1]) > 0 and float(a[0]) < 0.01
+    term.forget()
+    assert term(out, 0, 5) is None
+
+
+def test_training_with_the_term_on(tmp_path):
+    from gof_warp.data import load_scene
+    from gof_warp.synthetic import make_scene
+    from gof_warp.trainer import TrainConfig, Trainer
+
+    scene = load_scene(make_scene("default", tmp_path / "s", views=6, resolution=(32, 32), device="cpu"))
+    cfg = merge(TrainConfig(), {"iterations": 16, "checkpoint_every": 0, "log_every": 1,
+                                "model": {"sh_degree": 0, "init": "random", "random_init_points": 300},
+                                "densify": {"start_iter": 100},
+                                "loss": {"regularization_from_iter": 100,
+                                         "multiview": {"weight": 0.2, "from_iter": 8, "pixels": 64, "patch": 5,
+                                                       "neighbours": 2, "max_angle_deg": 90.0}}})
+    trainer = Trainer(scene, cfg, tmp_path / "run", "cpu")
+    trainer.run()
+    with_term = [h for h in trainer.history if "multiview" in h]
+    assert with_term and all(h["iteration"] >= 8 for h in with_term)
+    assert all(math.isfinite(h["multiview"]) and 0 <= h["multiview"] <= 2 for h in with_term)
+    assert any(h["multiview"] > 0 for h in with_term), "no patch was ever compared"
+    assert all(math.isfinite(h["total"]) for h in trainer.history)
