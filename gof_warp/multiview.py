@@ -32,6 +32,7 @@ Shapes: images are channel-last ``[H, W, 3]`` in ``[0, 1]`` (grey ``[H, W]``); d
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
@@ -40,6 +41,8 @@ import torch
 
 from .camera import Camera
 from .errors import GofError
+
+log = logging.getLogger(__name__)
 
 GREY_WEIGHTS = (0.299, 0.587, 0.114)  # ITU-R BT.601 luma
 
@@ -113,12 +116,18 @@ def neighbour_views(cameras, k: int, max_angle_deg: float) -> list[list[int]]:
     return out
 
 
+def _relative_pose_np(ref: np.ndarray, nbr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(R_rel.ravel() [9], t_rel [3])`` in float64 for two cameras given as ``[R.ravel(), t]`` rows of 12."""
+    r_ref, r_nbr = ref[:9].reshape(3, 3), nbr[:9].reshape(3, 3)
+    rot = r_nbr @ r_ref.T
+    return rot.reshape(-1), nbr[9:] - rot @ ref[9:]
+
+
 def _relative_pose(ref: Camera, nbr: Camera, dtype, device) -> tuple[torch.Tensor, torch.Tensor]:
     """``(R_rel, t_rel)`` taking reference camera coordinates to the neighbour's (computed in float64)."""
-    r_ref, r_nbr = np.asarray(ref.R, np.float64), np.asarray(nbr.R, np.float64)
-    rot = r_nbr @ r_ref.T
-    trans = np.asarray(nbr.t, np.float64) - rot @ np.asarray(ref.t, np.float64)
-    return (torch.tensor(rot, dtype=dtype, device=device), torch.tensor(trans, dtype=dtype, device=device))
+    rows = [np.concatenate([np.asarray(c.R, np.float64).reshape(-1), np.asarray(c.t, np.float64)]) for c in (ref, nbr)]
+    rot, trans = _relative_pose_np(*rows)
+    return (torch.tensor(rot.reshape(3, 3), dtype=dtype, device=device), torch.tensor(trans, dtype=dtype, device=device))
 
 
 def patch_offsets(patch: int, dtype=torch.float32, device=None) -> torch.Tensor:
@@ -158,10 +167,21 @@ def plane_warp(centres: torch.Tensor, depth: torch.Tensor, normal: torch.Tensor,
         ``[P, S]`` depths in ``nbr``, ``[P, S]`` whether the ray meets the plane in front of the reference camera
         and the point lies in front of the neighbour; ``S = patch²``.
     """
+    rot, trans = _relative_pose(ref, nbr, depth.dtype, depth.device) if pose is None else pose
+    return _warp(centres, depth, normal, _intrinsics(ref), _intrinsics(nbr), rot, trans, patch)
+
+
+def _intrinsics(camera: Camera) -> tuple[float, float, float, float]:
+    return (camera.fx, camera.fy, camera.cx, camera.cy)
+
+
+def _warp(centres, depth, normal, k_ref, k_nbr, rot, trans, patch: int):
+    """:func:`plane_warp` with the intrinsics as ``(fx, fy, cx, cy)``: floats, or a ``[4]`` tensor (no per-camera
+    constants for a compiled graph to specialise on) — and the relative pose given."""
     dt, dev = depth.dtype, depth.device
     off = patch_offsets(patch, dt, dev)
     q = centres.to(dt)[:, None, :] + off[None]  # [P, S, 2]
-    rays = torch.stack([(q[..., 0] + 0.5 - ref.cx) / ref.fx, (q[..., 1] + 0.5 - ref.cy) / ref.fy,
+    rays = torch.stack([(q[..., 0] + 0.5 - k_ref[2]) / k_ref[0], (q[..., 1] + 0.5 - k_ref[3]) / k_ref[1],
                         torch.ones_like(q[..., 0])], dim=-1)  # [P, S, 3]
     centre_ray = rays[:, (patch * patch) // 2]  # [P, 3]
     rho = (normal * centre_ray).sum(-1) * depth  # nᵀX0
@@ -171,12 +191,11 @@ def plane_warp(centres: torch.Tensor, depth: torch.Tensor, normal: torch.Tensor,
     scale = rho[:, None] / torch.where(ok, denom, torch.ones_like(denom))
     ok = ok & (scale > 0)
     points = scale[..., None] * rays  # [P, S, 3] reference camera coordinates
-    rot, trans = _relative_pose(ref, nbr, dt, dev) if pose is None else pose
     x = points @ rot.T + trans
     z = x[..., 2]
     ok = ok & (z > 1e-6)
     zs = torch.where(ok, z, torch.ones_like(z))
-    uv = torch.stack([nbr.fx * x[..., 0] / zs + nbr.cx, nbr.fy * x[..., 1] / zs + nbr.cy], dim=-1)
+    uv = torch.stack([k_nbr[0] * x[..., 0] / zs + k_nbr[2], k_nbr[1] * x[..., 1] / zs + k_nbr[3]], dim=-1)
     return uv, z, ok
 
 
@@ -216,12 +235,20 @@ def multiview_loss(median_depth: torch.Tensor, normal: torch.Tensor, alpha: torc
         ``(loss, used)``: the mean ``1 − NCC`` over the patches that count (0 with a zero gradient when none
         does), and how many counted (a 0-d tensor).
     """
+    rot, trans = _relative_pose(ref, nbr, median_depth.dtype, median_depth.device) if pose is None else pose
+    return _loss(median_depth, normal, alpha, grey_ref, grey_nbr, _intrinsics(ref), _intrinsics(nbr), rot, trans,
+                 centres, config, nbr_depth)
+
+
+def _loss(median_depth, normal, alpha, grey_ref, grey_nbr, k_ref, k_nbr, rot, trans, centres, config: MultiViewConfig,
+          nbr_depth):
+    """:func:`multiview_loss` on plain tensors (intrinsics as in :func:`_warp`): what the trainer compiles."""
     s = config.patch
     u, v = centres[:, 0], centres[:, 1]
     d = median_depth[v, u]
     n = normal[v, u]
     n = n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    uv, z, ok = plane_warp(centres, d, n, ref, nbr, s, pose)
+    uv, z, ok = _warp(centres, d, n, k_ref, k_nbr, rot, trans, s)
     h, w = grey_nbr.shape
     inside = (uv[..., 0] >= 0.5) & (uv[..., 0] <= w - 0.5) & (uv[..., 1] >= 0.5) & (uv[..., 1] <= h - 0.5)
     off = patch_offsets(s, torch.long, centres.device)
@@ -249,14 +276,32 @@ class MultiViewTerm:
     Args:
         config: :class:`MultiViewConfig`; cameras: the training cameras; images: their ``[H, W, 3]`` photos on the
             training device; seed: the run's seed.
+        compile_backend: compile the term with ``torch.compile`` and this backend (the trainer does where it compiles
+            its loss: some 70 small operations and as many in the backward become a few fused kernels, which on a
+            GPU is the difference between host-bound and not); None: eager. If compiling fails the term warns and
+            stays eager.
     """
 
-    def __init__(self, config: MultiViewConfig, cameras, images, seed: int):
+    def __init__(self, config: MultiViewConfig, cameras, images, seed: int, compile_backend: str | None = None):
         self.config, self.cameras, self.seed = config, list(cameras), int(seed)
+        self._core = _loss
+        if compile_backend is not None:
+            self._core = torch.compile(_loss, dynamic=False, fullgraph=True, backend=compile_backend)
         self.grey = [grey(im) for im in images]
         self.neighbours = neighbour_views(self.cameras, config.neighbours, config.max_angle_deg)
         self.depth: list[torch.Tensor | None] = [None] * len(self.cameras)
-        self.poses: dict[tuple[int, int], tuple[torch.Tensor, torch.Tensor]] = {}  # (view, neighbour) on the device
+        # every (view, neighbour) pose, built on the host and copied to the device once: a copy per pair on first use
+        # would make the host wait for the GPU hundreds of times early in training
+        rows = [np.concatenate([np.asarray(c.R, np.float64).reshape(-1), np.asarray(c.t, np.float64)]) for c in cameras]
+        self._pose_index = {}
+        flat = []
+        for i, nb in enumerate(self.neighbours):
+            for m in nb:
+                self._pose_index[(i, m)] = len(flat)
+                flat.append(np.concatenate(_relative_pose_np(rows[i], rows[m])))
+        device = images[0].device if len(images) else None
+        self._poses = torch.tensor(np.asarray(flat, np.float32).reshape(-1, 12), device=device)
+        self._intr = torch.tensor([_intrinsics(c) for c in self.cameras], dtype=torch.float32, device=device)
 
     def active(self, iteration: int) -> bool:
         """Whether the term acts at ``iteration`` (on, and from ``from_iter``)."""
@@ -287,11 +332,22 @@ class MultiViewTerm:
         # drawn on the depth's device: a host-side draw copied over would wait for the GPU every step
         gen = torch.Generator(device=depth.device).manual_seed(int(rng.integers(2**62)))
         centres = sample_centres(h, w, self.config.pixels, self.config.patch, gen)
-        key = (view, m)
-        if key not in self.poses:
-            self.poses[key] = _relative_pose(self.cameras[view], self.cameras[m], depth.dtype, depth.device)
-        return multiview_loss(depth, out["normal"], out["alpha"], self.grey[view], self.grey[m], self.cameras[view],
-                              self.cameras[m], centres, self.config, nbr_depth=self.depth[m], pose=self.poses[key])
+        row = self._poses[self._pose_index[(view, m)]].to(depth.dtype)
+        args = (depth, out["normal"], out["alpha"], self.grey[view], self.grey[m], self._intr[view].to(depth.dtype),
+                self._intr[m].to(depth.dtype), row[:9].view(3, 3), row[9:], centres, self.config, self.depth[m])
+        if self._core is not _loss:
+            try:
+                return self._core(*args)
+            except Exception as e:  # noqa: BLE001 - any compiler failure: the eager term computes the same
+                log.warning("torch.compile of the multi-view term failed (%s: %s); using it eager", type(e).__name__,
+                            " ".join(str(e).split())[:300])
+                self._core = _loss
+        return _loss(*args)
+
+    def prime(self) -> None:
+        """Give every view a depth of zeros (every patch then counts as occluded), so that a throw-away pass builds
+        the compiled term's graphs; :meth:`forget` afterwards."""
+        self.depth = [torch.zeros(g.shape, dtype=torch.float32, device=g.device) for g in self.grey]
 
 
 def _nearest(image: torch.Tensor, uv: torch.Tensor) -> torch.Tensor:

@@ -258,7 +258,8 @@ class Trainer:
         self.loss = TrainingLoss(config.loss, self.cameras, self.device, compile_mode(config),
                                  cuda_graphs=config.loss_cuda_graphs, appearance=self.appearance)
         # the multi-view photometric term (loss.multiview, off by default), eager beside the compiled terms
-        self.multiview = (MultiViewTerm(config.loss.multiview, self.cameras, self.images, config.seed)
+        self.multiview = (MultiViewTerm(config.loss.multiview, self.cameras, self.images, config.seed,
+                                        compile_backend="inductor" if self.loss.compiled is not None else None)
                           if config.loss.multiview.on else None)
 
     # ------------------------------------------------------------------ one iteration
@@ -550,7 +551,11 @@ class Trainer:
         t = time.perf_counter() if started is None else started
         it = self.iteration + 1
         regularised = max(it, self.config.loss.regularization_from_iter)  # the regularisers' kernels too
+        if self.multiview is not None:  # and the multi-view term's, once it acts
+            regularised = max(regularised, self.config.loss.multiview.from_iter)
         schedule = [regularised] + ([it] if self.loss.compiled is not None and it < regularised else [])
+        if self.multiview is not None:  # the multi-view term's graphs too (compiled along with the loss)
+            self.multiview.prime()
         for loss_it in schedule:  # a compiled loss: both of its graphs (with and without the regularisers)
             loss, _ = self._view_loss(0, loss_it, self._new_stats(it))
             try:

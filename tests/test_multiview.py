@@ -11,7 +11,7 @@ import torch
 from gof_warp.camera import look_at
 from gof_warp.config import merge
 from gof_warp.errors import GofError
-from gof_warp.multiview import (MultiViewConfig, MultiViewTerm, grey, multiview_loss, ncc, neighbour_views,
+from gof_warp.multiview import (MultiViewConfig, MultiViewTerm, _loss, grey, multiview_loss, ncc, neighbour_views,
                                 plane_warp, sample_centres)
 
 PLANE_Z = 5.0  # the world plane z = 5, textured by _texture
@@ -193,19 +193,49 @@ def test_term_draws_the_same_pair_for_the_same_iteration():
     assert term(out, 0, 5) is None
 
 
-def test_training_with_the_term_on(tmp_path):
+def test_compiled_term_matches_the_eager_one():
+    """What the trainer compiles (traced here by aot_eager: the same graph, no code generated) gives the eager value
+    and gradient, for two views in a row (one graph serves every view)."""
+    cams = [_camera(x, name=f"c{i}") for i, x in enumerate((-0.5, -0.2, 0.1))]
+    views = [_plane_view(c) for c in cams]
+    images = [torch.tensor(g, dtype=torch.float32)[..., None].expand(48, 48, 3).contiguous() for g, _, _ in views]
+    cfg = MultiViewConfig(weight=0.5, from_iter=1, neighbours=2, pixels=128, patch=5)
+    eager = MultiViewTerm(cfg, cams, images, seed=3)
+    compiled = MultiViewTerm(cfg, cams, images, seed=3, compile_backend="aot_eager")
+    for term in (eager, compiled):
+        for i, (_, d, _) in enumerate(views):
+            term.remember(i, torch.tensor(d, dtype=torch.float32) * 1.02)
+    for view in (0, 1):
+        _, d, n = views[view]
+        results = []
+        for term in (eager, compiled):
+            depth = (torch.tensor(d, dtype=torch.float32) * 1.03).requires_grad_()
+            normal = torch.tensor(n, dtype=torch.float32).expand(48, 48, 3).clone().requires_grad_()
+            loss, used = term({"median_depth": depth, "normal": normal, "alpha": torch.ones(48, 48)}, view, 5)
+            loss.backward()
+            results.append((loss.detach(), used, depth.grad, normal.grad))
+        (a, ua, ga, na), (b, ub, gb, nb) = results
+        assert int(ua) == int(ub) > 0 and float(a) > 0
+        assert torch.allclose(a, b, rtol=1e-5, atol=1e-7)
+        assert torch.allclose(ga, gb, rtol=1e-4, atol=1e-8) and torch.allclose(na, nb, rtol=1e-4, atol=1e-8)
+    assert compiled._core is not _loss  # it stayed compiled: no fallback to the eager function
+
+
+@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
+    not torch.cuda.is_available(), reason="needs a GPU"))])
+def test_training_with_the_term_on(tmp_path, device):
     from gof_warp.data import load_scene
     from gof_warp.synthetic import make_scene
     from gof_warp.trainer import TrainConfig, Trainer
 
-    scene = load_scene(make_scene("default", tmp_path / "s", views=6, resolution=(32, 32), device="cpu"))
+    scene = load_scene(make_scene("default", tmp_path / "s", views=6, resolution=(32, 32), device=device))
     cfg = merge(TrainConfig(), {"iterations": 16, "checkpoint_every": 0, "log_every": 1,
                                 "model": {"sh_degree": 0, "init": "random", "random_init_points": 300},
                                 "densify": {"start_iter": 100},
                                 "loss": {"regularization_from_iter": 100,
                                          "multiview": {"weight": 0.2, "from_iter": 8, "pixels": 64, "patch": 5,
                                                        "neighbours": 2, "max_angle_deg": 90.0}}})
-    trainer = Trainer(scene, cfg, tmp_path / "run", "cpu")
+    trainer = Trainer(scene, cfg, tmp_path / "run", device)
     trainer.run()
     with_term = [h for h in trainer.history if "multiview" in h]
     assert with_term and all(h["iteration"] >= 8 for h in with_term)
