@@ -261,6 +261,9 @@ class Trainer:
         self.multiview = (MultiViewTerm(config.loss.multiview, self.cameras, self.images, config.seed,
                                         compile_backend="inductor" if self.loss.compiled is not None else None)
                           if config.loss.multiview.on else None)
+        if self.multiview is not None and self.ranks.active:
+            log.warning("loss.multiview with %d processes: each tests occlusion against the depths of the views it "
+                        "rendered, so the run is not the one-process run's up to summation order", self.ranks.world)
 
     # ------------------------------------------------------------------ one iteration
     def _next_view(self) -> int:
