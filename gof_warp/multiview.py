@@ -19,6 +19,8 @@ geometry to a second photo directly:
   standard deviation above ``min_std``), and not occluded in the neighbour — the plane's point farther than
   ``(1 + occlusion_tolerance)`` × the neighbour's own last rendered median depth there is hidden behind
   something else (the depth comes from when that view was last trained on, so no second render is needed).
+  The test is one-sided: a surface rendered more than ``occlusion_tolerance`` behind where the neighbour renders it
+  looks hidden and gets no pull from this term (only one rendered in front of it, or within the tolerance, does).
 
 The gradient reaches ``D(p)`` and ``n(p)`` through the projected coordinates (the neighbour photo's spatial
 gradient), and so the Gaussians through the renderer's median-depth and normal outputs.
@@ -43,6 +45,8 @@ from .camera import Camera
 from .errors import GofError
 
 log = logging.getLogger(__name__)
+
+_SALT = 0x6D76  # keeps the term's draws apart from other per-(seed, iteration, view) draws (random backgrounds)
 
 GREY_WEIGHTS = (0.299, 0.587, 0.114)  # ITU-R BT.601 luma
 
@@ -325,7 +329,7 @@ class MultiViewTerm:
         choices = self.neighbours[view]
         if not choices:
             return None
-        rng = np.random.default_rng([self.seed, iteration, view])
+        rng = np.random.default_rng([self.seed, iteration, view, _SALT])
         m = choices[int(rng.integers(len(choices)))]
         if self.depth[m] is None:
             return None
@@ -341,10 +345,17 @@ class MultiViewTerm:
             try:
                 return self._core(*args)
             except Exception as e:  # noqa: BLE001 - any compiler failure: the eager term computes the same
-                log.warning("torch.compile of the multi-view term failed (%s: %s); using it eager", type(e).__name__,
-                            " ".join(str(e).split())[:300])
-                self._core = _loss
+                self.give_up(e)
         return _loss(*args)
+
+    def give_up(self, error: Exception) -> None:
+        """Compute the term eager from now on (after ``error`` from the compiler), with a warning. The forward's
+        failure is caught here; the backward is compiled at the first ``backward()``, so the trainer's warm-up calls
+        this when that fails."""
+        if self._core is not _loss:
+            log.warning("torch.compile of the multi-view term failed (%s: %s); using it eager", type(error).__name__,
+                        " ".join(str(error).split())[:300])
+            self._core = _loss
 
     def prime(self) -> None:
         """Give every view a depth of zeros (every patch then counts as occluded), so that a throw-away pass builds

@@ -257,10 +257,14 @@ class Trainer:
         # the loss with the appearance's L1 pair (camera i's embedding is row i), compiled as one graph where asked
         self.loss = TrainingLoss(config.loss, self.cameras, self.device, compile_mode(config),
                                  cuda_graphs=config.loss_cuda_graphs, appearance=self.appearance)
-        # the multi-view photometric term (loss.multiview, off by default), eager beside the compiled terms
+        # the multi-view photometric term (loss.multiview, off by default), beside the loss and compiled where it is
         self.multiview = (MultiViewTerm(config.loss.multiview, self.cameras, self.images, config.seed,
                                         compile_backend="inductor" if self.loss.compiled is not None else None)
                           if config.loss.multiview.on else None)
+        # every view is rendered once per epoch (GOF's stack of views): from one epoch before the term acts, each
+        # view's depth is kept for its neighbours' occlusion test
+        epoch = -(-len(self.cameras) // self.views_per_step)
+        self._multiview_remember_from = config.loss.multiview.from_iter - epoch - 1
         if self.multiview is not None and self.ranks.active:
             log.warning("loss.multiview with %d processes: each tests occlusion against the depths of the views it "
                         "rendered, so the run is not the one-process run's up to summation order", self.ranks.world)
@@ -363,7 +367,8 @@ class Trainer:
         """``loss`` plus the weighted multi-view term of view ``idx`` once it is active (its value into ``terms``
         as ``multiview``); the view's median depth is kept for its neighbours' occlusion tests either way."""
         mv = self.multiview(out, idx, it) if self.multiview.active(it) else None
-        self.multiview.remember(idx, out["median_depth"])
+        if it >= self._multiview_remember_from:  # a depth per view on the device: only from an epoch before it acts
+            self.multiview.remember(idx, out["median_depth"])
         if mv is None:
             return loss
         weighted = self.config.loss.multiview.weight * mv[0]
@@ -494,7 +499,8 @@ class Trainer:
 
         Ctrl-C during training stops at the end of the current iteration: a checkpoint of that iteration is
         written (atomically, like every checkpoint) and :class:`TrainingInterrupted` is raised; the final
-        outputs (``point_cloud.ply``, ``metrics.json``) are not written. :meth:`resume` continues bit-for-bit.
+        outputs (``point_cloud.ply``, ``metrics.json``) are not written. :meth:`resume` continues bit-for-bit (with
+        ``loss.multiview`` on, not quite: see :class:`~gof_warp.multiview.MultiViewTerm`).
         """
         cfg = self.config
         if self.ranks.is_main:
@@ -567,6 +573,8 @@ class Trainer:
                 if self.loss.compiled is None or self.loss.mode != "auto":
                     raise
                 self.loss.give_up(e)
+                if self.multiview is not None:  # its backward, compiled at the same call, may be what failed
+                    self.multiview.give_up(e)
                 self._clear_gradients()
                 return self._warm_up(t)
             self._clear_gradients()  # each pass on its own (CUDA-graph gradients last until the next replay)

@@ -143,6 +143,34 @@ def test_masks_leave_out_what_cannot_be_compared():
     assert int(multiview_loss(d_ref, normal, alpha, g_ref, g_nbr, ref, away, centres, cfg)[1]) == 0
 
 
+def test_occlusion_test_is_one_sided():
+    """With the neighbour's true depth: a surface rendered in front of the truth, or behind it within the tolerance,
+    keeps its patches and is pulled back; one rendered further behind looks hidden and gets nothing (documented)."""
+    ref, nbr, g_ref, g_nbr, d_ref, d_nbr, n_ref = _pair()
+    normal, alpha = _maps(d_ref, n_ref)
+    cfg = MultiViewConfig(weight=1.0, patch=7, min_std=1e-3, occlusion_tolerance=0.05)
+    centres = sample_centres(48, 48, 256, 7, torch.Generator().manual_seed(4))
+    full = int(multiview_loss(d_ref, normal, alpha, g_ref, g_nbr, ref, nbr, centres, cfg, nbr_depth=d_nbr)[1])
+    for k, kept in ((0.94, True), (1.03, True), (1.08, False)):
+        depth = (d_ref * k).requires_grad_()
+        loss, used = multiview_loss(depth, normal, alpha, g_ref, g_nbr, ref, nbr, centres, cfg, nbr_depth=d_nbr)
+        if kept:
+            assert int(used) > 0.8 * full, k
+            loss.backward()
+            toward = (depth.grad * (d_ref - depth.detach())).sum()  # descent moves the depth towards the truth
+            assert float(toward) < 0, k
+        else:
+            assert int(used) == 0, k
+
+
+def test_nearest_reads_the_pixel_holding_the_point():
+    from gof_warp.multiview import _nearest
+
+    image = torch.arange(12.0).reshape(3, 4)  # pixel (i, j) spans [i, i + 1] x [j, j + 1]
+    uv = torch.tensor([[2.99, 1.0], [3.0, 1.0], [0.0, 2.5], [-0.5, 9.0], [7.0, 0.2]])
+    assert _nearest(image, uv).tolist() == [6.0, 7.0, 8.0, 8.0, 3.0]
+
+
 def test_ncc_ignores_gain_and_offset():
     a = torch.rand(5, 49, dtype=torch.float64)
     assert torch.allclose(ncc(a, 0.3 * a + 0.2), torch.ones(5, dtype=torch.float64), atol=1e-4)
@@ -189,6 +217,13 @@ def test_term_draws_the_same_pair_for_the_same_iteration():
         term.remember(i, torch.tensor(d, dtype=torch.float32))
     a, b = term(out, 0, 5), term(out, 0, 5)
     assert torch.equal(a[0], b[0]) and int(a[1]) > 0 and float(a[0]) < 0.01
+    fresh = MultiViewTerm(MultiViewConfig(weight=0.5, from_iter=3, neighbours=2), cams, images, seed=7)  # a resume
+    for i, (_, d, _) in enumerate(views):
+        fresh.remember(i, torch.tensor(d, dtype=torch.float32))
+    assert torch.equal(fresh(out, 0, 5)[0], a[0])
+    depth = out["median_depth"] * 1.03  # off the plane: the loss depends on which patches are drawn
+    draws = {float(term({**out, "median_depth": depth}, 0, it)[0]) for it in range(5, 12)}
+    assert len(draws) > 1, "every iteration drew the same neighbour and patches"
     term.forget()
     assert term(out, 0, 5) is None
 
@@ -241,4 +276,7 @@ def test_training_with_the_term_on(tmp_path, device):
     assert with_term and all(h["iteration"] >= 8 for h in with_term)
     assert all(math.isfinite(h["multiview"]) and 0 <= h["multiview"] <= 2 for h in with_term)
     assert any(h["multiview"] > 0 for h in with_term), "no patch was ever compared"
+    for h in with_term:  # the logged total is the loss the step minimised: colour terms + weight x multiview
+        expect = 0.8 * h["l1"] + 0.2 * h["dssim"] + 0.2 * h["multiview"]
+        assert math.isclose(h["total"], expect, rel_tol=1e-5, abs_tol=1e-7), h
     assert all(math.isfinite(h["total"]) for h in trainer.history)
