@@ -87,6 +87,11 @@ class Intrinsics:
         return Intrinsics(fx=self.fx, fy=self.fy, cx=self.cx, cy=self.cy, width=self.width, height=self.height)
 
     @property
+    def pinhole(self) -> tuple[float, float, float, float]:
+        """``(fx, fy, cx, cy)``: the four numbers of the projection, e.g. for a kernel or a ``[4]`` tensor."""
+        return (self.fx, self.fy, self.cx, self.cy)
+
+    @property
     def K(self) -> np.ndarray:
         """``[3, 3]`` intrinsic matrix."""
         return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])

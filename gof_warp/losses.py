@@ -89,11 +89,7 @@ def distortion_loss(distortion: torch.Tensor) -> torch.Tensor:
 def depth_to_points(depth: torch.Tensor, camera: Camera) -> torch.Tensor:
     """Camera-space points ``[H, W, 3]`` of a z-depth map ``[H, W]`` through the pixel centres
     ``((i + ½ − cx)/fx, (j + ½ − cy)/fy, 1)·depth`` (any principal point)."""
-    return _points(depth, _intrinsics(camera))
-
-
-def _intrinsics(camera: Camera) -> tuple[float, float, float, float]:
-    return (camera.fx, camera.fy, camera.cx, camera.cy)
+    return _points(depth, camera.pinhole)
 
 
 def _points(depth: torch.Tensor, intr) -> torch.Tensor:
@@ -126,7 +122,7 @@ def depth_to_normal(depth: torch.Tensor, camera: Camera, *, return_valid: bool =
         parallel or zero (see ``DEGENERATE_SINE``).
     """
     _check_depth_map(depth)
-    normals, valid = _normals(depth, _intrinsics(camera))
+    normals, valid = _normals(depth, camera.pinhole)
     return (normals, valid) if return_valid else normals
 
 
@@ -160,7 +156,7 @@ def depth_normal_consistency(median_depth: torch.Tensor, normal: torch.Tensor, c
         form: ``"paper"`` (``alpha − normalᵀN``) or ``"gof"`` (``1 − normalize(normal)ᵀN``).
     """
     _check_consistency_inputs(median_depth, normal, alpha, form)
-    return _consistency(median_depth, normal, _intrinsics(camera), alpha, form)
+    return _consistency(median_depth, normal, camera.pinhole, alpha, form)
 
 
 def _check_consistency_inputs(median_depth, normal, alpha, form: str) -> None:
@@ -205,7 +201,7 @@ def total_loss(out: dict, gt_image: torch.Tensor, camera: Camera, config: LossCo
         total`` (terms that were off or inactive are absent).
     """
     args, regularise = _loss_inputs(out, gt_image, config, iteration, l1_pair)
-    loss, terms = loss_terms(*args, _intrinsics(camera), config, regularise)
+    loss, terms = loss_terms(*args, camera.pinhole, config, regularise)
     return loss, {k: v.detach() for k, v in terms.items()}
 
 
@@ -298,7 +294,7 @@ class TrainingLoss:
         self.fallback_reason: str | None = None
         self.cuda_graphs = False
         if mode == "on" or (mode == "auto" and device.type == "cuda"):
-            self.intr = [torch.tensor(_intrinsics(c), dtype=torch.float64, device=device) for c in cameras]
+            self.intr = [torch.tensor(c.pinhole, dtype=torch.float64, device=device) for c in cameras]
             self.view_index = [torch.tensor(i, dtype=torch.int64, device=device) for i in range(len(cameras))]
             self.cuda_graphs = cuda_graphs and device.type == "cuda"
             options = dict(dynamic=False, fullgraph=True, backend=backend)

@@ -120,18 +120,18 @@ def neighbour_views(cameras, k: int, max_angle_deg: float) -> list[list[int]]:
     return out
 
 
-def _relative_pose_np(ref: np.ndarray, nbr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(R_rel.ravel() [9], t_rel [3])`` in float64 for two cameras given as ``[R.ravel(), t]`` rows of 12."""
-    r_ref, r_nbr = ref[:9].reshape(3, 3), nbr[:9].reshape(3, 3)
+def _relative_pose_np(ref: Camera, nbr: Camera) -> np.ndarray:
+    """``[R_rel.ravel(), t_rel]`` (12 floats, float64): the pose taking reference camera coordinates to the
+    neighbour's, ``R_rel = R_nbr R_refᵀ``, ``t_rel = t_nbr − R_rel t_ref``."""
+    r_ref, r_nbr = np.asarray(ref.R, np.float64), np.asarray(nbr.R, np.float64)
     rot = r_nbr @ r_ref.T
-    return rot.reshape(-1), nbr[9:] - rot @ ref[9:]
+    return np.concatenate([rot.reshape(-1), np.asarray(nbr.t, np.float64) - rot @ np.asarray(ref.t, np.float64)])
 
 
 def _relative_pose(ref: Camera, nbr: Camera, dtype, device) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(R_rel, t_rel)`` taking reference camera coordinates to the neighbour's (computed in float64)."""
-    rows = [np.concatenate([np.asarray(c.R, np.float64).reshape(-1), np.asarray(c.t, np.float64)]) for c in (ref, nbr)]
-    rot, trans = _relative_pose_np(*rows)
-    return (torch.tensor(rot.reshape(3, 3), dtype=dtype, device=device), torch.tensor(trans, dtype=dtype, device=device))
+    """``(R_rel [3, 3], t_rel [3])`` of :func:`_relative_pose_np` as tensors."""
+    row = torch.tensor(_relative_pose_np(ref, nbr), dtype=dtype, device=device)
+    return row[:9].view(3, 3), row[9:]
 
 
 def patch_offsets(patch: int, dtype=torch.float32, device=None) -> torch.Tensor:
@@ -172,11 +172,7 @@ def plane_warp(centres: torch.Tensor, depth: torch.Tensor, normal: torch.Tensor,
         and the point lies in front of the neighbour; ``S = patch²``.
     """
     rot, trans = _relative_pose(ref, nbr, depth.dtype, depth.device) if pose is None else pose
-    return _warp(centres, depth, normal, _intrinsics(ref), _intrinsics(nbr), rot, trans, patch)
-
-
-def _intrinsics(camera: Camera) -> tuple[float, float, float, float]:
-    return (camera.fx, camera.fy, camera.cx, camera.cy)
+    return _warp(centres, depth, normal, ref.pinhole, nbr.pinhole, rot, trans, patch)
 
 
 def _warp(centres, depth, normal, k_ref, k_nbr, rot, trans, patch: int):
@@ -240,7 +236,7 @@ def multiview_loss(median_depth: torch.Tensor, normal: torch.Tensor, alpha: torc
         does), and how many counted (a 0-d tensor).
     """
     rot, trans = _relative_pose(ref, nbr, median_depth.dtype, median_depth.device) if pose is None else pose
-    return _loss(median_depth, normal, alpha, grey_ref, grey_nbr, _intrinsics(ref), _intrinsics(nbr), rot, trans,
+    return _loss(median_depth, normal, alpha, grey_ref, grey_nbr, ref.pinhole, nbr.pinhole, rot, trans,
                  centres, config, nbr_depth)
 
 
@@ -286,10 +282,16 @@ class MultiViewTerm:
             its loss: some 70 small operations and as many in the backward become a few fused kernels, which on a
             GPU is the difference between host-bound and not); None: eager. If compiling fails the term warns and
             stays eager.
+        views_per_step: views trained per iteration: every view is rendered once an epoch of
+            ``⌈views / views_per_step⌉`` iterations (GOF's stack of views), so depths are kept from one epoch before
+            the term acts (a depth per view on the device, not needed earlier).
     """
 
-    def __init__(self, config: MultiViewConfig, cameras, images, seed: int, compile_backend: str | None = None):
+    def __init__(self, config: MultiViewConfig, cameras, images, seed: int, compile_backend: str | None = None,
+                 views_per_step: int = 1):
         self.config, self.cameras, self.seed = config, list(cameras), int(seed)
+        epoch = -(-len(self.cameras) // max(int(views_per_step), 1))
+        self.remember_from = config.from_iter - epoch - 1
         self._core = _loss
         if compile_backend is not None:
             self._core = torch.compile(_loss, dynamic=False, fullgraph=True, backend=compile_backend)
@@ -298,24 +300,22 @@ class MultiViewTerm:
         self.depth: list[torch.Tensor | None] = [None] * len(self.cameras)
         # every (view, neighbour) pose, built on the host and copied to the device once: a copy per pair on first use
         # would make the host wait for the GPU hundreds of times early in training
-        rows = [np.concatenate([np.asarray(c.R, np.float64).reshape(-1), np.asarray(c.t, np.float64)]) for c in cameras]
-        self._pose_index = {}
-        flat = []
-        for i, nb in enumerate(self.neighbours):
-            for m in nb:
-                self._pose_index[(i, m)] = len(flat)
-                flat.append(np.concatenate(_relative_pose_np(rows[i], rows[m])))
+        pairs = [(i, m) for i, nb in enumerate(self.neighbours) for m in nb]
+        self._pose_index = {pair: row for row, pair in enumerate(pairs)}
+        flat = [_relative_pose_np(self.cameras[i], self.cameras[m]) for i, m in pairs]
         device = images[0].device if len(images) else None
         self._poses = torch.tensor(np.asarray(flat, np.float32).reshape(-1, 12), device=device)
-        self._intr = torch.tensor([_intrinsics(c) for c in self.cameras], dtype=torch.float32, device=device)
+        self._intr = torch.tensor([c.pinhole for c in self.cameras], dtype=torch.float32, device=device)
 
     def active(self, iteration: int) -> bool:
         """Whether the term acts at ``iteration`` (on, and from ``from_iter``)."""
         return self.config.on and iteration >= self.config.from_iter
 
-    def remember(self, view: int, median_depth: torch.Tensor) -> None:
-        """Keep view ``view``'s rendered median depth ``[H, W]`` (a detached copy) for later occlusion tests."""
-        self.depth[view] = median_depth.detach().clone()
+    def remember(self, view: int, median_depth: torch.Tensor, iteration: int | None = None) -> None:
+        """Keep view ``view``'s rendered median depth ``[H, W]`` (a detached copy) for later occlusion tests; at an
+        ``iteration`` before ``remember_from``, nothing is kept."""
+        if iteration is None or iteration >= self.remember_from:
+            self.depth[view] = median_depth.detach().clone()
 
     def forget(self) -> None:
         """Drop every kept depth (a resumed run starts without them: until a view is rendered again, the pairs

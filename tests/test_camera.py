@@ -93,6 +93,7 @@ def test_intrinsics_are_declared_once_for_pinhole_and_lens_cameras():
     lens = LensCamera(**dataclasses.asdict(cam.intrinsics), k1=0.1, model="RADIAL")
     assert lens.intrinsics == cam.intrinsics and lens.intrinsics != lens  # value comparison, distortion dropped
     np.testing.assert_array_equal(lens.K, cam.K)
+    assert cam.pinhole == lens.pinhole == (300.0, 310.0, 170.2, 101.9)
     half, lens_half = cam.scaled(0.5), lens.scaled(166, 106)  # one resizing rule for both
     assert lens_half.intrinsics == half.intrinsics and lens_half.k1 == 0.1 and lens_half.model == "RADIAL"
     np.testing.assert_array_equal(half.R, cam.R)

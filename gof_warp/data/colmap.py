@@ -104,7 +104,7 @@ def read_colmap(root: Path, config) -> ScenePlan:
             where = f"{cam_file} (camera {im.camera_id})"
             lenses[im.camera_id] = lens_from_colmap(cam.model, cam.params, cam.width, cam.height, where)
         lens = lenses[im.camera_id]
-        K = undistorted_intrinsics(lens, config.undistort) if lens.has_distortion else (lens.fx, lens.fy, lens.cx, lens.cy)
+        K = undistorted_intrinsics(lens, config.undistort) if lens.has_distortion else lens.pinhole
         R, t = _pose(im, f"{pose_file} (image {im.name})")
         name = Path(im.name).with_suffix("").as_posix()
         try:
