@@ -259,12 +259,9 @@ class Trainer:
                                  cuda_graphs=config.loss_cuda_graphs, appearance=self.appearance)
         # the multi-view photometric term (loss.multiview, off by default), beside the loss and compiled where it is
         self.multiview = (MultiViewTerm(config.loss.multiview, self.cameras, self.images, config.seed,
-                                        compile_backend="inductor" if self.loss.compiled is not None else None)
+                                        compile_backend="inductor" if self.loss.compiled is not None else None,
+                                        views_per_step=self.views_per_step)
                           if config.loss.multiview.on else None)
-        # every view is rendered once per epoch (GOF's stack of views): from one epoch before the term acts, each
-        # view's depth is kept for its neighbours' occlusion test
-        epoch = -(-len(self.cameras) // self.views_per_step)
-        self._multiview_remember_from = config.loss.multiview.from_iter - epoch - 1
         if self.multiview is not None and self.ranks.active:
             log.warning("loss.multiview with %d processes: each tests occlusion against the depths of the views it "
                         "rendered, so the run is not the one-process run's up to summation order", self.ranks.world)
@@ -367,8 +364,7 @@ class Trainer:
         """``loss`` plus the weighted multi-view term of view ``idx`` once it is active (its value into ``terms``
         as ``multiview``); the view's median depth is kept for its neighbours' occlusion tests either way."""
         mv = self.multiview(out, idx, it) if self.multiview.active(it) else None
-        if it >= self._multiview_remember_from:  # a depth per view on the device: only from an epoch before it acts
-            self.multiview.remember(idx, out["median_depth"])
+        self.multiview.remember(idx, out["median_depth"], it)
         if mv is None:
             return loss
         weighted = self.config.loss.multiview.weight * mv[0]

@@ -226,6 +226,12 @@ def test_term_draws_the_same_pair_for_the_same_iteration():
     assert len(draws) > 1, "every iteration drew the same neighbour and patches"
     term.forget()
     assert term(out, 0, 5) is None
+    late = MultiViewTerm(MultiViewConfig(weight=0.5, from_iter=100), cams, images, seed=7, views_per_step=2)
+    assert late.remember_from == 100 - 2 - 1  # one epoch (4 views, 2 a step) before the term acts
+    late.remember(1, out["median_depth"], 96)
+    assert late.depth[1] is None
+    late.remember(1, out["median_depth"], 97)
+    assert torch.equal(late.depth[1], out["median_depth"])
 
 
 def test_compiled_term_matches_the_eager_one():
