@@ -37,18 +37,7 @@ def in_inner(p):
 
 def views_seeing(points, cameras) -> np.ndarray:
     """How many cameras' images (frusta, no occlusion) hold each point."""
-    rot = np.stack([c.R for c in cameras])
-    trans = np.stack([c.t for c in cameras])
-    k = np.array([[c.fx, c.fy, c.cx, c.cy, c.width, c.height] for c in cameras])
-    n = np.zeros(len(points), int)
-    for i in range(0, len(points), 20000):
-        pc = np.einsum("cij,nj->nci", rot, points[i:i + 20000]) + trans[None]
-        z = pc[..., 2]
-        zs = np.maximum(z, 1e-9)
-        u = k[:, 0] * pc[..., 0] / zs + k[:, 2]
-        v = k[:, 1] * pc[..., 1] / zs + k[:, 3]
-        n[i:i + 20000] = ((z > 0.05) & (u >= 0) & (u < k[:, 4]) & (v >= 0) & (v < k[:, 5])).sum(1)
-    return n
+    return sum(cam.in_image(points, near=0.05)[2].astype(int) for cam in cameras)
 
 
 def score(mesh_path: Path, cameras, gt_seen: np.ndarray) -> dict:
