@@ -21,6 +21,10 @@ geometry to a second photo directly:
   something else (the depth comes from when that view was last trained on, so no second render is needed).
   The test is one-sided: a surface rendered more than ``occlusion_tolerance`` behind where the neighbour renders it
   looks hidden and gets no pull from this term (only one rendered in front of it, or within the tolerance, does).
+* Each step compares a view with ``neighbours_per_step`` of its candidate neighbours (one, as PGSR, by default). A
+  patch's loss is the mean over the drawn neighbours it counts for, and the term the mean over the patches that
+  count for at least one: a surface near the edge of a capture, which only one or two of the candidates see, is then
+  compared whenever one of those is drawn, not only when it is the one.
 
 The gradient reaches ``D(p)`` and ``n(p)`` through the projected coordinates (the neighbour photo's spatial
 gradient), and so the Gaussians through the renderer's median-depth and normal outputs.
@@ -60,7 +64,11 @@ class MultiViewConfig:
         from_iter: first iteration it acts (PGSR's multi-view terms start at 7,000; GOF's regularisers at 15,000).
         pixels: patch centres sampled per view and step.
         patch: patch side in pixels (odd).
-        neighbours: candidate neighbours per view; one is drawn per step.
+        neighbours: candidate neighbours per view.
+        neighbours_per_step: how many of them are drawn per view and step (without replacement; at most
+            ``neighbours``). Each patch's loss is the mean ``1 − NCC`` over the drawn neighbours that see it, so a
+            surface that only one or two of the candidates see (the edge of a capture) is compared at every step
+            where one of those is drawn. 1 (PGSR's choice): one neighbour per step.
         max_angle_deg: neighbours' viewing directions within this angle of the reference's.
         alpha_min: reference alpha at the patch centre below which the patch is left out.
         min_std: reference patches whose grey standard deviation is below this are textureless: left out.
@@ -72,6 +80,7 @@ class MultiViewConfig:
     pixels: int = 4096
     patch: int = 7
     neighbours: int = 8
+    neighbours_per_step: int = 1
     max_angle_deg: float = 45.0
     alpha_min: float = 0.5
     min_std: float = 0.01
@@ -82,8 +91,11 @@ class MultiViewConfig:
             raise GofError(f"loss.multiview.weight must be a finite number >= 0, got {self.weight!r}")
         if int(self.patch) != self.patch or self.patch < 3 or self.patch % 2 == 0:
             raise GofError(f"loss.multiview.patch must be an odd integer >= 3, got {self.patch!r}")
-        if self.pixels < 1 or self.neighbours < 1:
-            raise GofError("loss.multiview: pixels and neighbours must be >= 1")
+        if self.pixels < 1 or self.neighbours < 1 or self.neighbours_per_step < 1:
+            raise GofError("loss.multiview: pixels, neighbours and neighbours_per_step must be >= 1")
+        if self.neighbours_per_step > self.neighbours:
+            raise GofError(f"loss.multiview.neighbours_per_step ({self.neighbours_per_step}) must be at most "
+                           f"neighbours ({self.neighbours})")
         if not 0.0 < self.max_angle_deg <= 180.0:
             raise GofError(f"loss.multiview.max_angle_deg must be in (0, 180], got {self.max_angle_deg!r}")
         if self.min_std < 0 or self.occlusion_tolerance < 0 or not 0.0 <= self.alpha_min < 1.0:
@@ -178,6 +190,13 @@ def plane_warp(centres: torch.Tensor, depth: torch.Tensor, normal: torch.Tensor,
 def _warp(centres, depth, normal, k_ref, k_nbr, rot, trans, patch: int):
     """:func:`plane_warp` with the intrinsics as ``(fx, fy, cx, cy)``: floats, or a ``[4]`` tensor (no per-camera
     constants for a compiled graph to specialise on) — and the relative pose given."""
+    points, ok = _cast(centres, depth, normal, k_ref, patch)
+    return _project(points, ok, k_nbr, rot, trans)
+
+
+def _cast(centres, depth, normal, k_ref, patch: int):
+    """The reference half of :func:`_warp`: ``(points [P, S, 3], ok [P, S])``, each patch pixel's ray cast onto its
+    patch's plane, in reference camera coordinates, and whether the ray meets the plane in front of the camera."""
     dt, dev = depth.dtype, depth.device
     off = patch_offsets(patch, dt, dev)
     q = centres.to(dt)[:, None, :] + off[None]  # [P, S, 2]
@@ -190,7 +209,12 @@ def _warp(centres, depth, normal, k_ref, k_nbr, rot, trans, patch: int):
     ok = (denom * (normal * centre_ray).sum(-1)[:, None] > 0) & (denom.abs() > 1e-4)
     scale = rho[:, None] / torch.where(ok, denom, torch.ones_like(denom))
     ok = ok & (scale > 0)
-    points = scale[..., None] * rays  # [P, S, 3] reference camera coordinates
+    return scale[..., None] * rays, ok
+
+
+def _project(points, ok, k_nbr, rot, trans):
+    """The neighbour half of :func:`_warp`: ``(uv [P, S, 2], z [P, S], ok [P, S])`` of reference-camera ``points``
+    in the neighbour (``ok`` also requires the point in front of it)."""
     x = points @ rot.T + trans
     z = x[..., 2]
     ok = ok & (z > 1e-6)
@@ -236,33 +260,43 @@ def multiview_loss(median_depth: torch.Tensor, normal: torch.Tensor, alpha: torc
         does), and how many counted (a 0-d tensor).
     """
     rot, trans = _relative_pose(ref, nbr, median_depth.dtype, median_depth.device) if pose is None else pose
-    return _loss(median_depth, normal, alpha, grey_ref, grey_nbr, ref.pinhole, nbr.pinhole, rot, trans,
-                 centres, config, nbr_depth)
+    return _loss(median_depth, normal, alpha, grey_ref, [grey_nbr], ref.pinhole, [nbr.pinhole], [rot], [trans],
+                 centres, config, [nbr_depth])
 
 
-def _loss(median_depth, normal, alpha, grey_ref, grey_nbr, k_ref, k_nbr, rot, trans, centres, config: MultiViewConfig,
-          nbr_depth):
-    """:func:`multiview_loss` on plain tensors (intrinsics as in :func:`_warp`): what the trainer compiles."""
+def _loss(median_depth, normal, alpha, grey_ref, grey_nbrs, k_ref, k_nbrs, rots, transs, centres,
+          config: MultiViewConfig, nbr_depths):
+    """The term against one or more neighbours, on plain tensors (intrinsics as in :func:`_warp`): what the trainer
+    compiles. ``grey_nbrs``, ``k_nbrs``, ``rots``, ``transs``, ``nbr_depths``: one entry per neighbour (a depth may
+    be None: no occlusion test). A patch's loss is the mean ``1 − NCC`` over the neighbours it counts for (the
+    module docstring's masks, per neighbour); the term is the mean over the patches that count for at least one,
+    and ``used`` their number. With one neighbour this is :func:`multiview_loss`."""
     s = config.patch
     u, v = centres[:, 0], centres[:, 1]
     d = median_depth[v, u]
     n = normal[v, u]
     n = n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    uv, z, ok = _warp(centres, d, n, k_ref, k_nbr, rot, trans, s)
-    h, w = grey_nbr.shape
-    inside = (uv[..., 0] >= 0.5) & (uv[..., 0] <= w - 0.5) & (uv[..., 1] >= 0.5) & (uv[..., 1] <= h - 0.5)
+    points, cast_ok = _cast(centres, d, n, k_ref, s)
     off = patch_offsets(s, torch.long, centres.device)
     ref_patch = grey_ref[v[:, None] + off[None, :, 1], u[:, None] + off[None, :, 0]]  # [P, S]
-    nbr_patch = _bilinear(grey_nbr, uv)
-    keep = (ok & inside).all(-1) & (alpha[v, u] > config.alpha_min) & (d > 0)
-    keep = keep & (ref_patch.std(-1) > config.min_std)
-    if nbr_depth is not None:
-        c = (s * s) // 2
-        seen = _nearest(nbr_depth, uv[:, c].detach())
-        keep = keep & (z[:, c].detach() <= seen * (1.0 + config.occlusion_tolerance))
-    per_patch = 1.0 - ncc(ref_patch, nbr_patch)
-    used = keep.sum()
-    loss = torch.where(keep, per_patch, torch.zeros_like(per_patch)).sum() / used.clamp_min(1)
+    informative = (alpha[v, u] > config.alpha_min) & (d > 0) & (ref_patch.std(-1) > config.min_std)
+    c = (s * s) // 2
+    total = torch.zeros_like(d)
+    count = torch.zeros_like(d)
+    for grey_nbr, k_nbr, rot, trans, nbr_depth in zip(grey_nbrs, k_nbrs, rots, transs, nbr_depths):
+        uv, z, ok = _project(points, cast_ok, k_nbr, rot, trans)
+        h, w = grey_nbr.shape
+        inside = (uv[..., 0] >= 0.5) & (uv[..., 0] <= w - 0.5) & (uv[..., 1] >= 0.5) & (uv[..., 1] <= h - 0.5)
+        keep = (ok & inside).all(-1) & informative
+        if nbr_depth is not None:
+            seen = _nearest(nbr_depth, uv[:, c].detach())
+            keep = keep & (z[:, c].detach() <= seen * (1.0 + config.occlusion_tolerance))
+        per_patch = 1.0 - ncc(ref_patch, _bilinear(grey_nbr, uv))
+        total = total + torch.where(keep, per_patch, torch.zeros_like(per_patch))
+        count = count + keep.to(count.dtype)
+    counted = count > 0
+    used = counted.sum()
+    loss = (total / count.clamp_min(1.0)).sum() / used.clamp_min(1)
     return loss, used
 
 
@@ -324,23 +358,31 @@ class MultiViewTerm:
 
     def __call__(self, out: dict, view: int, iteration: int) -> tuple[torch.Tensor, torch.Tensor] | None:
         """``(loss, used)`` of view ``view`` at ``iteration`` from the renderer's ``out`` (``median_depth``,
-        ``normal``, ``alpha``), against one of its neighbours; None when it has none, or when the drawn neighbour
-        has not been rendered yet (no depth for the occlusion test)."""
+        ``normal``, ``alpha``), against ``neighbours_per_step`` of its neighbours drawn from ``(seed, iteration,
+        view)``; None when it has none, or when none of the drawn ones has been rendered yet (no depth for the
+        occlusion test; drawn ones without a depth are left out)."""
         choices = self.neighbours[view]
         if not choices:
             return None
         rng = np.random.default_rng([self.seed, iteration, view, _SALT])
-        m = choices[int(rng.integers(len(choices)))]
-        if self.depth[m] is None:
+        per_step = min(self.config.neighbours_per_step, len(choices))
+        if per_step == 1:  # one integer draw, as the term has always drawn it: runs made before reproduce
+            drawn = [choices[int(rng.integers(len(choices)))]]
+        else:
+            drawn = [choices[int(i)] for i in rng.choice(len(choices), size=per_step, replace=False)]
+        drawn = [m for m in drawn if self.depth[m] is not None]
+        if not drawn:
             return None
         depth = out["median_depth"]
         h, w = depth.shape
         # drawn on the depth's device: a host-side draw copied over would wait for the GPU every step
         gen = torch.Generator(device=depth.device).manual_seed(int(rng.integers(2**62)))
         centres = sample_centres(h, w, self.config.pixels, self.config.patch, gen)
-        row = self._poses[self._pose_index[(view, m)]].to(depth.dtype)
-        args = (depth, out["normal"], out["alpha"], self.grey[view], self.grey[m], self._intr[view].to(depth.dtype),
-                self._intr[m].to(depth.dtype), row[:9].view(3, 3), row[9:], centres, self.config, self.depth[m])
+        rows = [self._poses[self._pose_index[(view, m)]].to(depth.dtype) for m in drawn]
+        args = (depth, out["normal"], out["alpha"], self.grey[view], [self.grey[m] for m in drawn],
+                self._intr[view].to(depth.dtype), [self._intr[m].to(depth.dtype) for m in drawn],
+                [r[:9].view(3, 3) for r in rows], [r[9:] for r in rows], centres, self.config,
+                [self.depth[m] for m in drawn])
         if self._core is not _loss:
             try:
                 return self._core(*args)

@@ -188,7 +188,8 @@ def test_neighbours_are_the_nearest_cameras_looking_the_same_way():
 
 
 @pytest.mark.parametrize("bad", [{"weight": -1.0}, {"weight": float("nan")}, {"patch": 4}, {"patch": 1},
-                                 {"pixels": 0}, {"max_angle_deg": 0.0}, {"alpha_min": 1.0}])
+                                 {"pixels": 0}, {"max_angle_deg": 0.0}, {"alpha_min": 1.0},
+                                 {"neighbours_per_step": 0}, {"neighbours": 2, "neighbours_per_step": 3}])
 def test_config_is_validated(bad):
     with pytest.raises(GofError):
         MultiViewConfig(**bad)
@@ -234,13 +235,73 @@ def test_term_draws_the_same_pair_for_the_same_iteration():
     assert torch.equal(late.depth[1], out["median_depth"])
 
 
-def test_compiled_term_matches_the_eager_one():
+def test_several_neighbours_average_over_those_that_see_a_patch():
+    """A patch's loss is the mean over the neighbours it counts for: a neighbour looking away adds nothing (the
+    patches keep the one that sees them), and two that see it give the mean of the two single-neighbour losses."""
+    ref, nbr, g_ref, g_nbr, d_ref, d_nbr, n_ref = _pair()
+    other = _camera(0.15, name="other")
+    g_oth, d_oth, _ = (torch.tensor(a, dtype=torch.float64) if isinstance(a, np.ndarray) else a
+                       for a in _plane_view(other))
+    away = look_at((0.0, 0.0, 0.0), (0.0, 0.0, -5.0), fx=40.0, width=48, height=48)
+    normal, alpha = _maps(d_ref, n_ref)
+    cfg = MultiViewConfig(weight=1.0, patch=7, min_std=1e-3)
+    centres = sample_centres(48, 48, 256, 7, torch.Generator().manual_seed(5))
+    depth = d_ref * 1.04  # off the plane, so that the losses differ from neighbour to neighbour
+
+    def multi(cams, greys, depths):
+        from gof_warp.multiview import _relative_pose
+        poses = [_relative_pose(ref, c, torch.float64, None) for c in cams]
+        return _loss(depth, normal, alpha, g_ref, greys, ref.pinhole, [c.pinhole for c in cams],
+                     [p[0] for p in poses], [p[1] for p in poses], centres, cfg, depths)
+
+    one = multiview_loss(depth, normal, alpha, g_ref, g_nbr, ref, nbr, centres, cfg, nbr_depth=d_nbr)
+    with_away = multi([nbr, away], [g_nbr, g_nbr], [d_nbr, None])
+    assert int(with_away[1]) == int(one[1]) > 100
+    assert torch.allclose(with_away[0], one[0], rtol=1e-12)
+    # per patch: the mean of 1 - NCC over the neighbours that see it, each from the single-neighbour loss
+    both = multi([nbr, other], [g_nbr, g_oth], [d_nbr, d_oth])
+    losses, counts = [], []
+    for cam, g, d in ((nbr, g_nbr, d_nbr), (other, g_oth, d_oth)):
+        rows = [multiview_loss(depth, normal, alpha, g_ref, g, ref, cam, centres[i:i + 1], cfg, nbr_depth=d)
+                for i in range(len(centres))]
+        losses.append(torch.stack([r[0] for r in rows]))
+        counts.append(torch.stack([r[1] for r in rows]).to(torch.float64))
+    count = counts[0] + counts[1]
+    assert int((counts[0] != counts[1]).sum()) > 0 and int((count == 2).sum()) > 100  # some patches one, most both
+    expect = ((losses[0] + losses[1])[count > 0] / count[count > 0]).mean()
+    assert int(both[1]) == int((count > 0).sum())
+    assert torch.allclose(both[0], expect, rtol=1e-10)
+
+
+def test_term_draws_several_neighbours_without_replacement():
+    cams = [_camera(x, name=f"c{i}") for i, x in enumerate((-0.5, -0.2, 0.1, 0.4))]
+    views = [_plane_view(c) for c in cams]
+    images = [torch.tensor(g, dtype=torch.float32)[..., None].expand(48, 48, 3).contiguous() for g, _, _ in views]
+    cfg = MultiViewConfig(weight=0.5, from_iter=1, neighbours=3, neighbours_per_step=3, pixels=64, patch=5)
+    term = MultiViewTerm(cfg, cams, images, seed=2)
+    seen = []
+    term._core = lambda *args: seen.append(len(args[4])) or _loss(*args)  # count the neighbours each call gets
+    _, d0, n0 = views[0]
+    out = {"median_depth": torch.tensor(d0, dtype=torch.float32) * 1.03, "alpha": torch.ones(48, 48),
+           "normal": torch.tensor(n0, dtype=torch.float32).expand(48, 48, 3)}
+    term.remember(1, torch.tensor(views[1][1], dtype=torch.float32))
+    assert term(out, 0, 4) is not None and seen[-1] == 1  # only one of the three has a depth yet
+    for i, (_, d, _) in enumerate(views):
+        term.remember(i, torch.tensor(d, dtype=torch.float32))
+    loss, used = term(out, 0, 4)
+    assert seen[-1] == 3 and int(used) > 0 and float(loss) > 0
+    with pytest.raises(GofError, match="at most"):
+        MultiViewConfig(weight=0.5, neighbours=2, neighbours_per_step=3)
+
+
+@pytest.mark.parametrize("per_step", [1, 2])
+def test_compiled_term_matches_the_eager_one(per_step):
     """What the trainer compiles (traced here by aot_eager: the same graph, no code generated) gives the eager value
-    and gradient, for two views in a row (one graph serves every view)."""
+    and gradient, for two views in a row (one graph serves every view), against one or two neighbours a step."""
     cams = [_camera(x, name=f"c{i}") for i, x in enumerate((-0.5, -0.2, 0.1))]
     views = [_plane_view(c) for c in cams]
     images = [torch.tensor(g, dtype=torch.float32)[..., None].expand(48, 48, 3).contiguous() for g, _, _ in views]
-    cfg = MultiViewConfig(weight=0.5, from_iter=1, neighbours=2, pixels=128, patch=5)
+    cfg = MultiViewConfig(weight=0.5, from_iter=1, neighbours=2, neighbours_per_step=per_step, pixels=128, patch=5)
     eager = MultiViewTerm(cfg, cams, images, seed=3)
     compiled = MultiViewTerm(cfg, cams, images, seed=3, compile_backend="aot_eager")
     for term in (eager, compiled):
@@ -275,7 +336,8 @@ def test_training_with_the_term_on(tmp_path, device):
                                 "densify": {"start_iter": 100},
                                 "loss": {"regularization_from_iter": 100,
                                          "multiview": {"weight": 0.2, "from_iter": 8, "pixels": 64, "patch": 5,
-                                                       "neighbours": 2, "max_angle_deg": 90.0}}})
+                                                       "neighbours": 2, "neighbours_per_step": 2,
+                                                       "max_angle_deg": 90.0}}})
     trainer = Trainer(scene, cfg, tmp_path / "run", device)
     trainer.run()
     with_term = [h for h in trainer.history if "multiview" in h]
