@@ -22,6 +22,11 @@ from .kernels.renderer import RenderOutputs, render_backward, render_forward
 
 _PARAM_NAMES = ("means", "quats", "scales", "opacities", "sh_dc", "sh_rest")
 _PARAM_TYPES = (wp.vec3, wp.vec4, wp.vec3, None, wp.vec3, wp.vec3)
+#: which parameters the kernels' host functions only pass to launches (``_wp``): all but the opacities, also a struct
+#: field (their gradients are only launched)
+_LAUNCH_ONLY = (True, True, True, False, True, True)
+_MODEL_ATTRS = ("means", "rotations", "scales", "opacities", "active_sh_degree")  # what render() reads of a model
+_MISSING = object()
 
 
 @dataclass
@@ -164,10 +169,13 @@ def _stream_scope(device: torch.device):
     return wp.ScopedDevice("cpu")
 
 
-def _wp(t: torch.Tensor, dtype=None):
+def _wp(t: torch.Tensor, dtype=None, launch_only: bool = False):
+    """``t`` as a Warp array (no copy); ``launch_only``: as the lighter array descriptor that ``wp.launch`` takes, for
+    an array that is only passed to kernels (not set in a struct, viewed or asked for its device or shape)."""
     if t.numel() == 0:  # e.g. sh[:, 1:] of a degree-0 model: torch keeps the parent's strides, Warp wants packed ones
         t = torch.empty(t.shape, dtype=t.dtype, device=t.device)
-    return wp.from_torch(t.contiguous(), dtype=dtype)
+    # requires_grad=False: the kernels get no gradient buffer (the inputs come in requiring grad: no .detach() needed)
+    return wp.from_torch(t.contiguous(), dtype=dtype, requires_grad=False, return_ctype=launch_only)
 
 
 class _RasterizeFunction(torch.autograd.Function):
@@ -180,23 +188,26 @@ class _RasterizeFunction(torch.autograd.Function):
                 torch.empty(H * W, **f32), torch.empty(H * W, 3, **f32), torch.empty(H * W, **f32)]  # fmt: skip
         types = (wp.vec3, None, None, None, wp.vec3, None)
         with _stream_scope(device):
-            args = [_wp(x.detach(), t) for x, t in zip((means, quats, scales, opacities, sh_dc, sh_rest), _PARAM_TYPES)]
+            args = [_wp(x, t, launch_only) for x, t, launch_only in
+                    zip((means, quats, scales, opacities, sh_dc, sh_rest), _PARAM_TYPES, _LAUNCH_ONLY)]
             out = RenderOutputs(*[_wp(o, t) for o, t in zip(outs, types)])
             _, state = render_forward(*args[:4], tuple(args[4:]), sh_degree, cam, settings, out=out, sizer=sizer)
             radii = wp.to_torch(state.radii)
             if stats is not None:
                 stats._record_radii(radii)
-        ctx.state, ctx.stats, ctx.types = state, stats, types
+            radii = radii.clone()
+        ctx.state, ctx.stats, ctx.types, ctx.device = state, stats, types, device
         ctx.shapes = [x.shape for x in (means, quats, scales, opacities, sh_dc, sh_rest)]
         ctx.mark_non_differentiable(radii)
-        return (*[o.reshape(H, W, -1).squeeze(-1) if o.dim() == 1 else o.reshape(H, W, 3) for o in outs], radii.clone())
+        ctx.set_materialize_grads(False)  # outputs without a gradient come as None (zeros made below, none for radii)
+        return (*[o.view(H, W) if o.dim() == 1 else o.view(H, W, 3) for o in outs], radii)
 
     @staticmethod
     def backward(ctx, g_rgb, g_alpha, g_accum, g_median, g_normal, g_dist, _g_radii):
         state, stats = ctx.state, ctx.stats
         if state is None:
             raise RuntimeError("gof_warp.render: backward called twice through the same render (retain_graph is not supported)")
-        device = torch.device(wp.device_to_torch(state.device))
+        device = ctx.device
         num_pixels = state.cam.height * state.cam.width
         flat = []
         for g, t in zip((g_rgb, g_alpha, g_accum, g_median, g_normal, g_dist), ctx.types):
@@ -205,12 +216,12 @@ class _RasterizeFunction(torch.autograd.Function):
         grad_in = [torch.zeros(s, dtype=torch.float32, device=device) for s in ctx.shapes]
         with _stream_scope(device):
             grad_out = RenderOutputs(*[_wp(g, t) for g, t in zip(flat, ctx.types)])
-            wp_in = tuple(_wp(g, t) for g, t in zip(grad_in, _PARAM_TYPES))
+            wp_in = tuple(_wp(g, t, launch_only=True) for g, t in zip(grad_in, _PARAM_TYPES))
             g2d = g2abs = None
             if stats is not None:
-                g2d, g2abs = _wp(stats.grad2d, wp.vec2), _wp(stats.grad2d_abs)
+                g2d, g2abs = _wp(stats.grad2d, wp.vec2, launch_only=True), _wp(stats.grad2d_abs)
             render_backward(state, grad_out, (*wp_in[:4], tuple(wp_in[4:])), g2d, g2abs, zeroed=True)
-        ctx.state = None  # free the forward state
+        ctx.state = None  # the forward state is not used after this
         return (*grad_in, None, None, None, None, None)
 
 
@@ -299,7 +310,8 @@ def rasterize(means, quats, scales, opacities, sh, camera: Camera, *, sh_degree=
     rgb, alpha, accum, median, normal, dist, radii = _RasterizeFunction.apply(
         means, quats, scales, opacities, sh_dc, sh_rest, cam, settings, sh_degree, stats, tile_lists
     )
-    depth = torch.where(alpha > 0, accum / torch.where(alpha > 0, alpha, torch.ones_like(alpha)), torch.zeros_like(alpha))
+    seen = alpha > 0
+    depth = torch.where(seen, accum / torch.where(seen, alpha, 1.0), 0.0)
     return dict(rgb=rgb, alpha=alpha, depth=depth, accum_depth=accum, median_depth=median, normal=normal, distortion=dist, radii=radii)
 
 
@@ -313,15 +325,17 @@ def render(gaussians, camera: Camera, *, config=None, stats=None, sh_degree=None
     overrides ``gaussians.active_sh_degree``; ``tile_lists``: see :func:`rasterize`. See :func:`rasterize` for the
     outputs.
     """
-    for attr in ("means", "rotations", "scales", "opacities", "active_sh_degree"):
-        if not hasattr(gaussians, attr):
+    # each attribute read once: the activated parameters are computed on every access (torch ops and autograd nodes)
+    model = {attr: getattr(gaussians, attr, _MISSING) for attr in _MODEL_ATTRS}
+    for attr, value in model.items():
+        if value is _MISSING:
             raise TypeError(f"render: gaussians has no attribute {attr!r} (expected a gof_warp.model.Gaussians)")
-    if hasattr(gaussians, "sh_dc") and hasattr(gaussians, "sh_rest"):
-        sh = (gaussians.sh_dc, gaussians.sh_rest)
-    elif hasattr(gaussians, "sh"):
-        sh = gaussians.sh
-    else:
-        raise TypeError("render: gaussians has neither 'sh_dc'/'sh_rest' nor 'sh' (expected a gof_warp.model.Gaussians)")
-    degree = gaussians.active_sh_degree if sh_degree is None else sh_degree
-    return rasterize(gaussians.means, gaussians.rotations, gaussians.scales, gaussians.opacities, sh, camera,
+    sh = (getattr(gaussians, "sh_dc", _MISSING), getattr(gaussians, "sh_rest", _MISSING))
+    if sh[0] is _MISSING or sh[1] is _MISSING:
+        sh = getattr(gaussians, "sh", _MISSING)
+        if sh is _MISSING:
+            raise TypeError("render: gaussians has neither 'sh_dc'/'sh_rest' nor 'sh' "
+                            "(expected a gof_warp.model.Gaussians)")
+    degree = model["active_sh_degree"] if sh_degree is None else sh_degree
+    return rasterize(model["means"], model["rotations"], model["scales"], model["opacities"], sh, camera,
                      sh_degree=degree, config=config, stats=stats, check_values=False, tile_lists=tile_lists)  # fmt: skip

@@ -130,7 +130,8 @@ def _view(base: wp.array, offset: int, dtype, shape: tuple, strides: tuple) -> w
 def sh_parts(sh) -> tuple[wp.array, wp.array]:
     """The SH coefficients as the kernels read them: ``(sh_dc [N] vec3, sh_rest [N, K−1] vec3)``.
 
-    ``sh`` is either that pair (a model's two parameters, returned as given after a shape check) or one
+    ``sh`` is either that pair (a model's two parameters, returned as given after a shape check; a pair of array
+    descriptors, ``wp.from_torch(..., return_ctype=True)``, is returned unchecked: they are only launched) or one
     ``[N, K] vec3`` array, returned as two strided views of it (no copy; gradients written through the views land
     in the array's own ``grad``-shaped layout).
     """
@@ -138,6 +139,8 @@ def sh_parts(sh) -> tuple[wp.array, wp.array]:
         if len(sh) != 2:
             raise ValueError(f"sh: expected (sh_dc, sh_rest), got {len(sh)} arrays")
         dc, rest = sh
+        if not isinstance(dc, wp.array) and not isinstance(rest, wp.array):
+            return dc, rest  # array descriptors (wp.from_torch(..., return_ctype=True)): only launched, not checked
         if dc.ndim != 1 or rest.ndim != 2 or rest.shape[0] != dc.shape[0] or dc.dtype != wp.vec3 or rest.dtype != wp.vec3:
             raise ValueError(f"sh: expected sh_dc [N] vec3 and sh_rest [N, K-1] vec3, got {dc.shape} {dc.dtype.__name__} and "
                              f"{rest.shape} {rest.dtype.__name__}")
@@ -156,9 +159,10 @@ def prepare_view(means, quats, scales, opacities, sh, sh_degree: int, cam: Camer
     Returns ``(splats, lists, count)``: camera-space per-Gaussian data (``[N]`` each), the depth-sorted
     Gaussian indices of every tile, and the number of (Gaussian, tile) entries (allocated ones with a ``sizer``:
     see :func:`~.binning.bin_gaussians`). Memory: ``BYTES_PER_GAUSSIAN · N + BYTES_PER_TILE_ENTRY · count``.
+    The arguments as in :func:`render_forward`.
     """
-    device = means.device
-    n = means.shape[0]
+    device = opacities.device
+    n = opacities.shape[0]
 
     def empty(dtype):
         return wp.empty(n, dtype=dtype, device=device)
@@ -189,7 +193,9 @@ def render_forward(means, quats, scales, opacities, sh, sh_degree: int, cam: Cam
     Args:
         means ``[N] vec3`` world; quats ``[N] vec4`` unit wxyz; scales ``[N] vec3`` > 0; opacities ``[N]``;
         sh ``[N, K] vec3`` with ``K ≥ (sh_degree+1)²``, or the pair ``(sh_dc [N] vec3, sh_rest [N, K−1] vec3)``
-        (:func:`sh_parts`); cam, settings: see ``render_types``.
+        (:func:`sh_parts`); cam, settings: see ``render_types``. All but ``opacities`` are only passed to launches, so
+        they may also be array descriptors (``wp.from_torch(..., return_ctype=True)``, lighter to make and to launch
+        with; ``sh`` then as a pair); the device and ``N`` are read from ``opacities``.
         profile: optional list; on CUDA, ``(stage name, wp.Event)`` pairs marking the end of each stage
             are appended (timings for benchmarks).
         tiled: force the shared-memory (True) or plain (False) per-pixel kernels; default: see
@@ -197,8 +203,8 @@ def render_forward(means, quats, scales, opacities, sh, sh_degree: int, cam: Cam
         sizer: a :class:`~.binning.TileListSizer` kept across renders: no host–device synchronisation to size
             the tile lists (``None``: exact sizing, one synchronisation).
     """
-    device = means.device
-    n = means.shape[0]
+    device = opacities.device
+    n = opacities.shape[0]
     num_pixels = cam.width * cam.height
     _mark(profile, "start", device)
     if out is None:
@@ -236,8 +242,10 @@ def render_backward(state: RenderState, grad_out: RenderOutputs, grad_in: tuple,
     Args:
         grad_out: per-pixel output gradients (same layout as :class:`RenderOutputs`).
         grad_in: ``(means, quats, scales, opacities, sh)`` gradient arrays, added into; ``sh``'s as in
-            :func:`render_forward` (one ``[N, K]`` array or the ``(sh_dc, sh_rest)`` pair).
-        grad2d ``[N] vec2``, grad2d_abs ``[N]``: densification statistics, added into (optional, together).
+            :func:`render_forward` (one ``[N, K]`` array or the ``(sh_dc, sh_rest)`` pair). They are only passed to
+            launches and may be array descriptors (see :func:`render_forward`).
+        grad2d ``[N] vec2``, grad2d_abs ``[N]``: densification statistics, added into (optional, together);
+            ``grad2d`` may be an array descriptor.
         profile: as in :func:`render_forward`.
         zeroed: the SH gradient arrays of ``grad_in`` hold zeros (fresh buffers): their rows are written instead of
             added into, which spares a load per coefficient (same result).
@@ -249,15 +257,14 @@ def render_backward(state: RenderState, grad_out: RenderOutputs, grad_in: tuple,
     packed = wp.zeros((n, GRAD_WIDTH), dtype=float, device=device)
     if n and packed.ptr % 16:
         raise RuntimeError("render_backward: the packed gradient rows must be 16-byte aligned")
-    with_stats = grad2d is not None
-    abs_arr = grad2d_abs if with_stats else wp.zeros(1, dtype=float, device=device)
-    grads = make_struct(SplatGrads, packed=packed, grad2d_abs=abs_arr)
+    with_stats = grad2d is not None  # without: the kernels never touch grad2d / grad2d_abs, passed as null arrays
+    grads = make_struct(SplatGrads, packed=packed, grad2d_abs=grad2d_abs if with_stats else None)
     _launch_raster(rasterize_backward, rasterize_backward_tiled, state.tiled, settings,
                    [state.lists, state.splats, cam, settings, state.aux, grad_out.as_struct(), int(with_stats)], [grads], device)  # fmt: skip
     _mark(profile, "raster_backward", device)
     gP, g_og, g_col = (_column_view(packed, col, dtype) for col, dtype in ((GRAD_P, wp.mat33), (GRAD_O_G, wp.vec3), (GRAD_COLOUR, wp.vec3)))
     wp.launch(finish_splat_grads, dim=n, inputs=[packed, state.P, state.mu_v, cam, int(with_stats)],
-              outputs=[grad_in[3], grad2d if with_stats else wp.zeros(1, dtype=wp.vec2, device=device)], device=device,
+              outputs=[grad_in[3], grad2d if with_stats else None], device=device,
               record_tape=False)  # fmt: skip
     means, quats, scales, _, (sh_dc, sh_rest) = state.inputs
     grad_dc, grad_rest = sh_parts(grad_in[4])

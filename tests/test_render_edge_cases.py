@@ -277,3 +277,36 @@ def test_validation_errors():
     with pytest.raises(ValueError, match="stats"):
         rasterize(*p, cam, stats=DensifyStats(5))
     assert math.isclose(RenderConfig().k_max, math.sqrt(2 * math.log(255)))
+
+
+def test_render_reads_each_model_attribute_once():
+    """A model's activated parameters are computed on every access (normalize, exp, sigmoid: torch ops on the GPU):
+    ``render`` reads each once, and renders what the model holds, SH pair or one tensor."""
+    from gof_warp.model import Gaussians
+    from gof_warp.render import render
+
+    torch.manual_seed(0)
+    g = Gaussians.random_in_box(40, sh_degree=1)
+    reads: dict[str, int] = {}
+
+    class Counting:
+        def __getattr__(self, name):
+            reads[name] = reads.get(name, 0) + 1
+            return getattr(g, name)
+
+    cam = look_at((3.0, 0.0, 1.0), (0.0, 0.0, 0.0), fx=20.0, width=16, height=16)
+    out = render(Counting(), cam)
+    assert reads == {"means": 1, "rotations": 1, "scales": 1, "opacities": 1, "active_sh_degree": 1, "sh_dc": 1,
+                     "sh_rest": 1}, reads
+    assert torch.equal(out["rgb"], render(g, cam)["rgb"])
+
+    class OneTensor:  # no sh_dc / sh_rest: the [N, K, 3] tensor
+        def __init__(self):
+            for name in ("means", "rotations", "scales", "opacities", "active_sh_degree"):
+                setattr(self, name, getattr(g, name))
+            self.sh = torch.cat([g.sh_dc[:, None], g.sh_rest], dim=1)
+
+    assert torch.equal(render(OneTensor(), cam)["rgb"], out["rgb"])
+    with pytest.raises(TypeError, match="neither 'sh_dc'/'sh_rest' nor 'sh'"):
+        render(type("NoSH", (), {n: getattr(g, n) for n in ("means", "rotations", "scales", "opacities",
+                                                           "active_sh_degree")})(), cam)
