@@ -5,8 +5,18 @@ views, the preset's rig); the term (``MultiViewConfig`` defaults) with every dep
 neighbours. Prints (1) per reference view and neighbour the loss and the patches used at k = 1, 0.98, 0.95, over the
 whole image and its top eighth of rows (the lowest cameras' top band of the shell); (2) the patch-weighted sum of the
 loss over every 7th view and its neighbours, by part (shell below z = 0.1, shell above z = 1.1, ground), for k from
-0.985 to 1.015. ``python multiview_gt.py``
+0.985 to 1.015. ``python multiview_gt.py [MODEL.ply]``
+
+With ``MODEL.ply`` (a trained model, e.g. ``../extract/pack_model.py unpack`` of a packed run), (2) is printed twice:
+with the neighbours' exact depths in the occlusion test, as above, and with the median depths that model renders for
+them (what the term reads in training, where the neighbours' renders are only as right as the model), to see whether
+the term's landscape on the exact surface moves when the occlusion test reads a trained model's depths; and a third
+time with the model's rendered normals in place of the exact ones at the reference view (each patch's plane tilted as
+in training), the occlusion test against the exact depths.
 """
+
+import sys
+
 
 import numpy as np
 import torch
@@ -38,10 +48,31 @@ def view(i):
     return cache[i]
 
 
-def loss(i, m, centres, k):
+model_depth = {}
+
+
+def rendered(m):
+    """``(median depth, camera-space normal)`` the model of ``sys.argv[1]`` renders for training view ``m`` (cached)."""
+    if m not in model_depth:
+        from gof_warp.model import Gaussians
+        from gof_warp.render import render
+
+        if "model" not in model_depth:
+            model_depth["model"] = Gaussians.load_ply(sys.argv[1])
+        with torch.no_grad():
+            out = render(model_depth["model"], train[m])
+        model_depth[m] = (out["median_depth"], out["normal"])
+    return model_depth[m]
+
+
+def loss(i, m, centres, k, occluders="exact"):
     rgb, d, n, a, _ = view(i)
     rgb2, d2, _, _, _ = view(m)
-    value, used = multiview_loss(d * k, n, a, grey(rgb), grey(rgb2), train[i], train[m], centres, cfg, nbr_depth=d2)
+    nbr_depth = rendered(m)[0] if occluders == "model" else d2
+    if occluders == "model normals":
+        n = rendered(i)[1]
+    value, used = multiview_loss(d * k, n, a, grey(rgb), grey(rgb2), train[i], train[m], centres, cfg,
+                                 nbr_depth=nbr_depth)
     return float(value), int(used)
 
 
@@ -56,22 +87,27 @@ for i in list(np.argsort(elevation)[:2]) + [50]:
         print(f"view {i} (elevation {elevation[i]:.1f}) -> {m} ({elevation[m]:.1f}): " + "; ".join(cells), flush=True)
 
 ks = (0.985, 0.99, 0.995, 1.0, 1.005, 1.01, 1.015)
-total = {part: np.zeros(len(ks)) for part in ("shell below z = 0.1", "shell above z = 1.1", "ground")}
-for i in range(0, 100, 7):
-    world = view(i)[4]
-    centres = sample_centres(W, W, 3000, 7, torch.Generator().manual_seed(i))
-    c = centres.numpy()
-    z, radius = world[c[:, 1], c[:, 0], 2], np.linalg.norm(world[c[:, 1], c[:, 0]], axis=-1)
-    parts = {"shell below z = 0.1": (radius > 5.9) & (z < 0.1) & (z > -0.5),
-             "shell above z = 1.1": (radius > 5.9) & (z > 1.1), "ground": np.abs(z + 0.9) < 0.01}
-    for m in neighbours[i]:
-        for part, mask in parts.items():
-            if mask.sum() < 20:
-                continue
-            chosen = centres[torch.tensor(mask)]
-            for j, k in enumerate(ks):
-                value, used = loss(i, m, chosen, k)
-                total[part][j] += value * used
-print("(2) patch-weighted loss by part, depth scaled by k")
-for part, v in total.items():
-    print(f"{part}: " + "  ".join(f"{k}: {x:.1f}" for k, x in zip(ks, v)))
+for occluders in ("exact",) + (("model", "model normals") if len(sys.argv) > 1 else ()):
+    total = {part: np.zeros(len(ks)) for part in ("shell below z = 0.1", "shell above z = 1.1", "ground")}
+    used_at = {part: np.zeros(len(ks), int) for part in total}
+    for i in range(0, 100, 7):
+        world = view(i)[4]
+        centres = sample_centres(W, W, 3000, 7, torch.Generator().manual_seed(i))
+        c = centres.numpy()
+        z, radius = world[c[:, 1], c[:, 0], 2], np.linalg.norm(world[c[:, 1], c[:, 0]], axis=-1)
+        parts = {"shell below z = 0.1": (radius > 5.9) & (z < 0.1) & (z > -0.5),
+                 "shell above z = 1.1": (radius > 5.9) & (z > 1.1), "ground": np.abs(z + 0.9) < 0.01}
+        for m in neighbours[i]:
+            for part, mask in parts.items():
+                if mask.sum() < 20:
+                    continue
+                chosen = centres[torch.tensor(mask)]
+                for j, k in enumerate(ks):
+                    value, used = loss(i, m, chosen, k, occluders)
+                    total[part][j] += value * used
+                    used_at[part][j] += used
+    what = ("the reference's rendered normals, occlusion test against the exact depths" if occluders == "model normals"
+            else f"occlusion test against the {occluders} depths")
+    print(f"(2) patch-weighted loss by part, depth scaled by k; {what} (patches used in brackets)")
+    for part, v in total.items():
+        print(f"{part}: " + "  ".join(f"{k}: {x:.1f} ({u})" for k, x, u in zip(ks, v, used_at[part])), flush=True)
