@@ -22,8 +22,9 @@ from .kernels.renderer import RenderOutputs, render_backward, render_forward
 
 _PARAM_NAMES = ("means", "quats", "scales", "opacities", "sh_dc", "sh_rest")
 _PARAM_TYPES = (wp.vec3, wp.vec4, wp.vec3, None, wp.vec3, wp.vec3)
-#: which parameters the kernels' host functions only pass to launches (``_wp``): all but the opacities, also a struct
-#: field (their gradients are only launched)
+#: which parameters the renderer's host functions only pass to launches, so that they can go as Warp's light array
+#: descriptors (``_wp(launch_only=True)``): all but the opacities, which are also a struct field. Every input
+#: gradient is only launched.
 _LAUNCH_ONLY = (True, True, True, False, True, True)
 _MODEL_ATTRS = ("means", "rotations", "scales", "opacities", "active_sh_degree")  # what render() reads of a model
 _MISSING = object()
