@@ -5,7 +5,7 @@ views, the preset's rig); the term (``MultiViewConfig`` defaults) with every dep
 neighbours. Prints (1) per reference view and neighbour the loss and the patches used at k = 1, 0.98, 0.95, over the
 whole image and its top eighth of rows (the lowest cameras' top band of the shell); (2) the patch-weighted sum of the
 loss over every 7th view and its neighbours, by part (shell below z = 0.1, shell above z = 1.1, ground), for k from
-0.985 to 1.015. ``python multiview_gt.py [MODEL.ply]``
+0.985 to 1.015 (``--ks`` other factors, e.g. finer ones near 1). ``python multiview_gt.py [MODEL.ply] [--ks K,K,...]``
 
 With ``MODEL.ply`` (a trained model, e.g. ``../extract/pack_model.py unpack`` of a packed run), (2) is printed twice:
 with the neighbours' exact depths in the occlusion test, as above, and with the median depths that model renders for
@@ -15,7 +15,7 @@ time with the model's rendered normals in place of the exact ones at the referen
 in training), the occlusion test against the exact depths.
 """
 
-import sys
+import argparse
 
 
 import numpy as np
@@ -25,6 +25,11 @@ from gof_warp.multiview import MultiViewConfig, grey, multiview_loss, neighbour_
 from gof_warp.synthetic.presets import get_preset
 from gof_warp.synthetic.render import RayCaster
 
+ap = argparse.ArgumentParser()
+ap.add_argument("model", nargs="?")
+ap.add_argument("--ks", default="0.985,0.99,0.995,1.0,1.005,1.01,1.015")
+ap.add_argument("--skip-pairs", action="store_true", help="leave out (1), the per-pair table")
+args = ap.parse_args()
 W = 200
 preset = get_preset("background_full")
 train, _ = preset.rig.cameras(W, W, n_train=100)
@@ -52,13 +57,13 @@ model_depth = {}
 
 
 def rendered(m):
-    """``(median depth, camera-space normal)`` the model of ``sys.argv[1]`` renders for training view ``m`` (cached)."""
+    """``(median depth, camera-space normal)`` the model given renders for training view ``m`` (cached)."""
     if m not in model_depth:
         from gof_warp.model import Gaussians
         from gof_warp.render import render
 
         if "model" not in model_depth:
-            model_depth["model"] = Gaussians.load_ply(sys.argv[1])
+            model_depth["model"] = Gaussians.load_ply(args.model)
         with torch.no_grad():
             out = render(model_depth["model"], train[m])
         model_depth[m] = (out["median_depth"], out["normal"])
@@ -78,16 +83,17 @@ def loss(i, m, centres, k, occluders="exact"):
 
 centres_all = sample_centres(W, W, 4096, 7, torch.Generator().manual_seed(0))
 elevation = np.degrees(np.arcsin((np.stack([c.center for c in train])[:, 2] + 0.35) / 4))
-print("(1) k = 1 / 0.98 / 0.95: loss (patches), whole image | top eighth of the rows")
-for i in list(np.argsort(elevation)[:2]) + [50]:
+if not args.skip_pairs:
+    print("(1) k = 1 / 0.98 / 0.95: loss (patches), whole image | top eighth of the rows")
+for i in [] if args.skip_pairs else list(np.argsort(elevation)[:2]) + [50]:
     top = centres_all[centres_all[:, 1] < W // 8]
     for m in neighbours[i]:
         cells = [f"{loss(i, m, centres_all, k)[0]:.3f} ({loss(i, m, centres_all, k)[1]}) | "
                  f"{loss(i, m, top, k)[0]:.3f} ({loss(i, m, top, k)[1]})" for k in (1.0, 0.98, 0.95)]
         print(f"view {i} (elevation {elevation[i]:.1f}) -> {m} ({elevation[m]:.1f}): " + "; ".join(cells), flush=True)
 
-ks = (0.985, 0.99, 0.995, 1.0, 1.005, 1.01, 1.015)
-for occluders in ("exact",) + (("model", "model normals") if len(sys.argv) > 1 else ()):
+ks = tuple(float(k) for k in args.ks.split(","))
+for occluders in ("exact",) + (("model", "model normals") if args.model else ()):
     total = {part: np.zeros(len(ks)) for part in ("shell below z = 0.1", "shell above z = 1.1", "ground")}
     used_at = {part: np.zeros(len(ks), int) for part in total}
     for i in range(0, 100, 7):
