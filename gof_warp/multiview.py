@@ -306,9 +306,10 @@ class MultiViewTerm:
     """The term over a fixed list of training views, as the trainer uses it.
 
     Holds each view's grey photo, its neighbours (:func:`neighbour_views`) and the median depth of its last render
-    (the occlusion test). :meth:`__call__` draws a neighbour and the patch centres from ``(seed, iteration, view)``
-    alone, so a resumed run draws the same ones. The kept depths are not checkpointed: a resumed run skips the pairs
-    whose neighbour it has not rendered since, so it is not bit for bit the uninterrupted run. With several
+    (the occlusion test). :meth:`__call__` draws its neighbours (``neighbours_per_step``) and the patch centres from
+    ``(seed, iteration, view)`` alone, so a resumed run draws the same ones. The kept depths are not checkpointed: a
+    resumed run skips the pairs whose neighbour it has not rendered since, so it is not bit for bit the uninterrupted
+    run. With several
     processes each keeps the depths of the views it rendered, so the term is not the one-process run's either.
 
     Args:

@@ -29,6 +29,22 @@ GROUND_Z = -0.9
 BANDS = ((0.0, 0.4), (0.4, 2.0), (2.0, 10.0))
 
 
+def term_on_model(model: str, scene_dir: str, per_step: int, refs: list[int]):
+    """``(cameras, photos, model, term)``: a scene's training cameras and photos, the model of ``model``, and the
+    multi-view term over them (weight 1, ``per_step`` neighbours a step, acting from iteration 0) holding, as the
+    occlusion depths it reads, the model's own median depths for the views ``refs`` and their neighbours (as in
+    training)."""
+    scene = load_scene(scene_dir)
+    cams = scene.train_cameras
+    images = [torch.from_numpy(v.image).float() / 255.0 for v in scene.train]
+    g = Gaussians.load_ply(model)
+    term = MultiViewTerm(MultiViewConfig(weight=1.0, neighbours_per_step=per_step, from_iter=0), cams, images, seed=0)
+    with torch.no_grad():
+        for m in sorted(set(refs) | {m for r in refs for m in term.neighbours[r]}):
+            term.remember(m, render(g, cams[m])["median_depth"])
+    return cams, images, g, term
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("model")
@@ -36,17 +52,9 @@ def main() -> int:
     ap.add_argument("--per-step", type=int, default=8)
     ap.add_argument("--every", type=int, default=10)
     a = ap.parse_args()
-    scene = load_scene(a.scene)
-    cams = scene.train_cameras
-    images = [torch.from_numpy(v.image).float() / 255.0 for v in scene.train]
-    g = Gaussians.load_ply(a.model)
-    cfg = MultiViewConfig(weight=1.0, neighbours_per_step=a.per_step, from_iter=0)
-    term = MultiViewTerm(cfg, cams, images, seed=0)
+    cams = load_scene(a.scene).train_cameras
     refs = list(range(0, len(cams), a.every))
-    needed = sorted(set(refs) | {m for r in refs for m in term.neighbours[r]})
-    with torch.no_grad():  # the occlusion depths the term reads: the model's own renders, as in training
-        for m in needed:
-            term.remember(m, render(g, cams[m])["median_depth"])
+    cams, images, g, term = term_on_model(a.model, a.scene, a.per_step, refs)
     x = g.means.detach().numpy().astype(np.float64)
     r = np.linalg.norm(x, axis=1)
     shell = (r > SHELL_RADIUS - 0.5) & (r < SHELL_RADIUS + 0.5) & (x[:, 2] > GROUND_Z + 0.1)
