@@ -1,0 +1,91 @@
+"""Is the test PSNR of n-GPU trainings within a margin of one GPU's? (issue 17, dp_psnr.sh)
+
+Equal trainings on one GPU already differ by tenths of a dB (the GPU's atomics change the summation order, and
+densification turns that into another model; session 23 measured 0.49 dB between two equal runs). So a single pair of
+runs cannot tell 0.1 dB. This reads several runs a side (``metrics_g{n}_s{seed}.json``, one per GPU count n and seed)
+and applies the two one-sided tests for equivalence: the n-GPU mean is within ``--margin`` dB of the one-GPU mean when
+the 90 % confidence interval of the difference (Welch's, unequal variances) lies inside (−margin, +margin).
+
+    python benchmarks/distributed/psnr_equivalence.py RESULTS_DIR [--margin 0.1] [--out summary.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import re
+import sys
+from pathlib import Path
+
+from scipy import stats
+
+RUN_NAME = re.compile(r"metrics_g(\d+)_s(\d+)\.json$")
+
+
+def welch_interval(a: list[float], b: list[float], confidence: float = 0.90) -> dict:
+    """Mean of b − mean of a with Welch's ``confidence`` interval; a and b need two or more values each."""
+    if len(a) < 2 or len(b) < 2:
+        raise ValueError(f"need two or more runs a side, got {len(a)} and {len(b)}")
+    ma, mb = sum(a) / len(a), sum(b) / len(b)
+    va = sum((x - ma) ** 2 for x in a) / (len(a) - 1)
+    vb = sum((x - mb) ** 2 for x in b) / (len(b) - 1)
+    se2 = va / len(a) + vb / len(b)
+    if se2 == 0.0:
+        return {"difference": mb - ma, "se": 0.0, "df": math.inf, "low": mb - ma, "high": mb - ma}
+    df = se2**2 / ((va / len(a)) ** 2 / (len(a) - 1) + (vb / len(b)) ** 2 / (len(b) - 1))
+    half = stats.t.ppf(0.5 + confidence / 2.0, df) * math.sqrt(se2)
+    return {"difference": mb - ma, "se": math.sqrt(se2), "df": df, "low": mb - ma - half, "high": mb - ma + half}
+
+
+def read_runs(folder: Path) -> dict[int, dict[int, dict]]:
+    """{GPU count: {seed: metrics.json contents}} from the folder's ``metrics_g{n}_s{seed}.json``."""
+    runs: dict[int, dict[int, dict]] = {}
+    for f in sorted(folder.glob("metrics_g*_s*.json")):
+        m = RUN_NAME.search(f.name)
+        if m:
+            runs.setdefault(int(m.group(1)), {})[int(m.group(2))] = json.loads(f.read_text())
+    return runs
+
+
+def summarise(runs: dict[int, dict[int, dict]], margin: float) -> dict:
+    """Per GPU count: the runs' PSNRs, mean and spread; against one GPU: the difference, its 90 % interval, verdict."""
+    out: dict = {"margin_db": margin, "sides": {}}
+    psnr = {n: [r["test"]["psnr"] for _, r in sorted(side.items())] for n, side in sorted(runs.items())}
+    for n, side in sorted(runs.items()):
+        values = psnr[n]
+        mean = sum(values) / len(values)
+        sd = math.sqrt(sum((x - mean) ** 2 for x in values) / (len(values) - 1)) if len(values) > 1 else None
+        row = {"seeds": sorted(side), "test_psnr": values, "mean": mean, "sd": sd,
+               "train_time_s": [r["train_time_s"] for _, r in sorted(side.items())],
+               "num_gaussians": [r["num_gaussians"] for _, r in sorted(side.items())],
+               "largest_loss_ratio": [r.get("loss_spikes", {}).get("max_ratio") for _, r in sorted(side.items())]}
+        if n != 1 and 1 in psnr and len(values) > 1 and len(psnr[1]) > 1:
+            w = welch_interval(psnr[1], values)
+            row["against_one_gpu"] = {**w, "within_margin": bool(-margin < w["low"] and w["high"] < margin)}
+        out["sides"][n] = row
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("folder", type=Path)
+    ap.add_argument("--margin", type=float, default=0.1)
+    ap.add_argument("--out", type=Path)
+    a = ap.parse_args(argv)
+    s = summarise(read_runs(a.folder), a.margin)
+    for n, row in s["sides"].items():
+        sd = f"{row['sd']:.3f}" if row["sd"] is not None else "-"
+        line = f"{n} GPU(s): {len(row['test_psnr'])} runs, test PSNR mean {row['mean']:.3f} dB, sd {sd}"
+        if "against_one_gpu" in row:
+            w = row["against_one_gpu"]
+            line += (f"; minus one GPU {w['difference']:+.3f} dB, 90 % interval [{w['low']:+.3f}, {w['high']:+.3f}]"
+                     f" -> {'within' if w['within_margin'] else 'NOT shown within'} ±{a.margin} dB")
+        print(line)
+    if a.out:
+        a.out.write_text(json.dumps(s, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
