@@ -61,7 +61,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import torch
 
@@ -104,6 +104,11 @@ class DensifyConfig:
     # > 0 (needs initial points and late_prune_interval): each late prune also removes the Gaussians that a training
     # camera's rays meet nearer than this fraction of the nearest initial point it sees
     near_camera_fraction: float = 0.0
+    # not GOF (off by default): at these iterations remove the Gaussians behind the rendered surface in every training
+    # view (gof_warp.hidden.behind_surface, by more than hidden_margin × its depth), whose tails the opacity field
+    # counts in front of that surface
+    hidden_prune_iters: list[int] = field(default_factory=list)
+    hidden_margin: float = 0.01
 
     def __post_init__(self):
         if self.metric not in METRICS:
@@ -121,6 +126,10 @@ class DensifyConfig:
                            f"{self.near_camera_fraction}")
         if self.near_camera_fraction > 0 and self.late_prune_interval == 0:
             raise GofError("DensifyConfig.near_camera_fraction acts at the late prunes: set late_prune_interval > 0")
+        if any(int(i) != i or i < 1 for i in self.hidden_prune_iters):
+            raise GofError(f"DensifyConfig.hidden_prune_iters must be iterations >= 1, got {self.hidden_prune_iters}")
+        if not self.hidden_margin > 0:
+            raise GofError(f"DensifyConfig.hidden_margin must be > 0, got {self.hidden_margin}")
 
 
 @dataclass
@@ -141,6 +150,7 @@ class DensifyReport:
     opacity_reset: bool = False
     late_pruned: bool = False  # a prune after densification ran (late_prune_interval)
     num_near_camera: int = 0  # of num_pruned: Gaussians in front of a camera (near_camera_fraction)
+    num_hidden: int = 0  # Gaussians removed as hidden behind the rendered surface (hidden_prune_iters)
     filter_3d_due: bool = False  # the trainer should recompute the 3D filter now (GOF schedule)
 
 
@@ -253,6 +263,7 @@ class Densifier:
         self.history: list[tuple[int, int]] = []
         # Gaussians the late prunes removed, by reason (each counted once, in this order)
         self.late_pruned = {"transparent": 0, "too_large": 0, "near_camera": 0}
+        self.hidden_pruned = 0  # Gaussians the hidden prunes removed
 
     # ------------------------------------------------------------------ hooks
     def update_sh_degree(self, iteration: int, gaussians: Gaussians) -> int:
@@ -304,11 +315,13 @@ class Densifier:
                 and iteration % cfg.late_prune_interval == 0)
 
     def step(self, iteration: int, gaussians: Gaussians, optimizer, extent: float,
-             near_camera: Callable[[], torch.Tensor] | None = None) -> DensifyReport:
+             near_camera: Callable[[], torch.Tensor] | None = None,
+             hidden: Callable[[], torch.Tensor] | None = None) -> DensifyReport:
         """Densify/prune and reset opacities when the schedule says so (call after backward, before
         ``optimizer.step()``). Replaced parameters have no ``.grad``, so Adam skips them this
         iteration, as in GOF. ``near_camera()`` (``[N]`` bool, called only at a late prune): the Gaussians in
-        front of a camera (``near_camera_fraction``)."""
+        front of a camera (``near_camera_fraction``). ``hidden()`` (``[N]`` bool, called at ``hidden_prune_iters``,
+        after any other change this step): the Gaussians behind the rendered surface."""
         cfg = self.config
         n0 = len(gaussians)
         report = DensifyReport(iteration=iteration, num_before=n0, num_after=n0)
@@ -322,6 +335,8 @@ class Densifier:
                 report.opacity_reset = True
         elif self.late_prune_due(iteration):
             self._late_prune(iteration, gaussians, optimizer, extent, near_camera, report)
+        if hidden is not None and iteration in cfg.hidden_prune_iters:
+            self._hidden_prune(iteration, gaussians, optimizer, hidden, report)
         report.filter_3d_due = report.densified or (
             iteration % cfg.filter_3d_interval == 0 and cfg.stop_iter < iteration < cfg.filter_3d_until_iter)
         report.num_after = len(gaussians)
@@ -349,6 +364,19 @@ class Densifier:
         self.late_pruned["too_large"] += report.num_pruned - report.num_near_camera - n_transparent
         self.late_pruned["near_camera"] += report.num_near_camera
         if report.num_pruned:
+            replace_params(gaussians, optimizer, keep=~mask)
+            self.stats = None
+
+    def _hidden_prune(self, iteration: int, gaussians, optimizer, hidden, report: DensifyReport) -> None:
+        mask = hidden()
+        if mask.shape != (len(gaussians),):
+            raise GofError(f"hidden prune at iteration {iteration}: a mask of shape {list(mask.shape)} for "
+                           f"{len(gaussians)} Gaussians")
+        report.num_hidden = int(mask.sum())
+        if report.num_hidden == len(gaussians):
+            raise GofError(f"the hidden prune at iteration {iteration} would remove all {len(gaussians)} Gaussians")
+        self.hidden_pruned += report.num_hidden
+        if report.num_hidden:
             replace_params(gaussians, optimizer, keep=~mask)
             self.stats = None
 
@@ -403,12 +431,13 @@ class Densifier:
         gen = None if self.generator is None else (str(self.generator.device), self.generator.get_state())
         return {"config": asdict(self.config), "history": list(self.history),
                 "stats": None if self.stats is None else asdict(self.stats), "generator": gen,
-                "late_pruned": dict(self.late_pruned)}
+                "late_pruned": dict(self.late_pruned), "hidden_pruned": self.hidden_pruned}
 
     def load_state_dict(self, state: dict) -> None:
         self.history = [tuple(h) for h in state["history"]]
         self.stats = None if state["stats"] is None else _Stats(**state["stats"])
         self.late_pruned = dict(state.get("late_pruned", self.late_pruned))  # older checkpoints: none
+        self.hidden_pruned = int(state.get("hidden_pruned", 0))
         if state["generator"] is not None:
             device, gstate = state["generator"]
             self.generator = torch.Generator(device=device)

@@ -41,6 +41,7 @@ from .distributed import Ranks
 from .devices import cudnn_benchmark, peak_memory
 from .errors import GofError
 from .filter3d import update_filter_3d
+from .hidden import behind_surface
 from .init_points import initial_point_cloud
 from .interrupts import TrainingInterrupted, deferred_interrupt  # noqa: F401 - TrainingInterrupted public here
 from .io_utils import ensure_writable_dir, write_json_atomic, write_text_atomic
@@ -245,6 +246,8 @@ class Trainer:
             update_filter_3d(self.gaussians, self.cameras, near=self.render_config.near)
         self.optimizer = make_optimizer(self.gaussians, config.optim, scene.extent)
         self.densifier = Densifier(config.densify)
+        self._hidden = (lambda: behind_surface(self.gaussians, self.cameras, margin=config.densify.hidden_margin,
+                                               config=self.render_config)) if config.densify.hidden_prune_iters else None
         self.appearance = None
         self.appearance_optimizer = None
         if config.appearance:
@@ -298,7 +301,10 @@ class Trainer:
         with torch.no_grad(), _stage("train.densify"):
             if self.densifier.densify_due(it):
                 self.ranks.reduce_densify_stats(self.densifier.stats)
-            report = self.densifier.step(it, g, self.optimizer, self.scene.extent, near_camera=self._in_front)
+            report = self.densifier.step(it, g, self.optimizer, self.scene.extent, near_camera=self._in_front,
+                                         hidden=self._hidden)
+            if report.num_hidden:
+                log.info("iteration %d: removed %d Gaussians hidden behind the rendered surface", it, report.num_hidden)
             if len(g) == 0:
                 raise TrainingError(f"every Gaussian was pruned at iteration {it}: check the scene's near plane "
                                     "(render.near), background colour and densify.min_opacity")
@@ -526,6 +532,8 @@ class Trainer:
             "loss_spikes": self.spikes.report(),
             # Gaussians removed after densification (densify.late_prune_interval; None: off, GOF's schedule)
             "late_pruned": dict(self.densifier.late_pruned) if cfg.densify.late_prune_interval else None,
+            # Gaussians removed as hidden behind the rendered surface (densify.hidden_prune_iters; None: off)
+            "hidden_pruned": self.densifier.hidden_pruned if cfg.densify.hidden_prune_iters else None,
             # calls, exact measurements, overflows (renders that dropped entries: see kernels.binning.TileListSizer)
             "tile_lists": None if self.tile_lists is None else self.tile_lists.stats(),
             "loss_compiled": self.loss.compiled is not None, "loss_compile_fallback": self.loss.fallback_reason,

@@ -1,0 +1,70 @@
+#!/usr/bin/env bash
+# Session 28: the hidden prune (densify.hidden_prune_iters) on the far shell of background_full and on a compact scene,
+# each run alone on its own GPU of a several-GPU host (RUNS: "name|scene|overrides" a line; scenes bgf and def are
+# generated on GPU 0: background_full 400x400 with the session-19 points from .s17pts, default 400x400; 100 views each).
+#   PHASE=train TRAIN_S=500 bash benchmarks/real_captures/hidden_prune_gpu.sh    # generate, train (resumable)
+#   PHASE=score bash benchmarks/real_captures/hidden_prune_gpu.sh                # finish, mesh, score, pack
+# bgf: extract --min-views 2, scored on the whole seen region and the ground-and-objects crop; def: extract with the
+# defaults, scored on the seen region. Writes $OUT/hp_<name>/ (metrics, mesh json, scores) and packed geometry.
+set -u
+S=/tmp/hp; mkdir -p $S
+PHASE=${PHASE:-train}; TRAIN_S=${TRAIN_S:-500}
+HID='densify.hidden_prune_iters=[15000,20000,25000,29000]'
+RUNS=${RUNS:-"bgf_hidden|bgf|$HID
+bgf_hidden005|bgf|$HID densify.hidden_margin=0.005
+def_base|def|
+def_hidden|def|$HID"}
+t0=$(date +%s)
+if [ ! -f $S/bgf/transforms_train.json ]; then
+  python3 -m gof_warp.synthetic --preset background_full --resolution 400 400 --views 100 --out $S/bgf --device cuda:0 \
+    --force --quiet && cp .s17pts/background_full/points3d.ply $S/bgf/ || { echo "bgf generation failed"; exit 1; }
+fi
+if [ ! -f $S/def/transforms_train.json ]; then
+  python3 -m gof_warp.synthetic --preset default --resolution 400 400 --views 100 --out $S/def --device cuda:0 \
+    --force --quiet || { echo "def generation failed"; exit 1; }
+fi
+echo "scenes at $(( $(date +%s) - t0 )) s"
+k=0
+while IFS='|' read -r name scene over; do
+  [ -n "$name" ] || continue
+  run=$S/run_$name
+  if [ ! -f $run/metrics.json ]; then
+    # shellcheck disable=SC2086
+    CUDA_VISIBLE_DEVICES=$k timeout -s INT -k 30 $((TRAIN_S - $(date +%s) + t0)) python3 -m gof_warp.train $S/$scene \
+      --out $run checkpoint_every=1000 $over --resume --quiet >> $S/$name.train.log 2>&1 &
+  fi
+  k=$((k + 1))
+done <<< "$RUNS"
+wait
+echo "training phase ended at $(( $(date +%s) - t0 )) s"
+for f in $S/*.train.log; do echo "$f: $(grep -h 'done:' "$f" | tail -1)"; done
+for r in $S/run_*; do echo "$r: $(ls $r/checkpoints 2>/dev/null | tail -1)"; done
+[ "$PHASE" = score ] || exit 0
+k=0
+while IFS='|' read -r name scene over; do
+  [ -n "$name" ] || continue
+  run=$S/run_$name; R="$OUT/hp_$name"; mkdir -p "$R"
+  (
+    export CUDA_VISIBLE_DEVICES=$k
+    [ -f $run/metrics.json ] || { echo "$name: not trained"; exit 0; }
+    cp $run/metrics.json $run/config.yaml "$R/"
+    ev=(python3 -m gof_warp.evaluate --gt $S/$scene/gt_mesh.ply --scene $S/$scene)
+    if [ "$scene" = bgf ]; then
+      python3 -m gof_warp.extract $run --min-views 2 --out $run/mesh_views2.ply > $R/extract.log 2>&1
+      "${ev[@]}" --mesh $run/mesh_views2.ply --json "$R/evaluate_seen_views2.json" > /dev/null 2>&1
+      "${ev[@]}" --mesh $run/mesh_views2.ply --crop -2 -2 -1.1 2 2 1 --json "$R/evaluate_crop_views2.json" > /dev/null 2>&1
+      cp $run/mesh_views2.json "$R/" 2>/dev/null
+    else
+      python3 -m gof_warp.extract $run > $R/extract.log 2>&1
+      "${ev[@]}" --mesh $run/mesh_tetra.ply --json "$R/evaluate_seen.json" > /dev/null 2>&1
+      cp $run/mesh_tetra.json "$R/" 2>/dev/null
+    fi
+    python3 benchmarks/extract/pack_model.py pack $run "$OUT/${name}_geometry.npz" > /dev/null 2>&1
+    echo "$name scored at $(( $(date +%s) - t0 )) s"
+  ) &
+  k=$((k + 1))
+done <<< "$RUNS"
+wait
+for f in $S/*.train.log; do cp "$f" "$OUT/" 2>/dev/null; done
+(cd "$OUT" && tar czf hp_results.tgz hp_* ./*.train.log && rm -rf hp_*/ ./*.train.log)
+ls -la "$OUT"

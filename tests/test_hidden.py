@@ -1,0 +1,134 @@
+"""Gaussians hidden behind the rendered surface (gof_warp.hidden) and the densifier's hidden prune (CPU)."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from gof_warp.camera import look_at
+from gof_warp.densify import Densifier, DensifyConfig
+from gof_warp.errors import GofError
+from gof_warp.hidden import behind_surface
+from gof_warp.model import Gaussians
+from gof_warp.optim import OptimConfig, check_optimizer_state, make_optimizer
+
+W, H, F = 32, 24, 30.0
+
+
+def _cameras():
+    """Two views of the wall at z = 0 from z = 2, and one above x = 2.5, beyond the wall's edge (x <= 1.5)."""
+    kw = dict(up=(0.0, 1.0, 0.0), fx=F, width=W, height=H)
+    return [look_at((0.3, 0.0, 2.0), (0.0, 0.0, 0.0), name="a", **kw),
+            look_at((-0.3, 0.1, 2.0), (0.0, 0.0, 0.0), name="b", **kw),
+            look_at((2.5, 0.0, 2.0), (2.5, 0.0, 0.0), name="c", **kw)]
+
+
+def _wall_and_probes():
+    """An opaque wall of flat Gaussians on z = 0 (|x|, |y| <= 1.5), then the probes, by name."""
+    g = np.arange(-1.5, 1.5001, 0.05)
+    wall = np.stack(np.meshgrid(g, g, indexing="ij"), -1).reshape(-1, 2)
+    means = [np.c_[wall, np.zeros(len(wall))]]
+    scales = [np.tile([0.04, 0.04, 0.002], (len(wall), 1))]
+    probes = {  # name: (centre, scale, hidden?)
+        "blob behind the wall": ((0.0, 0.0, -0.3), 0.1, True),
+        "small, in front of the wall": ((0.1, 0.1, 0.5), 0.02, False),
+        "just behind, within the margin": ((0.05, -0.05, -0.01), 0.005, False),
+        "behind the wall's plane, beyond its edge, seen by c": ((2.5, 0.0, -0.3), 0.02, False),
+        "behind the wall, in no image": ((0.0, 9.0, -0.3), 0.02, False),
+    }
+    for c, s, _ in probes.values():
+        means.append(np.array([c]))
+        scales.append(np.full((1, 3), s))
+    means, scales = np.concatenate(means), np.concatenate(scales)
+    n = len(means)
+    gs = Gaussians(means=torch.tensor(means, dtype=torch.float32), quats=torch.tensor([[1.0, 0, 0, 0]] * n),
+                   log_scales=torch.tensor(np.log(scales), dtype=torch.float32),
+                   opacity_logits=torch.full((n,), math.log(0.99 / 0.01)), sh_dc=torch.zeros(n, 3), max_sh_degree=0)
+    first = len(means) - len(probes)
+    return gs, {name: (first + k, hid) for k, (name, (_, _, hid)) in enumerate(probes.items())}, first
+
+
+def test_behind_surface_golden_wall():
+    gs, probes, n_wall = _wall_and_probes()
+    hidden = behind_surface(gs, _cameras(), margin=0.01)
+    assert hidden.dtype == torch.bool and hidden.shape == (len(gs),)
+    for name, (i, expected) in probes.items():
+        assert bool(hidden[i]) == expected, name
+    assert not hidden[:n_wall].any()  # the wall is the surface
+    # a margin wider than the blob's 15 % keeps it; the probe 0.5 % behind goes once the margin is below that
+    assert not behind_surface(gs, _cameras(), margin=0.2)[probes["blob behind the wall"][0]]
+    assert behind_surface(gs, _cameras(), margin=0.001)[probes["just behind, within the margin"][0]]
+    # one view that finds the blob in front of its rendered surface (here: no wall in the way) keeps it
+    no_wall = gs.subset(torch.arange(n_wall, len(gs)))
+    assert not behind_surface(no_wall, _cameras(), margin=0.01).any()
+
+
+def test_behind_surface_rejects_bad_arguments():
+    gs, _, _ = _wall_and_probes()
+    with pytest.raises(ValueError, match="margin"):
+        behind_surface(gs, _cameras(), margin=0.0)
+    with pytest.raises(ValueError, match="no cameras"):
+        behind_surface(gs, [], margin=0.01)
+
+
+def _model(n=6):
+    dc = torch.zeros(n, 3)
+    dc[:, 0] = torch.arange(n, dtype=torch.float32)  # identities
+    return Gaussians(means=torch.randn(n, 3), quats=torch.tensor([[1.0, 0, 0, 0]] * n),
+                     log_scales=torch.full((n, 3), -4.0), opacity_logits=torch.zeros(n), sh_dc=dc, max_sh_degree=0)
+
+
+def test_densifier_prunes_hidden_gaussians_at_its_iterations_only():
+    cfg = DensifyConfig(stop_iter=100, interval=10, hidden_prune_iters=[150, 170])
+    d = Densifier(cfg)
+    gs = _model()
+    opt = make_optimizer(gs, OptimConfig(), 1.0)
+    calls = []
+
+    def hidden():
+        calls.append(len(gs))
+        mask = torch.zeros(len(gs), dtype=torch.bool)
+        mask[[0, len(gs) - 1]] = True  # the first and the last
+        return mask
+
+    for it in (120, 149, 151):
+        assert d.step(it, gs, opt, 1.0, hidden=hidden).num_hidden == 0
+    assert not calls and len(gs) == 6
+    r = d.step(150, gs, opt, 1.0, hidden=hidden)
+    assert r.num_hidden == 2 and r.num_after == 4 and calls == [6]
+    assert gs.sh_dc[:, 0].round().long().tolist() == [1, 2, 3, 4]
+    check_optimizer_state(gs, opt)
+    d.step(170, gs, opt, 1.0, hidden=hidden)
+    assert d.hidden_pruned == 4 and len(gs) == 2
+    again = Densifier(cfg)
+    again.load_state_dict(json.loads(json.dumps(d.state_dict(), default=lambda o: None)))
+    assert again.hidden_pruned == 4
+    with pytest.raises(GofError, match="would remove all 2"):
+        d.step(170, gs, opt, 1.0, hidden=lambda: torch.ones(len(gs), dtype=torch.bool))
+    assert len(gs) == 2
+    for bad in ({"hidden_prune_iters": [0]}, {"hidden_prune_iters": [1.5]}, {"hidden_margin": 0.0}):
+        with pytest.raises(GofError):
+            DensifyConfig(**bad)
+
+
+def test_training_with_a_hidden_prune_reports_it(tiny_train_scene, tmp_path):
+    from gof_warp.data import load_scene
+    from gof_warp.preset_choice import resolve_config
+    from gof_warp.trainer import Trainer
+
+    over = ["iterations=6", "log_every=2", "checkpoint_every=100", "model.sh_degree=0", "model.init=random",
+            "model.random_init_points=300", "densify.start_iter=100", "densify.stop_iter=100",
+            "densify.filter_3d_until_iter=0", "loss.regularization_from_iter=100", "densify.hidden_prune_iters=[4]",
+            "densify.hidden_margin=0.01"]
+    cfg = resolve_config("quick", over, None)
+    scene = load_scene(tiny_train_scene)
+    trainer = Trainer(scene, cfg, tmp_path / "run", "cpu")
+    expected = int(behind_surface(trainer.gaussians, trainer.cameras, margin=0.01,
+                                  config=trainer.render_config).sum())
+    metrics = trainer.run()
+    assert isinstance(metrics["hidden_pruned"], int) and metrics["hidden_pruned"] > 0
+    assert expected > 0  # 300 random points in a box: some lie inside the objects' renders' surfaces
+    assert json.loads((tmp_path / "run" / "metrics.json").read_text())["hidden_pruned"] == metrics["hidden_pruned"]
+    assert np.isfinite(metrics["test"]["psnr"])
