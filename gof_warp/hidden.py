@@ -6,7 +6,9 @@ Gaussian before its peak too, by its tail ``α G(t)`` (``kernels.opacity_field``
 reaches through it and raises the field in front of it. On the synthetic ``background_full`` scene (session 28,
 ``benchmarks/real_captures/README.md``) ~2,900 round Gaussians of 12–19 cm that training left 5–100 cm behind the
 far shell put the field at 0.41 five centimetres in front of the shell (0.04 without them): the mesh stood ~5 cm in
-front of the photographed surface.
+front of the photographed surface. Removed during training, the renders go on without them (the ground's rim there
+was complete in both runs); left out of a finished model at extraction instead, they open surfaces behind the
+half-transparent layer they backed (session 28's measurements).
 
 * :func:`behind_surface` — the Gaussians whose centres lie behind the rendered median depth by more than
   ``margin`` × that depth in every training view whose image holds them where the render shows a surface.
