@@ -10,7 +10,7 @@ import torch
 from gof_warp.camera import look_at
 from gof_warp.densify import Densifier, DensifyConfig
 from gof_warp.errors import GofError
-from gof_warp.hidden import behind_surface
+from gof_warp.hidden import behind_by, behind_surface, surface_depth_ratio
 from gof_warp.model import Gaussians
 from gof_warp.optim import OptimConfig, check_optimizer_state, make_optimizer
 
@@ -60,6 +60,10 @@ def test_behind_surface_golden_wall():
     # a margin wider than the blob's 15 % keeps it; the probe 0.5 % behind goes once the margin is below that
     assert not behind_surface(gs, _cameras(), margin=0.2)[probes["blob behind the wall"][0]]
     assert behind_surface(gs, _cameras(), margin=0.001)[probes["just behind, within the margin"][0]]
+    ratio = surface_depth_ratio(gs, _cameras())  # the margins above from one set of renders
+    assert math.isinf(ratio[probes["behind the wall, in no image"][0]])
+    for m in (0.001, 0.01, 0.2):
+        assert torch.equal(behind_by(ratio, m), behind_surface(gs, _cameras(), margin=m))
     # one view that finds the blob in front of its rendered surface (here: no wall in the way) keeps it
     no_wall = gs.subset(torch.arange(n_wall, len(gs)))
     assert not behind_surface(no_wall, _cameras(), margin=0.01).any()
@@ -69,6 +73,8 @@ def test_behind_surface_rejects_bad_arguments():
     gs, _, _ = _wall_and_probes()
     with pytest.raises(ValueError, match="margin"):
         behind_surface(gs, _cameras(), margin=0.0)
+    with pytest.raises(ValueError, match="margin"):
+        behind_by(torch.ones(3), -0.1)
     with pytest.raises(ValueError, match="no cameras"):
         behind_surface(gs, [], margin=0.01)
 
@@ -113,15 +119,12 @@ def test_densifier_prunes_hidden_gaussians_at_its_iterations_only():
             DensifyConfig(**bad)
 
 
-def test_training_with_a_hidden_prune_reports_it(tiny_train_scene, tmp_path):
+def test_training_with_a_hidden_prune_reports_it(tiny_train_scene, tiny_train_overrides, tmp_path):
     from gof_warp.data import load_scene
     from gof_warp.preset_choice import resolve_config
     from gof_warp.trainer import Trainer
 
-    over = ["iterations=6", "log_every=2", "checkpoint_every=100", "model.sh_degree=0", "model.init=random",
-            "model.random_init_points=300", "densify.start_iter=100", "densify.stop_iter=100",
-            "densify.filter_3d_until_iter=0", "loss.regularization_from_iter=100", "densify.hidden_prune_iters=[4]",
-            "densify.hidden_margin=0.01"]
+    over = [*tiny_train_overrides, "iterations=6", "densify.hidden_prune_iters=[4]", "densify.hidden_margin=0.01"]
     cfg = resolve_config("quick", over, None)
     scene = load_scene(tiny_train_scene)
     trainer = Trainer(scene, cfg, tmp_path / "run", "cpu")

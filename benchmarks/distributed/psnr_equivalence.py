@@ -15,6 +15,7 @@ import argparse
 import json
 import math
 import re
+import statistics
 import sys
 from pathlib import Path
 
@@ -27,9 +28,8 @@ def welch_interval(a: list[float], b: list[float], confidence: float = 0.90) -> 
     """Mean of b − mean of a with Welch's ``confidence`` interval; a and b need two or more values each."""
     if len(a) < 2 or len(b) < 2:
         raise ValueError(f"need two or more runs a side, got {len(a)} and {len(b)}")
-    ma, mb = sum(a) / len(a), sum(b) / len(b)
-    va = sum((x - ma) ** 2 for x in a) / (len(a) - 1)
-    vb = sum((x - mb) ** 2 for x in b) / (len(b) - 1)
+    ma, mb = statistics.fmean(a), statistics.fmean(b)
+    va, vb = statistics.variance(a, ma), statistics.variance(b, mb)
     se2 = va / len(a) + vb / len(b)
     if se2 == 0.0:
         return {"difference": mb - ma, "se": 0.0, "df": math.inf, "low": mb - ma, "high": mb - ma}
@@ -51,15 +51,15 @@ def read_runs(folder: Path) -> dict[int, dict[int, dict]]:
 def summarise(runs: dict[int, dict[int, dict]], margin: float) -> dict:
     """Per GPU count: the runs' PSNRs, mean and spread; against one GPU: the difference, its 90 % interval, verdict."""
     out: dict = {"margin_db": margin, "sides": {}}
-    psnr = {n: [r["test"]["psnr"] for _, r in sorted(side.items())] for n, side in sorted(runs.items())}
-    for n, side in sorted(runs.items()):
+    by_seed = {n: [r for _, r in sorted(side.items())] for n, side in sorted(runs.items())}
+    psnr = {n: [r["test"]["psnr"] for r in side] for n, side in by_seed.items()}
+    for n, side in by_seed.items():
         values = psnr[n]
-        mean = sum(values) / len(values)
-        sd = math.sqrt(sum((x - mean) ** 2 for x in values) / (len(values) - 1)) if len(values) > 1 else None
-        row = {"seeds": sorted(side), "test_psnr": values, "mean": mean, "sd": sd,
-               "train_time_s": [r["train_time_s"] for _, r in sorted(side.items())],
-               "num_gaussians": [r["num_gaussians"] for _, r in sorted(side.items())],
-               "largest_loss_ratio": [r.get("loss_spikes", {}).get("max_ratio") for _, r in sorted(side.items())]}
+        row = {"seeds": sorted(runs[n]), "test_psnr": values, "mean": statistics.fmean(values),
+               "sd": statistics.stdev(values) if len(values) > 1 else None,
+               "train_time_s": [r["train_time_s"] for r in side],
+               "num_gaussians": [r["num_gaussians"] for r in side],
+               "largest_loss_ratio": [r.get("loss_spikes", {}).get("max_ratio") for r in side]}
         if n != 1 and 1 in psnr and len(values) > 1 and len(psnr[1]) > 1:
             w = welch_interval(psnr[1], values)
             row["against_one_gpu"] = {**w, "within_margin": bool(-margin < w["low"] and w["high"] < margin)}

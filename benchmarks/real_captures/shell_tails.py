@@ -78,11 +78,10 @@ def main() -> int:
             continue
         x = (a.radius - a.offset) * d
         near = np.array(tree.query_ball_point(x, 0.5), dtype=int)
-        per = []
-        for cam in cams:
-            (u, v), z, inside = (lambda uv, z, ins: (uv[0], z[0], ins[0]))(*cam.in_image(x[None], near=0.05))
-            if inside and len(near):
-                per.append(view_opacity(x, cam, mu, rot, scales, opac, near))
+        if not len(near):
+            continue
+        per = [view_opacity(x, cam, mu, rot, scales, opac, near)
+               for cam in cams if cam.in_image(x[None], near=0.05)[2][0]]
         if len(per) < 2:
             continue
         best = min(per, key=lambda p: p[0])
@@ -102,7 +101,8 @@ def main() -> int:
     print(f"  peak behind the point: {pct(np.array([c[1] for c in rows]) * 100)} cm")
     print(f"  standard deviation along the ray: {pct(np.array([c[2] for c in rows]) * 100)} cm")
     print(f"  peak alpha on the ray: {pct(np.array([c[3] for c in rows]))}")
-    print(f"  unfiltered scales, smallest to largest (median): {np.round(np.median(np.sort(np.repeat(raw[ks], w, axis=0), 1), 0) * 100, 2)} cm")
+    sorted_scales = np.sort(np.repeat(raw[ks], w, axis=0), 1)
+    print(f"  unfiltered scales, smallest to largest (median): {np.round(np.median(sorted_scales, 0) * 100, 2)} cm")
     return 0
 
 
