@@ -106,9 +106,11 @@ class DensifyConfig:
     near_camera_fraction: float = 0.0
     # not GOF (off by default): at these iterations remove the Gaussians behind the rendered surface in every training
     # view (gof_warp.hidden.behind_surface, by more than hidden_margin × its depth), whose tails the opacity field
-    # counts in front of that surface
+    # counts in front of that surface; of those, only the ones the photos show less than hidden_max_visible of in
+    # their best view (gof_warp.hidden.visible_fraction: ~0 behind an opaque surface; None: the depth test alone)
     hidden_prune_iters: list[int] = field(default_factory=list)
     hidden_margin: float = 0.01
+    hidden_max_visible: float | None = 0.2
 
     def __post_init__(self):
         if self.metric not in METRICS:
@@ -130,6 +132,8 @@ class DensifyConfig:
             raise GofError(f"DensifyConfig.hidden_prune_iters must be iterations >= 1, got {self.hidden_prune_iters}")
         if not self.hidden_margin > 0:
             raise GofError(f"DensifyConfig.hidden_margin must be > 0, got {self.hidden_margin}")
+        if self.hidden_max_visible is not None and not 0.0 < self.hidden_max_visible <= 1.0:
+            raise GofError(f"DensifyConfig.hidden_max_visible must be in (0, 1] or None, got {self.hidden_max_visible}")
 
 
 @dataclass

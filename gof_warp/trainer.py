@@ -41,7 +41,7 @@ from .distributed import Ranks
 from .devices import cudnn_benchmark, peak_memory
 from .errors import GofError
 from .filter3d import update_filter_3d
-from .hidden import behind_surface
+from .hidden import hidden_gaussians
 from .init_points import initial_point_cloud
 from .interrupts import TrainingInterrupted, deferred_interrupt  # noqa: F401 - TrainingInterrupted public here
 from .io_utils import ensure_writable_dir, write_json_atomic, write_text_atomic
@@ -246,8 +246,10 @@ class Trainer:
             update_filter_3d(self.gaussians, self.cameras, near=self.render_config.near)
         self.optimizer = make_optimizer(self.gaussians, config.optim, scene.extent)
         self.densifier = Densifier(config.densify)
-        self._hidden = (lambda: behind_surface(self.gaussians, self.cameras, margin=config.densify.hidden_margin,
-                                               config=self.render_config)) if config.densify.hidden_prune_iters else None
+        hid = config.densify
+        self._hidden = (lambda: hidden_gaussians(self.gaussians, self.cameras, margin=hid.hidden_margin,
+                                                 max_visible=hid.hidden_max_visible,
+                                                 config=self.render_config)) if hid.hidden_prune_iters else None
         self.appearance = None
         self.appearance_optimizer = None
         if config.appearance:

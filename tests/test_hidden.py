@@ -10,7 +10,8 @@ import torch
 from gof_warp.camera import look_at
 from gof_warp.densify import Densifier, DensifyConfig
 from gof_warp.errors import GofError
-from gof_warp.hidden import behind_by, behind_surface, surface_depth_ratio
+from gof_warp.hidden import (behind_by, behind_surface, blend_weights, hidden_gaussians, surface_depth_ratio,
+                             unoccluded_weight, visible_fraction)
 from gof_warp.model import Gaussians
 from gof_warp.optim import OptimConfig, check_optimizer_state, make_optimizer
 
@@ -79,6 +80,55 @@ def test_behind_surface_rejects_bad_arguments():
         behind_surface(gs, [], margin=0.01)
 
 
+def _gaussians(items):
+    """A model from ``(centre, scales, opacity)`` triples (axis-aligned, DC colour 0)."""
+    n = len(items)
+    return Gaussians(means=torch.tensor([c for c, _, _ in items], dtype=torch.float32),
+                     quats=torch.tensor([[1.0, 0, 0, 0]] * n),
+                     log_scales=torch.tensor(np.log([s for _, s, _ in items]), dtype=torch.float32),
+                     opacity_logits=torch.tensor([math.log(o / (1 - o)) for _, _, o in items], dtype=torch.float32),
+                     sh_dc=torch.zeros(n, 3), max_sh_degree=0)
+
+
+def test_visible_fraction_golden_layers():
+    """One camera at z = 2; three round probes (σ = 0.05, 3 px) at z = 0: one in the open, one behind a flat layer of
+    opacity 0.5, one behind an opaque one (each layer a σ = 0.15 Gaussian at z = 0.5 on the probe's ray, 5σ or more
+    from the other rays). The fraction is about the transmittance in front: 1, 0.5, ~0."""
+    items = [((0.5, 0.0, 0.0), (0.05,) * 3, 0.9),  # 0: in the open
+             ((-0.375, 0.0, 0.5), (0.15, 0.15, 0.001), 0.5), ((-0.5, 0.0, 0.0), (0.05,) * 3, 0.9),  # 1, 2: half
+             ((0.0, 0.375, 0.5), (0.15, 0.15, 0.001), 0.99), ((0.0, 0.5, 0.0), (0.05,) * 3, 0.9),  # 3, 4: opaque
+             ((0.0, 0.0, 3.0), (0.05,) * 3, 0.9)]  # 5: behind the camera
+    g = _gaussians(items)
+    cam = look_at((0.0, 0.0, 2.0), (0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), fx=120.0, width=128, height=128, name="a")
+    full = unoccluded_weight(g, cam)
+    sigma_px = 0.05 * 120.0 / 2.0  # a round Gaussian's projected σ at depth 2, on the axis
+    off_axis = math.sqrt(1 + (0.5 / 2.0) ** 2)  # the pinhole stretches it along x by this, 0.5 off the axis
+    assert full[0] == pytest.approx(0.9 * 2 * math.pi * sigma_px**2 * off_axis, rel=1e-4)
+    assert full[5] == 0.0
+    w = blend_weights(g, cam)
+    assert w[0] == pytest.approx(float(full[0]), rel=0.02)  # nothing in front: all of it shows
+    assert w[5] == 0.0
+    vf = visible_fraction(g, [cam])
+    assert vf[0] > 0.95 and 0.4 < vf[2] < 0.6 and vf[4] < 0.1 and vf[5] == 0.0
+    assert vf[1] > 0.95 and vf[3] > 0.95  # the layers themselves are in the open
+    with pytest.raises(ValueError, match="no cameras"):
+        visible_fraction(g, [])
+
+
+def test_hidden_gaussians_keeps_what_shows_through_a_half_transparent_wall():
+    gs, probes, n_wall = _wall_and_probes()
+    blob = probes["blob behind the wall"][0]
+    opaque = hidden_gaussians(gs, _cameras(), margin=0.01, max_visible=0.2)
+    assert opaque[blob] and torch.equal(opaque, behind_surface(gs, _cameras(), margin=0.01))
+    gs.params["opacity_logits"][:n_wall] = math.log(0.3 / 0.7)  # a wall that still renders a surface, and lets light by
+    assert behind_surface(gs, _cameras(), margin=0.01)[blob]
+    assert visible_fraction(gs, _cameras())[blob] > 0.2
+    assert not hidden_gaussians(gs, _cameras(), margin=0.01, max_visible=0.2)[blob]
+    assert hidden_gaussians(gs, _cameras(), margin=0.01, max_visible=None)[blob]  # the depth test alone
+    with pytest.raises(ValueError, match="max_visible"):
+        hidden_gaussians(gs, _cameras(), margin=0.01, max_visible=0.0)
+
+
 def _model(n=6):
     dc = torch.zeros(n, 3)
     dc[:, 0] = torch.arange(n, dtype=torch.float32)  # identities
@@ -114,7 +164,8 @@ def test_densifier_prunes_hidden_gaussians_at_its_iterations_only():
     with pytest.raises(GofError, match="would remove all 2"):
         d.step(170, gs, opt, 1.0, hidden=lambda: torch.ones(len(gs), dtype=torch.bool))
     assert len(gs) == 2
-    for bad in ({"hidden_prune_iters": [0]}, {"hidden_prune_iters": [1.5]}, {"hidden_margin": 0.0}):
+    for bad in ({"hidden_prune_iters": [0]}, {"hidden_prune_iters": [1.5]}, {"hidden_margin": 0.0},
+                {"hidden_max_visible": 0.0}, {"hidden_max_visible": 1.5}):
         with pytest.raises(GofError):
             DensifyConfig(**bad)
 
@@ -124,12 +175,14 @@ def test_training_with_a_hidden_prune_reports_it(tiny_train_scene, tiny_train_ov
     from gof_warp.preset_choice import resolve_config
     from gof_warp.trainer import Trainer
 
-    over = [*tiny_train_overrides, "iterations=6", "densify.hidden_prune_iters=[4]", "densify.hidden_margin=0.01"]
+    # every Gaussian behind shows less than all of itself: with 1.0 the count is the depth test's, through the same path
+    over = [*tiny_train_overrides, "iterations=6", "densify.hidden_prune_iters=[4]", "densify.hidden_margin=0.01",
+            "densify.hidden_max_visible=1.0"]
     cfg = resolve_config("quick", over, None)
     scene = load_scene(tiny_train_scene)
     trainer = Trainer(scene, cfg, tmp_path / "run", "cpu")
-    expected = int(behind_surface(trainer.gaussians, trainer.cameras, margin=0.01,
-                                  config=trainer.render_config).sum())
+    expected = int(hidden_gaussians(trainer.gaussians, trainer.cameras, margin=0.01,
+                                    max_visible=cfg.densify.hidden_max_visible, config=trainer.render_config).sum())
     metrics = trainer.run()
     assert isinstance(metrics["hidden_pruned"], int) and metrics["hidden_pruned"] > 0
     assert expected > 0  # 300 random points in a box: some lie inside the objects' renders' surfaces

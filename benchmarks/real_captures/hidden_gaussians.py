@@ -4,8 +4,8 @@
 A Gaussian's blending weight w_i = α_i T_i summed over a view's pixels is what that view sees of it. Gaussians behind
 an opaque surface get w ≈ 0 in every view, so no loss moves them, yet GOF's opacity field counts their front tails at
 every point before their peaks (session 27: the far shell's 0.5 level 5 cm in front of its renders). The per-view sums
-come from one backward pass a view: with every DC colour at 0 (colour 0.5, unclamped) the gradient of the rendered
-red channel's sum with respect to Gaussian i's DC red coefficient is SH_C0 · Σ_pixels w_i.
+come from one backward pass a view (``gof_warp.hidden.blend_weights``: with every DC colour at 0, colour 0.5, unclamped,
+the gradient of the rendered red channel's sum with respect to Gaussian i's DC red coefficient is SH_C0 · Σ_pixels w_i).
 
 Writes, per Gaussian, the sum over the views (pixels' worth of weight) and the largest single-view sum, and prints how
 many Gaussians fall under a few thresholds and where they lie against the scene's shell (``--radius``, default 6).
@@ -17,26 +17,10 @@ import argparse
 import time
 
 import numpy as np
-import torch
 
 from gof_warp.data import load_scene
+from gof_warp.hidden import blend_weights
 from gof_warp.model import Gaussians
-from gof_warp.render import render
-
-SH_C0 = 0.28209479177387814
-
-
-def view_weights(g: Gaussians, cam) -> np.ndarray:
-    """Σ over the pixels of ``cam`` of each Gaussian's blending weight, [N] float64."""
-    dc = torch.zeros_like(g.params["sh_dc"], requires_grad=True)
-    saved = g.params["sh_dc"]
-    g.params["sh_dc"] = dc
-    try:
-        out = render(g, cam)
-        out["rgb"][..., 0].sum().backward()
-    finally:
-        g.params["sh_dc"] = saved
-    return dc.grad[:, 0].double().numpy() / SH_C0
 
 
 def main() -> int:
@@ -49,12 +33,11 @@ def main() -> int:
     a = ap.parse_args()
     cams = load_scene(a.scene).train_cameras[:: a.every]
     g = Gaussians.load_ply(a.model)
-    g.params["sh_rest"] = torch.zeros_like(g.params["sh_rest"])
     total = np.zeros(len(g))
     largest = np.zeros(len(g))
     t0 = time.time()
     for k, cam in enumerate(cams):
-        w = view_weights(g, cam)
+        w = blend_weights(g, cam).double().numpy()
         total += w
         np.maximum(largest, w, out=largest)
         if k == 0:
