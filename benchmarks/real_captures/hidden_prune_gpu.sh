@@ -1,14 +1,17 @@
 #!/usr/bin/env bash
 # Session 28: the hidden prune (densify.hidden_prune_iters) on the far shell of background_full and on a compact scene,
 # each run alone on its own GPU of a several-GPU host (RUNS: "name|scene|overrides" a line; scenes bgf and def are
-# generated on GPU 0: background_full 400x400 with the session-19 points from .s17pts, default 400x400; 100 views each).
+# generated on GPU 0: background_full 400x400 with the session-19 points from .s17pts, default 400x400; 100 views each;
+# session 29: scenes fox and can are the real captures carried in .data/ or parked in /tmp/gofdata, copied).
 #   PHASE=train TRAIN_S=500 bash benchmarks/real_captures/hidden_prune_gpu.sh    # generate, train (resumable)
 #   PHASE=score bash benchmarks/real_captures/hidden_prune_gpu.sh                # finish, mesh, score, pack
-# bgf: extract --min-views 2, scored on the whole seen region and the ground-and-objects crop; def: extract with the
-# defaults, scored on the seen region. Writes $OUT/hp_<name>/ (metrics, mesh json, scores) and packed geometry.
+# bgf: extract --min-views K for each K of VIEWS (default "2"; session 29: "2 3", then "3"), each scored on the whole
+# seen region and the ground-and-objects crop; def: extract with the defaults, scored on the seen region; fox, can:
+# extract with the defaults and draw the mesh pictures.
+# Writes $OUT/hp_<name>/ (metrics, mesh json, scores) and packed geometry.
 set -u
 S=/tmp/hp; mkdir -p $S
-PHASE=${PHASE:-train}; TRAIN_S=${TRAIN_S:-500}
+PHASE=${PHASE:-train}; TRAIN_S=${TRAIN_S:-500}; VIEWS=${VIEWS:-2}
 HID='densify.hidden_prune_iters=[15000,20000,25000,29000]'
 RUNS=${RUNS:-"bgf_hidden|bgf|$HID
 bgf_hidden005|bgf|$HID densify.hidden_margin=0.005
@@ -23,6 +26,12 @@ if [ ! -f $S/def/transforms_train.json ]; then
   python3 -m gof_warp.synthetic --preset default --resolution 400 400 --views 100 --out $S/def --device cuda:0 \
     --force --quiet || { echo "def generation failed"; exit 1; }
 fi
+for real in fox:fox can:colmap_can; do
+  if grep -q "|${real%%:*}|" <<< "$RUNS" && [ ! -d $S/${real%%:*} ]; then
+    src=$(ls -d .data/${real#*:} /tmp/gofdata/${real#*:} 2>/dev/null | head -1)
+    [ -n "$src" ] && cp -r "$src" $S/${real%%:*} || { echo "${real#*:} in neither .data nor /tmp/gofdata"; exit 1; }
+  fi
+done
 echo "scenes at $(( $(date +%s) - t0 )) s"
 k=0
 while IFS='|' read -r name scene over; do
@@ -50,10 +59,18 @@ while IFS='|' read -r name scene over; do
     cp $run/metrics.json $run/config.yaml "$R/"
     ev=(python3 -m gof_warp.evaluate --gt $S/$scene/gt_mesh.ply --scene $S/$scene)
     if [ "$scene" = bgf ]; then
-      python3 -m gof_warp.extract $run --min-views 2 --out $run/mesh_views2.ply > $R/extract.log 2>&1
-      "${ev[@]}" --mesh $run/mesh_views2.ply --json "$R/evaluate_seen_views2.json" > /dev/null 2>&1
-      "${ev[@]}" --mesh $run/mesh_views2.ply --crop -2 -2 -1.1 2 2 1 --json "$R/evaluate_crop_views2.json" > /dev/null 2>&1
-      cp $run/mesh_views2.json "$R/" 2>/dev/null
+      for v in $VIEWS; do
+        python3 -m gof_warp.extract $run --min-views $v --out $run/mesh_views$v.ply >> $R/extract.log 2>&1
+        "${ev[@]}" --mesh $run/mesh_views$v.ply --json "$R/evaluate_seen_views$v.json" > /dev/null 2>&1
+        "${ev[@]}" --mesh $run/mesh_views$v.ply --crop -2 -2 -1.1 2 2 1 --json "$R/evaluate_crop_views$v.json" \
+          > /dev/null 2>&1
+        cp $run/mesh_views$v.json "$R/" 2>/dev/null
+      done
+    elif [ "$scene" = fox ] || [ "$scene" = can ]; then
+      python3 -m gof_warp.extract $run > $R/extract.log 2>&1
+      python3 -m gof_warp.pictures $run --mesh $run/mesh_tetra.ply --quiet >> $R/extract.log 2>&1
+      python3 -m gof_warp.pictures $run --quiet >> $R/extract.log 2>&1
+      cp $run/mesh_tetra.json $run/pictures/*.png "$R/" 2>/dev/null
     else
       python3 -m gof_warp.extract $run > $R/extract.log 2>&1
       "${ev[@]}" --mesh $run/mesh_tetra.ply --json "$R/evaluate_seen.json" > /dev/null 2>&1
