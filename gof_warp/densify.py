@@ -111,6 +111,10 @@ class DensifyConfig:
     hidden_prune_iters: list[int] = field(default_factory=list)
     hidden_margin: float = 0.01
     hidden_max_visible: float | None = 0.2
+    # and, unless None, only the ones whose opacity at the rendered surface (gof_warp.hidden.surface_measures' tail:
+    # o·exp(-½(Δ/σ_t)²) along the ray, the largest over the views) is above this: what raises GOF's field in front of
+    # a surface, not a thin layer under it
+    hidden_min_tail: float | None = None
 
     def __post_init__(self):
         if self.metric not in METRICS:
@@ -134,6 +138,8 @@ class DensifyConfig:
             raise GofError(f"DensifyConfig.hidden_margin must be > 0, got {self.hidden_margin}")
         if self.hidden_max_visible is not None and not 0.0 < self.hidden_max_visible <= 1.0:
             raise GofError(f"DensifyConfig.hidden_max_visible must be in (0, 1] or None, got {self.hidden_max_visible}")
+        if self.hidden_min_tail is not None and not 0.0 <= self.hidden_min_tail < 1.0:
+            raise GofError(f"DensifyConfig.hidden_min_tail must be in [0, 1) or None, got {self.hidden_min_tail}")
 
 
 @dataclass

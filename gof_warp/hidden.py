@@ -14,7 +14,9 @@ half-transparent layer they backed (session 28's measurements).
   training views whose image holds it where the render shows a surface.
 * :func:`behind_surface` — the Gaussians whose centres lie behind the rendered median depth by more than
   ``margin`` × that depth in every such view (that ratio above ``1 + margin``).
-* :func:`hidden_gaussians` — what the prune removes: behind the surface, and (optionally) showing little.
+* :func:`surface_measures` — that ratio and how much of each Gaussian reaches in front of the surface (its tail).
+* :func:`hidden_gaussians` — what the prune removes: behind the surface, and (optionally) showing little and
+  reaching through it.
 * :func:`visible_fraction` — how much of each Gaussian the photos show: its blending weight summed over a view's
   pixels (:func:`blend_weights`) over what it would show with nothing in front of it (:func:`unoccluded_weight`), the
   largest over the views. A Gaussian behind the median depth but under a half-transparent layer (a glossy floor's
@@ -53,10 +55,29 @@ def surface_depth_ratio(gaussians, cameras: Sequence[Camera], *, config: RenderC
         cameras: the views to test (the training views).
         config: the renderer's settings (the trainer's).
     """
+    return surface_measures(gaussians, cameras, config=config, tail=False)[0]
+
+
+@torch.no_grad()
+def surface_measures(gaussians, cameras: Sequence[Camera], *, config: RenderConfig | None = None, tail: bool = True
+                     ) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """``(ratio [N], tail [N] or None)`` from one render per camera: :func:`surface_depth_ratio`'s ratio and, with
+    ``tail``, how far each Gaussian reaches in front of the rendered surface: the largest, over the views that see
+    where it is, of its opacity at that view's surface on the ray through its centre,
+    ``o · exp(−½ (Δ / σ_t)²)`` with ``Δ = t_c (1 − D / z)`` the distance along the ray from the surface to the centre
+    (``t_c`` the centre's distance from the camera) and ``σ_t = (dᵀ Σ⁻¹ d)^(−½)`` the Gaussian's spread along the
+    ray's direction ``d``; ``o`` where the centre is in front (``Δ ≤ 0``); 0 where no view sees where it is. That is
+    what GOF's field counts of it at the surface (``kernels.opacity_field``): a large Gaussian behind a surface reaches
+    through it, a thin layer under it does not."""
     if len(cameras) == 0:
         raise ValueError("behind_surface: no cameras")
     means = gaussians.means.detach()
     least = torch.full((means.shape[0],), math.inf, device=means.device)
+    reach = torch.zeros(means.shape[0], device=means.device) if tail else None
+    if tail:
+        rot = quat_to_rotmat(gaussians.rotations.detach())
+        inv_cov = rot @ torch.diag_embed(gaussians.scales.detach().pow(-2)) @ rot.transpose(1, 2)  # [N, 3, 3]
+        opacity = gaussians.opacities.detach().reshape(-1)
     for cam in cameras:
         depth = render(gaussians, cam, config=config)["median_depth"]
         u, v, z = cam.project_tensor(means)
@@ -65,8 +86,17 @@ def surface_depth_ratio(gaussians, cameras: Sequence[Camera], *, config: RenderC
         row = torch.where(inside, v, 0.0).floor().long().clamp_(0, cam.height - 1)
         d = depth[row, col]
         sees = inside & (d > 0)
-        least = torch.minimum(least, torch.where(sees, z / torch.where(sees, d, 1.0), math.inf))
-    return least
+        ratio = z / torch.where(sees, d, 1.0)
+        least = torch.minimum(least, torch.where(sees, ratio, math.inf))
+        if tail:
+            ray = means - means.new_tensor(cam.center)
+            t_c = ray.norm(dim=1).clamp_min(1e-12)
+            direction = ray / t_c[:, None]
+            sigma_t = torch.einsum("ni,nij,nj->n", direction, inv_cov, direction).rsqrt()
+            delta = t_c * (1.0 - 1.0 / torch.where(sees, ratio, 1.0))
+            at_surface = torch.where(delta > 0, opacity * torch.exp(-0.5 * (delta / sigma_t) ** 2), opacity)
+            reach = torch.maximum(reach, torch.where(sees, at_surface, torch.zeros_like(at_surface)))
+    return least, reach
 
 
 def behind_surface(gaussians, cameras: Sequence[Camera], *, margin: float, config: RenderConfig | None = None
@@ -91,16 +121,23 @@ def behind_by(ratio: torch.Tensor, margin: float) -> torch.Tensor:
 
 
 def hidden_gaussians(gaussians, cameras: Sequence[Camera], *, margin: float, max_visible: float | None,
-                     config: RenderConfig | None = None) -> torch.Tensor:
+                     min_tail: float | None = None, config: RenderConfig | None = None) -> torch.Tensor:
     """``[N]`` bool: :func:`behind_surface` (``margin``) and, unless ``max_visible`` is None, a
-    :func:`visible_fraction` under ``max_visible`` (in ``(0, 1]``): hidden by depth and shown little in every view.
-    The fraction is computed only when some Gaussian is behind."""
+    :func:`visible_fraction` under ``max_visible`` (in ``(0, 1]``): hidden by depth and shown little in every view;
+    unless ``min_tail`` is None, also reaching in front of the surface by more than ``min_tail`` (in ``[0, 1)``:
+    :func:`surface_measures`' tail), so that only what raises GOF's field in front of a surface goes. The fraction is
+    computed only when some Gaussian is left."""
     if max_visible is not None and not 0.0 < max_visible <= 1.0:
         raise ValueError(f"hidden_gaussians: max_visible must be in (0, 1] or None, got {max_visible}")
-    behind = behind_surface(gaussians, cameras, margin=margin, config=config)
-    if max_visible is None or not bool(behind.any()):
-        return behind
-    return behind & (visible_fraction(gaussians, cameras, config=config) < max_visible)
+    if min_tail is not None and not 0.0 <= min_tail < 1.0:
+        raise ValueError(f"hidden_gaussians: min_tail must be in [0, 1) or None, got {min_tail}")
+    ratio, reach = surface_measures(gaussians, cameras, config=config, tail=min_tail is not None)
+    hidden = behind_by(ratio, margin)
+    if reach is not None:
+        hidden &= reach > min_tail
+    if max_visible is None or not bool(hidden.any()):
+        return hidden
+    return hidden & (visible_fraction(gaussians, cameras, config=config) < max_visible)
 
 
 def blend_weights(gaussians, camera: Camera, *, config: RenderConfig | None = None) -> torch.Tensor:

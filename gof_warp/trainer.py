@@ -248,7 +248,7 @@ class Trainer:
         self.densifier = Densifier(config.densify)
         hid = config.densify
         self._hidden = (lambda: hidden_gaussians(self.gaussians, self.cameras, margin=hid.hidden_margin,
-                                                 max_visible=hid.hidden_max_visible,
+                                                 max_visible=hid.hidden_max_visible, min_tail=hid.hidden_min_tail,
                                                  config=self.render_config)) if hid.hidden_prune_iters else None
         self.appearance = None
         self.appearance_optimizer = None

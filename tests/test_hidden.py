@@ -11,7 +11,7 @@ from gof_warp.camera import look_at
 from gof_warp.densify import Densifier, DensifyConfig
 from gof_warp.errors import GofError
 from gof_warp.hidden import (behind_by, behind_surface, blend_weights, hidden_gaussians, surface_depth_ratio,
-                             unoccluded_weight, visible_fraction)
+                             surface_measures, unoccluded_weight, visible_fraction)
 from gof_warp.model import Gaussians
 from gof_warp.optim import OptimConfig, check_optimizer_state, make_optimizer
 
@@ -129,6 +129,34 @@ def test_hidden_gaussians_keeps_what_shows_through_a_half_transparent_wall():
         hidden_gaussians(gs, _cameras(), margin=0.01, max_visible=0.0)
 
 
+def test_surface_tail_golden_wall():
+    """Behind the opaque wall at z = 0: a large round blob (σ = 0.2, 0.3 behind) reaches through it, a small one
+    (σ = 0.02, 0.1 behind) does not. Tail = o · exp(−½ (Δ/σ)²), Δ the distance along the ray from the wall to the
+    centre, the largest over the views a and b (c does not hold them)."""
+    gs, _, n_wall = _wall_and_probes()
+    wall = gs.subset(torch.arange(n_wall))
+    blobs = _gaussians([((0.0, 0.0, -0.3), (0.2,) * 3, 0.99), ((0.1, 0.0, -0.1), (0.02,) * 3, 0.99)])
+    both = Gaussians(*(torch.cat([getattr(wall, k), getattr(blobs, k)]) for k in
+                       ("means", "quats", "log_scales", "opacity_logits", "sh_dc")), max_sh_degree=0)
+    cams = _cameras()
+    ratio, tail = surface_measures(both, cams)
+    assert torch.equal(ratio, surface_depth_ratio(both, cams))
+    for k, (centre, sigma) in enumerate((((0.0, 0.0, -0.3), 0.2), ((0.1, 0.0, -0.1), 0.02))):
+        expected = 0.0
+        for cam in cams[:2]:
+            c, b = np.asarray(cam.center), np.asarray(centre)
+            delta = np.linalg.norm(b - c) * (1 - c[2] / (c[2] - b[2]))  # beyond the plane z = 0 along the ray
+            expected = max(expected, 0.99 * math.exp(-0.5 * (delta / sigma) ** 2))
+        assert float(tail[n_wall + k]) == pytest.approx(expected, rel=0.1, abs=1e-5)  # the small one: ~4e-6
+    assert tail[n_wall] > 0.2 and tail[n_wall + 1] < 1e-4
+    assert tail[:n_wall].max() <= 0.99 + 1e-6  # what shows is the surface: in front, its own opacity
+    kept = hidden_gaussians(both, cams, margin=0.01, max_visible=None, min_tail=0.05)
+    assert kept[n_wall] and not kept[n_wall + 1]  # both behind; only the one reaching through goes
+    assert hidden_gaussians(both, cams, margin=0.01, max_visible=None)[n_wall + 1]
+    with pytest.raises(ValueError, match="min_tail"):
+        hidden_gaussians(both, cams, margin=0.01, max_visible=None, min_tail=1.0)
+
+
 def _model(n=6):
     dc = torch.zeros(n, 3)
     dc[:, 0] = torch.arange(n, dtype=torch.float32)  # identities
@@ -165,7 +193,8 @@ def test_densifier_prunes_hidden_gaussians_at_its_iterations_only():
         d.step(170, gs, opt, 1.0, hidden=lambda: torch.ones(len(gs), dtype=torch.bool))
     assert len(gs) == 2
     for bad in ({"hidden_prune_iters": [0]}, {"hidden_prune_iters": [1.5]}, {"hidden_margin": 0.0},
-                {"hidden_max_visible": 0.0}, {"hidden_max_visible": 1.5}):
+                {"hidden_max_visible": 0.0}, {"hidden_max_visible": 1.5}, {"hidden_min_tail": -0.1},
+                {"hidden_min_tail": 1.0}):
         with pytest.raises(GofError):
             DensifyConfig(**bad)
 
