@@ -22,7 +22,7 @@ from .extraction import (METHODS, MeshConfig, StageTimer, empty_mesh_message, ex
                          save_mesh)
 from .io_utils import write_json_atomic
 from .run_folder import cameras_from_json, load_run  # noqa: F401 - re-exported: extract.load_run is public
-from .octree_tets import OctreeConfig
+from .octree_tets import DEFAULT_CELL_FACTOR, SMALL_CELL_FACTOR, OctreeConfig
 from .opacity_field import OpacityFieldConfig
 from .tetra import GRIDS, TetraConfig
 
@@ -57,7 +57,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                          "device; no Delaunay)")
     ap.add_argument("--cell-factor", type=float, default=None,
                     help="--grid octree: leaf side at most this times a Gaussian's 3-sigma box width (smaller: finer; "
-                         f"default {OctreeConfig.cell_factor})")
+                         f"default {DEFAULT_CELL_FACTOR}, or {SMALL_CELL_FACTOR} for a grid of fewer than "
+                         f"{OctreeConfig.small_leaves:,} leaves at {DEFAULT_CELL_FACTOR}; given, it is used as it is)")
     ap.add_argument("--piece-tets", type=int, default=None,
                     help="--grid octree: make and march the grid's tetrahedra in pieces of at most this many, so they are "
                          f"never held whole (default {OctreeConfig.piece_tets}; the mesh is the same for any value)")

@@ -82,14 +82,24 @@ _KUHN = torch.tensor([[[0, 0, 0], list(map(int, [a == 0, a == 1, a == 2])),
                       for a in range(3) for b in range(3) if a != b], dtype=torch.int64)  # [6, 4, 3]
 
 
+# the octree's cell factor when none is given: 0.5 meshes DTU scan 24 in 4.22M faces (the extraction issue's bar 4.3M;
+# 0.35 gives 7.9M) at the Delaunay grid's accuracy on the garden crop (benchmarks/extract/README.md, session 10)
+DEFAULT_CELL_FACTOR = 0.5
+# ... and for a grid of fewer than OctreeConfig.small_leaves leaves at 0.5, where the finer grid costs a second or two.
+# The README job's model (40k leaves): Chamfer +3.2 % → +1.7 % against the Delaunay grid over five seeds. colmap_can,
+# fox, background_full (1.0–2.0M leaves at 0.5) and the 400×400 default scene (242k) keep 0.5, as does DTU (800k
+# Gaussians, more than background_full's 360k) (benchmarks/extract/README.md, session 29)
+SMALL_CELL_FACTOR = 0.35
+
+
 @dataclass
 class OctreeConfig:
     """Settings of the octree grid (``TetraConfig.grid = "octree"``)."""
 
-    # leaf side <= cell_factor × 2 r over a Gaussian's 3σ box (r = 3 max(s)). 0.5: DTU scan 24 in 4.22M faces (the
-    # extraction issue's bar 4.3M; 0.35 gives 7.9M) at the Delaunay grid's accuracy on the garden crop
-    # (benchmarks/extract/README.md, session 10)
-    cell_factor: float = 0.5
+    # leaf side <= cell_factor × 2 r over a Gaussian's 3σ box (r = 3 max(s)). None (the default): DEFAULT_CELL_FACTOR,
+    # or SMALL_CELL_FACTOR for a grid of fewer than small_leaves leaves at the default; a number is used as it is
+    cell_factor: float | None = None
+    small_leaves: int = 100_000
     # deepest level: the root cube's side / 2^depth is the smallest cell. Levels cost only where asked for, so the
     # default is the deepest the keys allow: 5·10^5 cells along the root cube, room for far background Gaussians
     depth: int = MAX_DEPTH
@@ -100,8 +110,10 @@ class OctreeConfig:
     piece_tets: int = 1 << 24
 
     def validate(self):
-        if not (self.cell_factor > 0 and math.isfinite(self.cell_factor)):
-            raise GofError(f"octree cell_factor must be a positive number, got {self.cell_factor!r}")
+        if self.cell_factor is not None and not (self.cell_factor > 0 and math.isfinite(self.cell_factor)):
+            raise GofError(f"octree cell_factor must be a positive number or None (auto), got {self.cell_factor!r}")
+        if isinstance(self.small_leaves, bool) or not isinstance(self.small_leaves, int) or self.small_leaves < 0:
+            raise GofError(f"octree small_leaves must be an integer >= 0, got {self.small_leaves!r}")
         if not (isinstance(self.depth, int) and 1 <= self.depth <= MAX_DEPTH):
             raise GofError(f"octree depth must be an integer in [1, {MAX_DEPTH}], got {self.depth!r}")
         if isinstance(self.piece_tets, bool) or not isinstance(self.piece_tets, int) or self.piece_tets < 1:
@@ -521,10 +533,14 @@ def octree_grid_tets(centres, radii, config: OctreeConfig | None = None, stats: 
         lo = (lo_b + hi_b) / 2 - size / 2
         inside = ((centres >= lo) & (centres <= lo + size)).all(dim=1)
         centres, radii = centres[inside], radii[inside]
-    tree = build_octree(centres, radii, depth=cfg.depth, cell_factor=cfg.cell_factor, lo=lo, size=size)
+    factor = DEFAULT_CELL_FACTOR if cfg.cell_factor is None else cfg.cell_factor
+    tree = build_octree(centres, radii, depth=cfg.depth, cell_factor=factor, lo=lo, size=size)
+    if cfg.cell_factor is None and tree.n_leaves < cfg.small_leaves:
+        factor = SMALL_CELL_FACTOR  # a small grid: the finer one costs a second or two
+        tree = build_octree(centres, radii, depth=cfg.depth, cell_factor=factor, lo=lo, size=size)
     grid = octree_tets(tree)
     if stats is not None:
-        stats.update(octree_leaves=tree.n_leaves,
+        stats.update(octree_cell_factor=factor, octree_leaves=tree.n_leaves,
                      octree_occupied=sum(int(o.sum()) for o in tree.occupied),
                      octree_levels={l: int(k.numel()) for l, k in enumerate(tree.leaves) if k.numel()})
     log.info("octree grid: %d leaves, %d points, %d tetrahedra", tree.n_leaves, grid.points.shape[0], grid.count)

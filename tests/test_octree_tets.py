@@ -203,10 +203,33 @@ def test_no_piece_holds_more_than_its_share():
 
 @pytest.mark.parametrize("kwargs, match", [
     (dict(cell_factor=0.0), "cell_factor"), (dict(cell_factor=float("nan")), "cell_factor"),
-    (dict(depth=0), "depth"), (dict(depth=20), "depth"), (dict(box_percentile=50), "box_percentile")])
+    (dict(depth=0), "depth"), (dict(depth=20), "depth"), (dict(box_percentile=50), "box_percentile"),
+    (dict(small_leaves=-1), "small_leaves"), (dict(small_leaves=True), "small_leaves")])
 def test_bad_settings_are_clear_errors(kwargs, match):
     with pytest.raises(GofError, match=match):
         octree_grid(torch.zeros(1, 3), torch.ones(1), OctreeConfig(**kwargs))
+
+
+def test_a_small_grid_is_built_at_the_finer_factor_unless_a_factor_is_given():
+    """cell_factor None: DEFAULT_CELL_FACTOR, or SMALL_CELL_FACTOR when the default grid has fewer than small_leaves
+    leaves; a given factor is used as it is."""
+    from gof_warp.octree_tets import DEFAULT_CELL_FACTOR, SMALL_CELL_FACTOR
+
+    gen = torch.Generator().manual_seed(3)
+    centres = torch.rand(40, 3, generator=gen, dtype=torch.float64)
+    radii = torch.full((40,), 0.04, dtype=torch.float64)  # cells of level 5 at 0.5, of level 6 at 0.35
+
+    def built(**kw):
+        stats = {}
+        grid = octree_grid_tets(centres, radii, OctreeConfig(depth=8, **kw), stats=stats)
+        return stats["octree_cell_factor"], stats["octree_leaves"], grid.count
+
+    coarse = built(cell_factor=DEFAULT_CELL_FACTOR)
+    fine = built(cell_factor=SMALL_CELL_FACTOR)
+    assert coarse[0] == DEFAULT_CELL_FACTOR and fine[0] == SMALL_CELL_FACTOR and fine[1] > coarse[1]
+    assert built(small_leaves=coarse[1] + 1) == fine  # under the limit: the finer grid
+    assert built(small_leaves=coarse[1]) == coarse  # at it: the default
+    assert built(small_leaves=0, cell_factor=0.7)[0] == 0.7 and built(small_leaves=10**9, cell_factor=0.7)[0] == 0.7
 
 
 def test_the_far_corner_of_the_deepest_lattice_keeps_its_key():
