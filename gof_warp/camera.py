@@ -226,6 +226,12 @@ class Camera(Intrinsics):
         zs = z.where(z > 0, z.new_ones(()))
         return self.fx * pc[:, 0] / zs + self.cx, self.fy * pc[:, 1] / zs + self.cy, z
 
+    def in_image_tensor(self, points):
+        """:meth:`project_tensor` plus ``inside [N]`` bool, as :meth:`in_image` with ``near`` 0: in front of the camera
+        (``z > 0``) and within the image (``0 <= u < width``, ``0 <= v < height``). Returns ``(u, v, z, inside)``."""
+        u, v, z = self.project_tensor(points)
+        return u, v, z, (z > 0) & (u >= 0) & (u < self.width) & (v >= 0) & (v < self.height)
+
     def in_image(self, points: np.ndarray, near: float = 0.0):
         """:meth:`project` plus ``inside [N]`` bool: in front of the camera (``depth > near``) and within the image
         (``0 <= u < width``, ``0 <= v < height``). Returns ``(uv, depth, inside)``."""

@@ -80,8 +80,7 @@ def surface_measures(gaussians, cameras: Sequence[Camera], *, config: RenderConf
         opacity = gaussians.opacities.detach().reshape(-1)
     for cam in cameras:
         depth = render(gaussians, cam, config=config)["median_depth"]
-        u, v, z = cam.project_tensor(means)
-        inside = (z > 0) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
+        u, v, z, inside = cam.in_image_tensor(means)
         col = torch.where(inside, u, 0.0).floor().long().clamp_(0, cam.width - 1)
         row = torch.where(inside, v, 0.0).floor().long().clamp_(0, cam.height - 1)
         d = depth[row, col]
@@ -190,8 +189,7 @@ def visible_fraction(gaussians, cameras: Sequence[Camera], *, config: RenderConf
     means = gaussians.means.detach()
     best = torch.zeros(means.shape[0], device=means.device)
     for cam in cameras:
-        u, v, z = cam.project_tensor(means)
-        inside = (z > 0) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
+        inside = cam.in_image_tensor(means)[3]
         full = unoccluded_weight(gaussians, cam)
         frac = blend_weights(gaussians, cam, config=config) / full.clamp_min(1e-12)
         best = torch.maximum(best, torch.where(inside & (full > 0), frac, torch.zeros_like(frac)))

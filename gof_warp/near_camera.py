@@ -34,8 +34,7 @@ from .model import quat_to_rotmat
 def centre_depths(means: torch.Tensor, camera: Camera) -> tuple[torch.Tensor, torch.Tensor]:
     """``(depth [N], in_image [N] bool)`` of centres ``means [N, 3]``: camera-space ``z`` and whether the centre is
     in front of the camera (``z > 0``) and projects inside the image (``0 <= u < width``, ``0 <= v < height``)."""
-    u, v, z = camera.project_tensor(means)
-    inside = (z > 0) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+    _, _, z, inside = camera.in_image_tensor(means)
     return z, inside
 
 
