@@ -147,8 +147,13 @@ def test_every_chosen_preset_is_a_shipped_config():
     unbounded = resolve_config("unbounded", [], None)
     assert unbounded.model.init == "auto" and unbounded.render.near_from_points == 0.5
     assert unbounded.densify.near_camera_fraction == 0.25 and unbounded.densify.late_prune_interval == 100
+    # the hidden prune, narrowed by the tail test, is the unbounded preset's alone (session 30's measurements)
+    assert unbounded.densify.hidden_prune_iters == [15000, 20000, 25000, 29000]
+    assert unbounded.densify.hidden_min_tail == 0.05 and unbounded.densify.hidden_max_visible == 0.2
     assert resolve_config("dtu", [], None).model.init == "sfm"
     assert resolve_config("blender", [], None).model.init == "random"
+    for name in ("blender", "dtu", "quick", "mipnerf360", "tnt"):
+        assert resolve_config(name, [], None).densify.hidden_prune_iters == [], name
 
 
 # ----------------------------------------------------------------------------- loss spikes

@@ -7,7 +7,7 @@
 #   PHASE=score bash benchmarks/real_captures/hidden_prune_gpu.sh                # finish, mesh, score, pack
 # bgf: extract --min-views K for each K of VIEWS (default "2"; session 29: "2 3", then "3"), each scored on the whole
 # seen region and the ground-and-objects crop; def: extract with the defaults, scored on the seen region; fox, can:
-# extract with the defaults and draw the mesh pictures.
+# extract with the defaults and draw the mesh pictures (returned as half-size JPEGs).
 # Writes $OUT/hp_<name>/ (metrics, mesh json, scores) and packed geometry.
 set -u
 S=/tmp/hp; mkdir -p $S
@@ -70,7 +70,14 @@ while IFS='|' read -r name scene over; do
       python3 -m gof_warp.extract $run > $R/extract.log 2>&1
       python3 -m gof_warp.pictures $run --mesh $run/mesh_tetra.ply --quiet >> $R/extract.log 2>&1
       python3 -m gof_warp.pictures $run --quiet >> $R/extract.log 2>&1
-      cp $run/mesh_tetra.json $run/pictures/*.png "$R/" 2>/dev/null
+      cp $run/mesh_tetra.json "$R/" 2>/dev/null
+      python3 - "$run/pictures" "$R" <<'PY' || cp $run/pictures/*.png "$R/"
+import sys, pathlib
+from PIL import Image  # the pictures come back as half-size JPEGs: full-size PNGs passed the device's file limit
+for png in pathlib.Path(sys.argv[1]).glob("*.png"):
+    im = Image.open(png).convert("RGB")
+    im.resize((im.width // 2, im.height // 2)).save(pathlib.Path(sys.argv[2]) / (png.stem + ".jpg"), quality=85)
+PY
     else
       python3 -m gof_warp.extract $run > $R/extract.log 2>&1
       "${ev[@]}" --mesh $run/mesh_tetra.ply --json "$R/evaluate_seen.json" > /dev/null 2>&1
