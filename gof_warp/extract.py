@@ -53,12 +53,15 @@ def parse_args(argv=None) -> argparse.Namespace:
                          "benchmarks/extract/README.md)")
     ap.add_argument("--grid", default=TetraConfig.grid, choices=GRIDS,
                     help="tetra: the tetrahedral grid: 'delaunay' (official: Delaunay of the 3-sigma box corners and "
-                         "centres, on the CPU) or 'octree' (a balanced octree sized by the Gaussians, on the model's "
-                         "device; no Delaunay)")
+                         "centres, on the CPU), 'octree' (a balanced octree sized by the Gaussians, on the model's "
+                         "device; no Delaunay) or 'auto' (the default: the octree, but the Delaunay grid for a small "
+                         f"model, whose octree at cell factor {DEFAULT_CELL_FACTOR} has fewer than "
+                         f"{OctreeConfig.small_leaves:,} leaves, unless --cell-factor is given)")
     ap.add_argument("--cell-factor", type=float, default=None,
-                    help="--grid octree: leaf side at most this times a Gaussian's 3-sigma box width (smaller: finer; "
-                         f"default {DEFAULT_CELL_FACTOR}, or {SMALL_CELL_FACTOR} for a grid of fewer than "
-                         f"{OctreeConfig.small_leaves:,} leaves at {DEFAULT_CELL_FACTOR}; given, it is used as it is)")
+                    help="the octree grid: leaf side at most this times a Gaussian's 3-sigma box width (smaller: finer; "
+                         f"default {DEFAULT_CELL_FACTOR}, or with --grid octree {SMALL_CELL_FACTOR} for a grid of fewer "
+                         f"than {OctreeConfig.small_leaves:,} leaves at {DEFAULT_CELL_FACTOR}; given, it is used as it "
+                         "is, and --grid auto keeps the octree)")
     ap.add_argument("--piece-tets", type=int, default=None,
                     help="--grid octree: make and march the grid's tetrahedra in pieces of at most this many, so they are "
                          f"never held whole (default {OctreeConfig.piece_tets}; the mesh is the same for any value)")

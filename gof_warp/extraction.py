@@ -2,10 +2,11 @@
 appendix Algorithms 1–3):
 
 * ``tetra`` (GOF): a tetrahedral grid around the Gaussians → opacity field at its points → marching tetrahedra with
-  binary search on the crossing edges → (optional) quadric decimation to a face budget. The grid is by default the
-  octree grid (``TetraConfig.grid = "octree"``, :mod:`gof_warp.octree_tets`: a balanced octree sized by the 3σ boxes,
-  split into tetrahedra on the model's device, no Delaunay); ``"delaunay"`` is the official one: each Gaussian's
-  centre and 3σ-box corners → (optional level band) → exact Delaunay tetrahedra (cell filter) on the CPU.
+  binary search on the crossing edges → (optional) quadric decimation to a face budget. The grid is by default
+  (``TetraConfig.grid = "auto"``) the octree grid (:mod:`gof_warp.octree_tets`: a balanced octree sized by the 3σ
+  boxes, split into tetrahedra on the model's device, no Delaunay), or for a small model the official one
+  (``"delaunay"``): each Gaussian's centre and 3σ-box corners → (optional level band) → exact Delaunay tetrahedra
+  (cell filter) on the CPU.
 * ``cubes``: the same opacity field on a dense grid → marching cubes (+ the same binary search).
 * ``tsdf``: fusion of rendered median depths (the 2DGS/3DGS baseline) → marching cubes.
 
@@ -179,12 +180,15 @@ def _tetra_grid(gaussians, cameras, config: MeshConfig, tc: TetraConfig, field_f
     tetrahedra as pieces for :func:`_march` (:class:`_WholeTets` of ``[T, 4]`` int32, or the octree's
     :class:`_OctreePieces`), None when there are none; each stage is timed on ``timer``. With several ``ranks`` the
     Delaunay runs on rank 0 only and its tetrahedra are broadcast (every rank has the same points)."""
-    if tc.grid == "octree":
-        return _octree_grid(gaussians, cameras, config, field_fn, timer)
+    grid = None
+    if tc.grid != "delaunay":
+        grid = _octree_grid(gaussians, cameras, config, field_fn, timer)
+        if grid[0] is not None:
+            return grid  # else "auto" found a small model: the Delaunay grid
     with timer("tetra_points"):
         points, owner, scale = grid_points(gaussians.means.detach(), gaussians.rotations.detach(),
                                            gaussians.scales.detach(), gaussians.opacities.detach(), cameras, tc)
-    counts = {"points": int(len(points))}
+    counts = {"grid": grid[3]["grid"] if grid is not None else "delaunay", "points": int(len(points))}
     few_views = config.field.min_views > 1  # the frustum mask kept points one view sees: mark them, drop their cells
     with timer("opacity_field"):  # at every point first: the level band needs it, the marching reuses it
         values = field_fn(points, dataclasses.replace(config.field, unseen_value=UNSEEN_MARK)) if few_views \
@@ -243,16 +247,23 @@ def _octree_grid(gaussians, cameras, config: MeshConfig, field_fn, timer: StageT
     frustum mask drops them before triangulating). To match it, the tetrahedra with a corner no view sees are left
     out: an unseen corner would otherwise carry GOF's "unseen = 1" next to empty seen space and raise walls at the
     frustum boundaries. With ``field.min_views`` > 1 "unseen" means seen by fewer views (both grids). The search keeps
-    GOF's setting, as on the Delaunay grid."""
+    GOF's setting, as on the Delaunay grid.
+
+    With ``TetraConfig.grid = "auto"`` a small model gets no octree: ``(None, None, None, counts)``, ``counts["grid"]``
+    saying why, and :func:`_tetra_grid` takes the Delaunay grid."""
     sub: dict = {}
     with timer("octree_grid"):
         grid = octree_tets_from_gaussians(gaussians.means.detach(), gaussians.scales.detach(),
                                           gaussians.opacities.detach(), cameras, config.tetra, stats=sub)
     timer.stages["octree_grid"]["substages"] = sub
+    if grid is None:
+        oc = config.tetra.octree
+        return None, None, None, {"grid": f"delaunay (auto: {sub['octree_leaves']:,} octree leaves at cell factor "
+                                          f"{sub['octree_cell_factor']:g}, fewer than {oc.small_leaves:,})"}
     with timer("opacity_field"):
         values, seen = _unmarked(field_fn(grid.points, dataclasses.replace(config.field, unseen_value=UNSEEN_MARK)),
                                  config.field.unseen_value)
-    counts = {"points": int(grid.points.shape[0]), "tetrahedra_made": grid.count}
+    counts = {"grid": "octree", "points": int(grid.points.shape[0]), "tetrahedra_made": grid.count}
     log.info("octree grid: %d points, %d tetrahedra", grid.points.shape[0], grid.count)
     tets = _OctreePieces(grid, seen, config.tetra.octree.piece_tets)
     return grid.points, values, (tets if grid.count else None), counts

@@ -85,7 +85,8 @@ _KUHN = torch.tensor([[[0, 0, 0], list(map(int, [a == 0, a == 1, a == 2])),
 # the octree's cell factor when none is given: 0.5 meshes DTU scan 24 in 4.22M faces (the extraction issue's bar 4.3M;
 # 0.35 gives 7.9M) at the Delaunay grid's accuracy on the garden crop (benchmarks/extract/README.md, session 10)
 DEFAULT_CELL_FACTOR = 0.5
-# ... and for a grid of fewer than OctreeConfig.small_leaves leaves at 0.5, where the finer grid costs a second or two.
+# ... and, with TetraConfig.grid = "octree" (the default "auto" takes the Delaunay grid there: gof_warp.tetra), for a
+# grid of fewer than OctreeConfig.small_leaves leaves at 0.5, where the finer grid costs a second or two.
 # The README job's model (40k leaves): Chamfer +3.2 % → +1.7 % against the Delaunay grid over five seeds. colmap_can,
 # fox, background_full (1.0–2.0M leaves at 0.5) and the 400×400 default scene (242k) keep 0.5, as does DTU (800k
 # Gaussians, more than background_full's 360k) (benchmarks/extract/README.md, session 29)
@@ -512,9 +513,16 @@ def octree_tetrahedra(tree: Octree, *, chunk: int = LEAF_CHUNK, return_keys: boo
     return (grid.points, grid.all(), grid.keys) if return_keys else (grid.points, grid.all())
 
 
-def octree_grid_tets(centres, radii, config: OctreeConfig | None = None, stats: dict | None = None) -> OctreeTets:
+def octree_grid_tets(centres, radii, config: OctreeConfig | None = None, stats: dict | None = None,
+                     small_grid: str = "finer") -> OctreeTets | None:
     """Boxes ``centres [N, 3] ± radii [N]`` → the grid (:class:`OctreeTets`: points held, tetrahedra made on demand)
-    on their device (see the module docstring); ``stats`` gets the counts."""
+    on their device (see the module docstring); ``stats`` gets the counts.
+
+    ``small_grid``: what a small grid gets (``config.cell_factor`` None and fewer than ``config.small_leaves`` leaves at
+    ``DEFAULT_CELL_FACTOR``): ``"finer"`` the grid at ``SMALL_CELL_FACTOR``; ``"none"`` nothing: None is returned (the
+    caller meshes it on another grid; ``stats`` still gets ``octree_leaves`` at the default factor)."""
+    if small_grid not in ("finer", "none"):
+        raise GofError(f"octree small_grid must be 'finer' or 'none', got {small_grid!r}")
     cfg = config or OctreeConfig()
     cfg.validate()
     centres = torch.as_tensor(centres).to(torch.float64)
@@ -536,6 +544,12 @@ def octree_grid_tets(centres, radii, config: OctreeConfig | None = None, stats: 
     factor = DEFAULT_CELL_FACTOR if cfg.cell_factor is None else cfg.cell_factor
     tree = build_octree(centres, radii, depth=cfg.depth, cell_factor=factor, lo=lo, size=size)
     if cfg.cell_factor is None and tree.n_leaves < cfg.small_leaves:
+        if small_grid == "none":
+            if stats is not None:
+                stats.update(octree_cell_factor=factor, octree_leaves=tree.n_leaves)
+            log.info("octree grid: %d leaves at cell factor %g, fewer than %d: a small grid", tree.n_leaves, factor,
+                     cfg.small_leaves)
+            return None
         factor = SMALL_CELL_FACTOR  # a small grid: the finer one costs a second or two
         tree = build_octree(centres, radii, depth=cfg.depth, cell_factor=factor, lo=lo, size=size)
     grid = octree_tets(tree)

@@ -43,7 +43,7 @@ log = logging.getLogger(__name__)
 BOX_SIGMAS = 3.0  # paper: "3 times the Gaussian scales"
 CORNER_SIGNS = np.array(list(itertools.product((-1.0, 1.0), repeat=3)))  # [8, 3]
 BAND_NEIGHBOURS = 12  # level_band: nearest points looked at per point
-GRIDS = ("delaunay", "octree")
+GRIDS = ("auto", "delaunay", "octree")
 FAST_OPACITY_MIN = 0.2  # TetraConfig.fast(): −34 % points, F-score ±0.2 points (benchmarks/extract)
 
 
@@ -65,18 +65,21 @@ class TetraConfig:
     # hold the GIL for part of the time (DTU scan 24 on a 16-core host: chunks 60.7 s in threads, 35.3 s in processes)
     delaunay_processes: bool = True
     filter_cells: bool = True  # paper's edge filter (the official code does not filter)
-    # "octree" (default): a balanced octree sized by the Gaussians' boxes, split into tetrahedra on the model's device
+    # "octree": a balanced octree sized by the Gaussians' boxes, split into tetrahedra on the model's device
     # (gof_warp.octree_tets; no Delaunay). "delaunay": the official grid, the Delaunay of the 3σ-box corners and
-    # centres on the CPU. Measured (benchmarks/extract/README.md, session 10): DTU scan 24 on an H200 7.9 s / 4.2M faces
-    # against 81 s / 9.4M; on the synthetic garden's ground-and-objects crop the same Chamfer (0.00563 vs 0.00565); on
-    # the small default scene Chamfer +3.2 % at 0.39x the faces
-    grid: str = "octree"
+    # centres on the CPU. "auto" (default): the octree, but the Delaunay grid for a small model, one whose octree at the
+    # default cell factor would have fewer than octree.small_leaves leaves (and no cell factor is given): there the
+    # Delaunay costs seconds and the octree's few large cells cost accuracy. Measured (benchmarks/extract/README.md):
+    # DTU scan 24 on an H200 7.9 s / 4.2M faces against 81 s / 9.4M, on the synthetic garden's ground-and-objects crop
+    # the same Chamfer (0.00563 vs 0.00565) (session 10); the README job's model (40k leaves), five seeds: the octree
+    # ×0.35 Chamfer +1.7 % (worst +2.3 %) against the Delaunay grid in 7.8 s, the Delaunay grid 15.4 s (session 30)
+    grid: str = "auto"
     octree: OctreeConfig = field(default_factory=OctreeConfig)
 
     def validate(self):
         if self.grid not in GRIDS:
             raise GofError(f"tetra grid must be one of {GRIDS}, got {self.grid!r}")
-        if self.grid == "octree":
+        if self.grid != "delaunay":
             self.octree.validate()
             delaunay_only = {"band (--band)": self.band, "corner_min_extent (--corner-min-extent)":
                              self.corner_min_extent is not None, "backend (--delaunay)": self.backend != "scipy",
@@ -85,11 +88,12 @@ class TetraConfig:
                              "delaunay_chunks": self.delaunay_chunks is not None}
             asked = [name for name, set_ in delaunay_only.items() if set_]
             if asked:
-                raise GofError(f"{', '.join(asked)}: Delaunay-grid settings, but the grid is the octree (the "
-                               "default); add --grid delaunay (TetraConfig.grid = 'delaunay') to use them")
+                raise GofError(f"{', '.join(asked)}: Delaunay-grid settings, but the grid is {self.grid!r} (the octree, "
+                               "or with 'auto', the default, the Delaunay grid only for a small model); add --grid "
+                               "delaunay (TetraConfig.grid = 'delaunay') to use them")
         elif self.octree != OctreeConfig():
             raise GofError(f"octree settings ({self.octree}; --cell-factor, --piece-tets) apply to the octree grid, but the grid "
-                           "is 'delaunay': drop them or use --grid octree (the default)")
+                           "is 'delaunay': drop them or use --grid octree")
 
     @classmethod
     def fast(cls, **overrides) -> TetraConfig:
@@ -302,10 +306,11 @@ def grid_points(means, rotations, scales, opacities=None, cameras: Sequence[Came
 
 
 def octree_tets_from_gaussians(means, scales, opacities=None, cameras: Sequence[Camera] | None = None,
-                               config: TetraConfig | None = None, stats: dict | None = None) -> OctreeTets:
+                               config: TetraConfig | None = None, stats: dict | None = None) -> OctreeTets | None:
     """The octree grid (:mod:`gof_warp.octree_tets`) over the Gaussians' 3σ boxes (radius ``3 max(s)``), with the
     Delaunay grid's selection: ``opacity_min``, and the frustum mask applied to the centres. Returns the grid's
-    :class:`~gof_warp.octree_tets.OctreeTets` (points held, tetrahedra made in pieces) on the means' device."""
+    :class:`~gof_warp.octree_tets.OctreeTets` (points held, tetrahedra made in pieces) on the means' device, or, with
+    ``config.grid = "auto"``, None for a small model, whose grid is the Delaunay one (``stats`` says why)."""
     cfg = config or TetraConfig()
     mu = _as_tensor(means, "means", (3,))
     s = _checked_scales(scales, mu.shape[0], mu.device)
@@ -316,7 +321,8 @@ def octree_tets_from_gaussians(means, scales, opacities=None, cameras: Sequence[
         raise GofError(f"no Gaussian is left for the octree grid: of {mu.shape[0]}, none has its centre in some camera's "
                        f"view (near {cfg.near:g}, far {cfg.far:g})"
                        + (f" and opacity >= opacity_min {cfg.opacity_min:g}" if cfg.opacity_min is not None else ""))
-    return octree_grid_tets(mu[keep], BOX_SIGMAS * s[keep].max(dim=1).values, cfg.octree, stats=stats)
+    return octree_grid_tets(mu[keep], BOX_SIGMAS * s[keep].max(dim=1).values, cfg.octree, stats=stats,
+                            small_grid="none" if cfg.grid == "auto" else "finer")
 
 
 def tetrahedral_grid(means, rotations, scales, opacities=None, cameras: Sequence[Camera] | None = None,

@@ -99,6 +99,31 @@ def test_octree_grid_gives_the_closed_analytic_sphere():
         MeshConfig(tetra=TetraConfig(grid="voronoi")).validate()
 
 
+def test_auto_grid_takes_the_delaunay_grid_for_a_small_model_only():
+    """grid="auto" (the default): a model whose octree at the default factor has fewer than small_leaves leaves is
+    meshed on the Delaunay grid (the same mesh, and the stage JSON says why); at or over the limit, or with a cell
+    factor given, on the octree (the same mesh as grid="octree")."""
+    cams = _ring_cameras()
+    cfg_render = RenderConfig(alpha_min=0.0, k_max=10.0)
+
+    def mesh(**tetra):
+        timer = StageTimer("cpu")
+        (v, f), = extract_mesh(_one_gaussian(), cams, MeshConfig(binary_steps=4, tetra=TetraConfig(**tetra)),
+                               render_config=cfg_render, timer=timer)
+        return v, f, timer.stages["counts"]["grid"]
+
+    assert TetraConfig().grid == "auto"
+    v_auto, f_auto, why = mesh()
+    v_del, f_del, _ = mesh(grid="delaunay")
+    assert why.startswith("delaunay (auto:") and "fewer than 100,000" in why
+    assert np.array_equal(f_auto, f_del) and np.array_equal(v_auto, v_del)
+    v_oct, f_oct, why_oct = mesh(grid="octree", octree=OctreeConfig(small_leaves=0))
+    assert why_oct == "octree" and len(f_oct) != len(f_del)  # a different grid: a different mesh
+    for octree in (OctreeConfig(small_leaves=0), OctreeConfig(cell_factor=0.5)):
+        v, f, why = mesh(octree=octree)
+        assert why == "octree" and np.array_equal(f, f_oct) and np.array_equal(v, v_oct)
+
+
 def test_octree_grid_marched_in_pieces_is_the_mesh_marched_at_once():
     """OctreeConfig.piece_tets: the grid's tetrahedra made, marched and their crossing edges collected a piece at a
     time, the search run once on the union, the pieces joined by edge key: the same vertices and faces, bit for bit,
