@@ -250,6 +250,10 @@ class Trainer:
         self._hidden = (lambda: hidden_gaussians(self.gaussians, self.cameras, margin=hid.hidden_margin,
                                                  max_visible=hid.hidden_max_visible, min_tail=hid.hidden_min_tail,
                                                  config=self.render_config)) if hid.hidden_prune_iters else None
+        late = sorted(i for i in hid.hidden_prune_iters if i > config.iterations)
+        if late:  # e.g. the unbounded preset's 15k-29k prunes in a shorter run: said, not silently skipped
+            log.info("densify.hidden_prune_iters %s lie beyond this run's %d iterations: %s", late, config.iterations,
+                     "no hidden prune in it" if len(late) == len(hid.hidden_prune_iters) else "those prunes do not run")
         self.appearance = None
         self.appearance_optimizer = None
         if config.appearance:

@@ -217,3 +217,24 @@ def test_training_with_a_hidden_prune_reports_it(tiny_train_scene, tiny_train_ov
     assert expected > 0  # 300 random points in a box: some lie inside the objects' renders' surfaces
     assert json.loads((tmp_path / "run" / "metrics.json").read_text())["hidden_pruned"] == metrics["hidden_pruned"]
     assert np.isfinite(metrics["test"]["psnr"])
+
+
+def test_prune_iterations_beyond_the_run_are_said(tiny_train_scene, tiny_train_overrides, tmp_path, caplog):
+    """The unbounded preset prunes at 15k-29k: a shorter run says that its prunes do not run, naming them."""
+    import logging
+
+    from gof_warp.data import load_scene
+    from gof_warp.preset_choice import resolve_config
+    from gof_warp.trainer import Trainer
+
+    scene = load_scene(tiny_train_scene)
+    for prunes, said in (("[4,40]", "densify.hidden_prune_iters [40] lie beyond this run's 6 iterations: those"),
+                         ("[40,50]", "[40, 50] lie beyond this run's 6 iterations: no hidden prune in it"),
+                         ("[4]", None)):
+        caplog.clear()
+        cfg = resolve_config("quick", [*tiny_train_overrides, "iterations=6", f"densify.hidden_prune_iters={prunes}"],
+                             None)
+        with caplog.at_level(logging.INFO, logger="gof_warp.trainer"):
+            Trainer(scene, cfg, tmp_path / prunes.strip("[]").replace(",", "_"), "cpu")
+        lines = [r.getMessage() for r in caplog.records if "hidden_prune_iters" in r.getMessage()]
+        assert (lines == []) if said is None else (len(lines) == 1 and said in lines[0]), lines
