@@ -15,9 +15,9 @@ A reduction is ``none`` or comma-separated ``key=value`` with keys ``opacity_min
 diagonal of the Gaussians' robust box), ``workers`` (``TetraConfig.delaunay_workers``: Delaunay in
 chunks on that many workers, 0 = every CPU), ``processes`` (1: the chunks in forked processes, the default;
 0: in threads), ``grid`` (``delaunay`` or ``octree``) and ``cell_factor`` (the octree's) — the last four are not
-reductions, but set per run the same way. ``none`` is the default grid (the octree since session 10); the Delaunay-point
-settings (``corner_*``, ``workers``, ``processes``) need ``grid=delaunay`` first. Reductions apply to ``tetra``
-only; ``cubes``/``tsdf`` run once.
+reductions, but set per run the same way. ``none`` is the default grid (the octree since session 10; since session
+30 ``auto``: the Delaunay grid for a small model); the Delaunay-point settings (``corner_*``, ``workers``,
+``processes``) need ``grid=delaunay`` first. Reductions apply to ``tetra`` only; ``cubes``/``tsdf`` run once.
 Memory per stage: ``host_peak_rss_mb`` (process maximum so far, from ``extract.StageTimer``),
 ``peak_rss_above_start_mb`` (sampled every 5 ms), ``peak_tree_pss_mb`` (PSS of the process and its forked
 workers, sampled every 50 ms: the memory the stage really holds), ``gpu_peak_allocated_mb`` (torch), and
