@@ -218,10 +218,15 @@ class Camera(Intrinsics):
             v = self.fy * pc[:, 1] / z + self.cy
         return np.stack([u, v], axis=1), z
 
+    def to_camera_tensor(self, points):
+        """:meth:`to_camera` of a torch tensor ``points [N, 3]`` on its device, in its dtype: ``R x + t`` ``[N, 3]``
+        (``z``, the last column, is the depth)."""
+        return points @ points.new_tensor(self.R).T + points.new_tensor(self.t)
+
     def project_tensor(self, points):
         """:meth:`project` of a torch tensor ``points [N, 3]`` on its device, in its dtype: ``(u [N], v [N], z [N])``.
         Where ``z <= 0`` the projection divides by 1 instead (finite, meaningless: test ``z`` first)."""
-        pc = points @ points.new_tensor(self.R).T + points.new_tensor(self.t)
+        pc = self.to_camera_tensor(points)
         z = pc[:, 2]
         zs = z.where(z > 0, z.new_ones(()))
         return self.fx * pc[:, 0] / zs + self.cx, self.fy * pc[:, 1] / zs + self.cy, z

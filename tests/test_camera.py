@@ -126,6 +126,8 @@ def test_project_tensor_matches_project_in_float64_and_stays_finite_behind_the_c
     assert torch.isfinite(u).all() and torch.isfinite(v).all()
     u32, _, _ = cam.project_tensor(torch.tensor(pts, dtype=torch.float32))
     assert u32.dtype == torch.float32
+    assert np.allclose(cam.to_camera_tensor(torch.tensor(pts, dtype=torch.float64)).numpy(), cam.to_camera(pts),
+                       atol=1e-12)  # the torch twin of to_camera
     *_, inside = cam.in_image_tensor(torch.tensor(pts, dtype=torch.float64))  # the torch twin of in_image
     expected = cam.in_image(pts)[2]
     assert 0 < expected.sum() < front.sum() and np.array_equal(inside.numpy(), expected)
