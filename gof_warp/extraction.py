@@ -180,15 +180,16 @@ def _tetra_grid(gaussians, cameras, config: MeshConfig, tc: TetraConfig, field_f
     tetrahedra as pieces for :func:`_march` (:class:`_WholeTets` of ``[T, 4]`` int32, or the octree's
     :class:`_OctreePieces`), None when there are none; each stage is timed on ``timer``. With several ``ranks`` the
     Delaunay runs on rank 0 only and its tetrahedra are broadcast (every rank has the same points)."""
-    grid = None
+    chosen = "delaunay"
     if tc.grid != "delaunay":
-        grid = _octree_grid(gaussians, cameras, config, field_fn, timer)
-        if grid[0] is not None:
-            return grid  # else "auto" found a small model: the Delaunay grid
+        octree = _octree_grid(gaussians, cameras, config, field_fn, timer)
+        if octree[0] is not None:
+            return octree
+        chosen = octree[3]["grid"]  # "auto" found a small model: the Delaunay grid, and why
     with timer("tetra_points"):
         points, owner, scale = grid_points(gaussians.means.detach(), gaussians.rotations.detach(),
                                            gaussians.scales.detach(), gaussians.opacities.detach(), cameras, tc)
-    counts = {"grid": grid[3]["grid"] if grid is not None else "delaunay", "points": int(len(points))}
+    counts = {"grid": chosen, "points": int(len(points))}
     few_views = config.field.min_views > 1  # the frustum mask kept points one view sees: mark them, drop their cells
     with timer("opacity_field"):  # at every point first: the level band needs it, the marching reuses it
         values = field_fn(points, dataclasses.replace(config.field, unseen_value=UNSEEN_MARK)) if few_views \
