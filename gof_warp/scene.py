@@ -7,8 +7,10 @@ masks are ``uint8`` ``[H, W]`` (255 = object / foreground, 0 = background).
 
 from __future__ import annotations
 
+import hashlib
 import logging
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -17,6 +19,36 @@ from .errors import SceneError
 
 log = logging.getLogger(__name__)
 SAME_POSE_TOL = 1e-6  # centres closer than this × (1 + their distance from the origin) coincide; rotations likewise
+
+
+@dataclass(frozen=True)
+class ImageSource:
+    """Where a view's pixels came from: the image file and how it was decoded.
+
+    JPEG decoders need not agree bit for bit (the standard allows each IDCT its rounding), so what
+    identifies a view's image across machines (e.g. for a cache carried with the scene) is the file's bytes and the
+    decoding settings, not the decoded array.
+
+    Attributes:
+        path: the image file.
+        settings: every setting of the decoding that changes the pixels besides the output size (which the camera
+            carries): alpha compositing and its background, the lens undistorted.
+    """
+
+    path: Path
+    settings: str = ""
+
+    def digest(self) -> str | None:
+        """Hex SHA-256 of the file's bytes and the settings, or None if the file can no longer be read."""
+        h = hashlib.sha256()
+        try:
+            with open(self.path, "rb") as f:
+                for block in iter(lambda: f.read(1 << 20), b""):
+                    h.update(block)
+        except OSError:
+            return None
+        h.update(b"\0" + self.settings.encode("utf-8"))
+        return h.hexdigest()
 
 
 @dataclass(eq=False)
@@ -28,12 +60,14 @@ class View:
         image: ``[H, W, 3]`` uint8 RGB, already composited on the scene background where it had alpha.
         mask: ``[H, W]`` uint8 (255 inside), or None. Blender alpha and DTU object masks land here.
         name: image name (file stem).
+        source: the file and decoding the image came from (:class:`ImageSource`), or None for an image made in memory.
     """
 
     camera: Camera
     image: np.ndarray
     mask: np.ndarray | None = None
     name: str = ""
+    source: ImageSource | None = None
 
     def __post_init__(self):
         h, w = self.camera.height, self.camera.width

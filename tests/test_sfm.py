@@ -124,9 +124,10 @@ def test_cache_key_depends_on_inputs(synthetic):
     assert cache_key(views, SfmConfig()) == base
     assert cache_key(views, SfmConfig(max_features=1000)) != base
     assert cache_key(views[::-1], SfmConfig()) != base
-    changed = dataclasses.replace(views[0], image=views[0].image.copy())
+    in_memory = [dataclasses.replace(v, source=None) for v in views]  # keyed by their pixels
+    changed = dataclasses.replace(in_memory[0], image=views[0].image.copy())
     changed.image[0, 0, 0] ^= 1
-    assert cache_key([changed] + views[1:], SfmConfig()) != base
+    assert cache_key([changed] + in_memory[1:], SfmConfig()) != cache_key(in_memory, SfmConfig())
     cam = views[0].camera
     moved = dataclasses.replace(views[0], camera=dataclasses.replace(cam, t=np.asarray(cam.t) + [1e-3, 0.0, 0.0]))
     assert cache_key([moved] + views[1:], SfmConfig()) != base
@@ -140,6 +141,30 @@ def test_cache_key_survives_last_bit_pose_differences(synthetic):
     ulp = dataclasses.replace(cam, R=np.nextafter(np.asarray(cam.R, np.float64), 2.0),
                               t=np.nextafter(np.asarray(cam.t, np.float64), -2.0))
     assert cache_key([dataclasses.replace(views[0], camera=ulp)] + views[1:], SfmConfig()) == cache_key(views, SfmConfig())
+
+
+def test_cache_key_follows_the_image_files_not_the_decoder(synthetic, tmp_path):
+    """Another machine's JPEG decoder may round some pixels the other way: the key must not change; it must change
+    when the file or its decoding settings do, and a view whose file is gone is keyed by its pixels."""
+    scene, _ = synthetic
+    views = scene.train[:3]
+    assert all(v.source is not None and v.source.path.is_file() for v in views)
+    base = cache_key(views, SfmConfig())
+    other_decoder = dataclasses.replace(views[0], image=views[0].image.copy())
+    other_decoder.image[5, 7, 1] ^= 1
+    assert cache_key([other_decoder] + views[1:], SfmConfig()) == base
+    copy = tmp_path / views[0].source.path.name
+    copy.write_bytes(views[0].source.path.read_bytes())
+    moved_file = dataclasses.replace(views[0], source=dataclasses.replace(views[0].source, path=copy))
+    assert cache_key([moved_file] + views[1:], SfmConfig()) == base  # the scene carried elsewhere
+    copy.write_bytes(copy.read_bytes() + b"\0")
+    assert cache_key([moved_file] + views[1:], SfmConfig()) != base
+    settings = dataclasses.replace(views[0], source=dataclasses.replace(views[0].source, settings="other"))
+    assert cache_key([settings] + views[1:], SfmConfig()) != base
+    copy.unlink()
+    assert moved_file.source.digest() is None
+    pixels = dataclasses.replace(views[0], source=None)
+    assert cache_key([moved_file] + views[1:], SfmConfig()) == cache_key([pixels] + views[1:], SfmConfig())
 
 
 def test_corrupt_cache_is_recomputed(synthetic, triangulated, tmp_path, caplog):

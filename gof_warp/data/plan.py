@@ -24,7 +24,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import SceneError
-from ..scene import Scene, View
+from ..scene import ImageSource, Scene, View
 from . import images as imio
 from .undistort import LensCamera, undistort_image
 
@@ -169,7 +169,8 @@ def _decode_view(k: _Checked, out_cam: Camera, background, use_masks: bool, undi
             mask = undistort_image(mask, lens, *K, background=0.0, device=undistort_device)
     if mask is not None and v.mask_threshold is not None:
         mask = np.where(mask > v.mask_threshold, 255, 0).astype(np.uint8)
-    return View(camera=out_cam, image=img, mask=mask, name=out_cam.name)
+    settings = f"composite_alpha={v.composite_alpha} background={tuple(map(float, background))!r} lens={k.lens!r}"
+    return View(camera=out_cam, image=img, mask=mask, name=out_cam.name, source=ImageSource(v.image_path, settings))
 
 
 def unique_names(rel_names: list[str]) -> list[str]:

@@ -62,9 +62,11 @@ CAMERA_DIGITS = 7  # decimals of the camera values in the cache key
 
 
 def _views_digest(views: list[View]) -> str:
-    """Digest of the views' names, cameras and image bytes. Cameras are rounded to ``CAMERA_DIGITS`` decimals: the
-    same poses read on another machine can differ in the last bits (the pose inversion's floating-point order), and
-    a cache carried with the scene must still be found there."""
+    """Digest of the views' names, cameras and images. A cache carried with the scene must be found on another
+    machine, so cameras are rounded to ``CAMERA_DIGITS`` decimals (the same poses read there can differ in the last
+    bits: the pose inversion's floating-point order), and an image decoded from a file is identified by the file's
+    bytes and decoding settings (:class:`~gof_warp.scene.ImageSource`: another JPEG decoder may round some pixels the
+    other way). An image made in memory, or whose file is gone, is identified by its pixels."""
     h = hashlib.sha256()
     for v in views:
         c = v.camera
@@ -72,7 +74,11 @@ def _views_digest(views: list[View]) -> str:
         pose = np.concatenate([np.asarray(c.R, np.float64).ravel(), np.asarray(c.t, np.float64).ravel(),
                                np.array([c.fx, c.fy, c.cx, c.cy, c.width, c.height], np.float64)])
         h.update(np.round(pose, CAMERA_DIGITS).tobytes())
-        h.update(hashlib.sha256(np.ascontiguousarray(v.image).tobytes()).digest())
+        file_digest = v.source.digest() if v.source is not None else None
+        if file_digest is not None:
+            h.update(b"file\0" + file_digest.encode())
+        else:
+            h.update(b"pixels\0" + hashlib.sha256(np.ascontiguousarray(v.image).tobytes()).digest())
     return h.hexdigest()
 
 
