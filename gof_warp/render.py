@@ -8,16 +8,19 @@ returns the per-pixel maps as ``[H, W, ...]`` tensors.
 
 from __future__ import annotations
 
+import functools
 import math
+import threading
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 import warp as wp
 
 from .camera import Camera
-from .kernels.render_types import camera_params_from, make_raster_settings
+from .kernels.render_types import camera_params_from, make_camera_params, make_raster_settings
 from .kernels.binning import TileListSizer
-from .kernels.renderer import RenderOutputs, render_backward, render_forward
+from .kernels.renderer import RenderOutputs, ScratchPool, render_backward, render_forward
 
 
 _PARAM_NAMES = ("means", "quats", "scales", "opacities", "sh_dc", "sh_rest")
@@ -115,12 +118,28 @@ def raster_settings_for(camera: Camera, config: RenderConfig, pixel_pad: float =
     ``gof_warp.kernels.render_types``; 0 for rendering pixel centres). The clipping depth is the larger of
     ``config.near`` and the camera's own ``near`` (:attr:`Camera.near`); the distortion's NDC depth keeps
     ``config.near`` as its near plane, so a camera's clip does not change what the distortion weighs."""
-    return make_raster_settings(camera.width, camera.height, config.clip_near(camera), config.alpha_min, config.alpha_max,
-                                config.transmittance_min, config.k_max, config.background, config.tile_size,
-                                pixel_pad=pixel_pad, distortion=config.distortion, far=config.far,
-                                tile_cull=config.tile_cull,
-                                distortion_linear_from=config.distortion_linear_from,
-                                ndc_near=config.near)  # fmt: skip
+    return _make_raster_settings(*_raster_settings_args(camera, config, pixel_pad))
+
+
+def _raster_settings_args(camera: Camera, config: RenderConfig, pixel_pad: float) -> tuple:
+    """The arguments of :func:`_make_raster_settings` for ``camera`` under ``config``: every value the settings are
+    made of, hashable (the key of :class:`RenderScratch`'s shared settings)."""
+    return (camera.width, camera.height, config.clip_near(camera), config.alpha_min, config.alpha_max,
+            config.transmittance_min, config.k_max, tuple(float(b) for b in config.background), config.tile_size,
+            pixel_pad, config.distortion, config.far, config.tile_cull, config.distortion_linear_from,
+            config.near)  # fmt: skip
+
+
+def _make_raster_settings(width, height, near, alpha_min, alpha_max, transmittance_min, k_max, background, tile_size,
+                          pixel_pad, distortion, far, tile_cull, distortion_linear_from, ndc_near):  # fmt: skip
+    return make_raster_settings(width, height, near, alpha_min, alpha_max, transmittance_min, k_max, background,
+                                tile_size, pixel_pad=pixel_pad, distortion=distortion, far=far, tile_cull=tile_cull,
+                                distortion_linear_from=distortion_linear_from, ndc_near=ndc_near)  # fmt: skip
+
+
+def _camera_params_from_bytes(R: bytes, t: bytes, fx, fy, cx, cy, width, height):
+    """``camera_params_from`` for a camera whose float64 ``R [3, 3]`` and ``t [3]`` are given as bytes."""
+    return make_camera_params(np.frombuffer(R).reshape(3, 3), np.frombuffer(t), fx, fy, cx, cy, width, height)
 
 
 class DensifyStats:
@@ -162,10 +181,92 @@ class DensifyStats:
         self.visible_count += (radii > 0).to(torch.int32)
 
 
-def _stream_scope(device: torch.device):
-    """Launch on torch's current stream on CUDA; a no-op scope on the CPU."""
+class RenderScratch:
+    """What a caller that renders over and over (a training loop) keeps between its renders to spend less host time
+    on each: pass one to :func:`render` / :func:`rasterize` (``scratch=``), as a :class:`TileListSizer`. Outputs and
+    gradients are the same as without it, bit for bit; the renders without one are untouched.
+
+    It holds:
+
+    - ``pool``, a :class:`~gof_warp.kernels.renderer.ScratchPool`: the scratch arrays of finished renders (the
+      per-Gaussian ``SplatScratch`` and ``GradScratch``, the per-pixel ``PixelScratch``, and the Warp structs over
+      them), handed to the next render of exactly the same sizes. A forward's arrays come back after its backward (at
+      once when no backward will come: under ``torch.no_grad()`` or when no input requires a gradient), so a render
+      whose backward is pending never shares arrays with another render.
+    - the camera and settings structs of the latest ``max_views`` distinct views and settings, keyed by every value
+      they are made of (the camera's pose and intrinsics; the config's values and the camera's near plane), so a
+      struct handed out is the one a new render would build; the renders of a view share it (no render changes one).
+    - Warp's wrapper of each torch CUDA stream rendered on (by device and stream handle), made once instead of per
+      forward and per backward; every render launches on torch's current stream, as without it.
+
+    Memory, for ``N`` Gaussians and images of ``P`` pixels in ``T`` tiles: with one render in flight at a time (the
+    trainer) the spares held between renders are ``248·N + 20·P + 8·T`` bytes (a forward's 172 B a Gaussian and a
+    backward's 76, which per-render arrays would have freed), plus ``20·P + 8·T`` for each of up to 3 more image sizes
+    rendered last; at most ``max_spares`` times that with renders overlapping. That is the most it adds to the memory
+    in use at any moment (between renders; during one, 172 B a Gaussian at most): ~210 MB at 800k Gaussians on
+    800×600 images. Spares of an older ``N`` are freed when a new one is taken, and :meth:`clear` frees them all (the
+    trainer does before a step that densifies or prunes). On the host, the struct caches hold ~3.5 MB when full
+    (1024 views and 1024 settings); one stream wrapper per torch stream rendered on (torch's streams are a fixed pool).
+
+    Threads and streams: one object may serve renders on several threads (torch runs a CUDA backward on a thread of
+    its own) and streams: the pool and the wrapper cache are guarded by locks, and spares are filed per device and
+    per stream the render launched on, so a spare goes only to a later render on the same stream, queued behind the
+    kernels that used it; one given back on another stream is dropped. Not for renders captured into CUDA graphs,
+    and not to be shared between processes.
+
+    Checked on CUDA (one H100, session 31, ``benchmarks/train/README.md``): ``tests/test_render_host_glue.py``
+    (outputs bit for bit, gradients within the float atomics' run-to-run spread, spares on two streams); host time
+    of a forward + backward at 800k Gaussians on 800×600 6.29 → 4.95 ms, GPU time unchanged; DTU scan 24 at 30k
+    trained 355.0 → 348.6 s, Warp's pool peak 183 → 245 MB (within the bound above). Not yet run:
+    ``compute-sanitizer --tool memcheck``. On a non-default torch stream, Warp 1.19 registers a stream per wrapper
+    without counting them, so a short-lived wrapper of the same handle made elsewhere (a render without a scratch,
+    ``volume.py``, ``marching_inputs.py``) unregisters it under the cached one when it dies, as per-render wrappers
+    already do to each other; the trainer renders on torch's default stream (handle 0), which Warp never registers.
+    """
+
+    def __init__(self, max_spares: int = 2, max_views: int = 1024):
+        self.pool = ScratchPool(max_spares)
+        self.max_views = int(max_views)
+        self._camera_params = functools.lru_cache(maxsize=self.max_views)(_camera_params_from_bytes)
+        self._raster_settings = functools.lru_cache(maxsize=self.max_views)(_make_raster_settings)
+        self._streams: dict[tuple[int, int], wp.Stream] = {}  # (device ordinal, stream handle) -> Warp's wrapper
+        self._lock = threading.Lock()
+
+    def view_structs(self, camera: Camera, config: RenderConfig) -> tuple:
+        """``(camera_params_from(camera), raster_settings_for(camera, config))``, shared with the earlier renders of
+        the same values (never to be modified)."""
+        R, t = (np.ascontiguousarray(x, dtype=np.float64).tobytes() for x in (camera.R, camera.t))
+        cam = self._camera_params(R, t, camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height)
+        return cam, self._raster_settings(*_raster_settings_args(camera, config, 0.0))
+
+    def stream_scope(self, device: torch.device):
+        """A scope that launches on torch's current stream of ``device`` (CUDA) through a cached Warp wrapper."""
+        stream = torch.cuda.current_stream(device)
+        key = (stream.device_index, stream.cuda_stream)
+        wp_stream = self._streams.get(key)
+        if wp_stream is None:
+            with self._lock:  # one wrapper per handle: a second would unregister the stream when it dies
+                wp_stream = self._streams.get(key)
+                if wp_stream is None:
+                    wp_stream = self._streams[key] = wp.stream_from_torch(stream)
+        return wp.ScopedStream(wp_stream)
+
+    def nbytes(self) -> int:
+        """Bytes of the spare arrays held now."""
+        return self.pool.nbytes()
+
+    def clear(self) -> None:
+        """Free the spare arrays (the structs and stream wrappers stay: they are small)."""
+        self.pool.clear()
+
+
+def _stream_scope(device: torch.device, scratch: RenderScratch | None = None):
+    """Launch on torch's current stream on CUDA (through ``scratch``'s wrapper of it when given); a no-op scope on the
+    CPU."""
     wp.init()  # stream_from_torch needs Warp's runtime (idempotent)
     if device.type == "cuda":
+        if scratch is not None:
+            return scratch.stream_scope(device)
         return wp.ScopedStream(wp.stream_from_torch(device))
     return wp.ScopedDevice("cpu")
 
@@ -181,23 +282,29 @@ def _wp(t: torch.Tensor, dtype=None, launch_only: bool = False):
 
 class _RasterizeFunction(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, means, quats, scales, opacities, sh_dc, sh_rest, cam, settings, sh_degree, stats, sizer):
+    def forward(ctx, means, quats, scales, opacities, sh_dc, sh_rest, cam, settings, sh_degree, stats, sizer, scratch,
+                differentiable):
         device = means.device
+        pool = None if scratch is None else scratch.pool
         H, W = cam.height, cam.width
         f32 = dict(dtype=torch.float32, device=device)
         outs = [torch.empty(H * W, 3, **f32), torch.empty(H * W, **f32), torch.empty(H * W, **f32),
                 torch.empty(H * W, **f32), torch.empty(H * W, 3, **f32), torch.empty(H * W, **f32)]  # fmt: skip
         types = (wp.vec3, None, None, None, wp.vec3, None)
-        with _stream_scope(device):
+        with _stream_scope(device, scratch):
             args = [_wp(x, t, launch_only) for x, t, launch_only in
                     zip((means, quats, scales, opacities, sh_dc, sh_rest), _PARAM_TYPES, _LAUNCH_ONLY)]
             out = RenderOutputs(*[_wp(o, t) for o, t in zip(outs, types)])
-            _, state = render_forward(*args[:4], tuple(args[4:]), sh_degree, cam, settings, out=out, sizer=sizer)
+            _, state = render_forward(*args[:4], tuple(args[4:]), sh_degree, cam, settings, out=out, sizer=sizer,
+                                      pool=pool)  # fmt: skip
             radii = wp.to_torch(state.radii)
             if stats is not None:
                 stats._record_radii(radii)
-            radii = radii.clone()
-        ctx.state, ctx.stats, ctx.types, ctx.device = state, stats, types, device
+            radii = radii.clone()  # the state's radii may be a spare's, which the next render overwrites
+            if pool is not None and not differentiable:  # no backward will come: the arrays can go at once
+                pool.give(*state.scratch)
+                state = None
+        ctx.state, ctx.stats, ctx.types, ctx.device, ctx.scratch = state, stats, types, device, scratch
         ctx.shapes = [x.shape for x in (means, quats, scales, opacities, sh_dc, sh_rest)]
         ctx.mark_non_differentiable(radii)
         ctx.set_materialize_grads(False)  # outputs without a gradient come as None (zeros made below, none for radii)
@@ -215,15 +322,18 @@ class _RasterizeFunction(torch.autograd.Function):
             shape = (num_pixels, 3) if t is wp.vec3 else (num_pixels,)
             flat.append(torch.zeros(shape, dtype=torch.float32, device=device) if g is None else g.reshape(shape).float().contiguous())
         grad_in = [torch.zeros(s, dtype=torch.float32, device=device) for s in ctx.shapes]
-        with _stream_scope(device):
+        pool = None if ctx.scratch is None else ctx.scratch.pool
+        with _stream_scope(device, ctx.scratch):
             grad_out = RenderOutputs(*[_wp(g, t) for g, t in zip(flat, ctx.types)])
             wp_in = tuple(_wp(g, t, launch_only=True) for g, t in zip(grad_in, _PARAM_TYPES))
             g2d = g2abs = None
             if stats is not None:
                 g2d, g2abs = _wp(stats.grad2d, wp.vec2, launch_only=True), _wp(stats.grad2d_abs)
-            render_backward(state, grad_out, (*wp_in[:4], tuple(wp_in[4:])), g2d, g2abs, zeroed=True)
+            render_backward(state, grad_out, (*wp_in[:4], tuple(wp_in[4:])), g2d, g2abs, zeroed=True, pool=pool)
+            if pool is not None:  # inside the scope: the pool files them under the stream they were used on
+                pool.give(*state.scratch)
         ctx.state = None  # the forward state is not used after this
-        return (*grad_in, None, None, None, None, None)
+        return (*grad_in, None, None, None, None, None, None, None)
 
 
 def _check_params(means, quats, scales, opacities, sh, check_values: bool = True):
@@ -263,7 +373,8 @@ def _check_params(means, quats, scales, opacities, sh, check_values: bool = True
 
 
 def rasterize(means, quats, scales, opacities, sh, camera: Camera, *, sh_degree=None, config=None, stats=None,
-              check_values: bool = True, tile_lists: TileListSizer | None = None) -> dict:
+              check_values: bool = True, tile_lists: TileListSizer | None = None,
+              scratch: RenderScratch | None = None) -> dict:
     """Render activated Gaussian parameters from ``camera`` (differentiable w.r.t. every tensor).
 
     Args:
@@ -280,6 +391,8 @@ def rasterize(means, quats, scales, opacities, sh, camera: Camera, *, sh_degree=
         tile_lists: a :class:`~gof_warp.kernels.binning.TileListSizer` kept across renders (a training loop's):
             the tile lists are sized from earlier renders' counts instead of reading this one's back, so the host
             need not wait for the GPU. ``None``: exact sizing (one device-to-host read per render).
+        scratch: a :class:`RenderScratch` kept across renders (a training loop's): scratch arrays, structs and stream
+            wrappers of earlier renders are reused, which spares host time; same results. ``None``: all made anew.
 
     Returns:
         dict of ``[H, W]``/``[H, W, 3]`` float32 tensors: ``rgb``, ``alpha`` (1 − T), ``depth`` (expected
@@ -304,27 +417,36 @@ def rasterize(means, quats, scales, opacities, sh, camera: Camera, *, sh_degree=
             raise TypeError(f"rasterize: stats must be a DensifyStats, got {type(stats).__name__}")
         if len(stats) != means.shape[0] or stats.grad2d.device != means.device:
             raise ValueError(f"rasterize: stats holds {len(stats)} Gaussians on {stats.grad2d.device}, need {means.shape[0]} on {means.device}")
-    cam = camera_params_from(camera)
-    settings = raster_settings_for(camera, config)
     if tile_lists is not None and not isinstance(tile_lists, TileListSizer):
         raise TypeError(f"rasterize: tile_lists must be a TileListSizer, got {type(tile_lists).__name__}")
+    differentiable = True
+    if scratch is None:
+        cam, settings = camera_params_from(camera), raster_settings_for(camera, config)
+    elif isinstance(scratch, RenderScratch):
+        cam, settings = scratch.view_structs(camera, config)
+        # whether autograd will record the render: if not, no backward comes to give its arrays back
+        differentiable = torch.is_grad_enabled() and any(
+            x.requires_grad for x in (means, quats, scales, opacities, sh_dc, sh_rest))
+    else:
+        raise TypeError(f"rasterize: scratch must be a RenderScratch, got {type(scratch).__name__}")
     rgb, alpha, accum, median, normal, dist, radii = _RasterizeFunction.apply(
-        means, quats, scales, opacities, sh_dc, sh_rest, cam, settings, sh_degree, stats, tile_lists
-    )
+        means, quats, scales, opacities, sh_dc, sh_rest, cam, settings, sh_degree, stats, tile_lists, scratch,
+        differentiable)
     seen = alpha > 0
     depth = torch.where(seen, accum / torch.where(seen, alpha, 1.0), 0.0)
     return dict(rgb=rgb, alpha=alpha, depth=depth, accum_depth=accum, median_depth=median, normal=normal, distortion=dist, radii=radii)
 
 
-def render(gaussians, camera: Camera, *, config=None, stats=None, sh_degree=None, tile_lists=None) -> dict:
+def render(gaussians, camera: Camera, *, config=None, stats=None, sh_degree=None, tile_lists=None,
+           scratch=None) -> dict:
     """Render a Gaussian model (any object with activated ``means``, ``rotations`` (unit wxyz),
     ``scales``, ``opacities``, ``active_sh_degree`` and either ``sh_dc``/``sh_rest`` or ``sh``, e.g.
     ``gof_warp.model.Gaussians``, whose two SH parameters are read as they are, without concatenating them).
 
     The activations are torch ops on the raw parameters, so gradients reach the raw parameters
     (log-scales, opacity logits, unnormalised quaternions) by torch's chain rule. ``sh_degree``
-    overrides ``gaussians.active_sh_degree``; ``tile_lists``: see :func:`rasterize`. See :func:`rasterize` for the
-    outputs.
+    overrides ``gaussians.active_sh_degree``; ``tile_lists``, ``scratch``: see :func:`rasterize`. See :func:`rasterize`
+    for the outputs.
     """
     # each attribute read once: the activated parameters are computed on every access (torch ops and autograd nodes)
     model = {attr: getattr(gaussians, attr, _MISSING) for attr in _MODEL_ATTRS}
@@ -339,4 +461,5 @@ def render(gaussians, camera: Camera, *, config=None, stats=None, sh_degree=None
                             "(expected a gof_warp.model.Gaussians)")
     degree = model["active_sh_degree"] if sh_degree is None else sh_degree
     return rasterize(model["means"], model["rotations"], model["scales"], model["opacities"], sh, camera,
-                     sh_degree=degree, config=config, stats=stats, check_values=False, tile_lists=tile_lists)  # fmt: skip
+                     sh_degree=degree, config=config, stats=stats, check_values=False, tile_lists=tile_lists,
+                     scratch=scratch)  # fmt: skip

@@ -23,7 +23,8 @@ Stable names (module, kind):
   ``TileListSizer`` (tile lists sized without a host–device synchronisation per render).
 * rendering on ``wp.array``s (host launchers, ``wp.Tape``-aware): ``render_gaussians``,
   ``render_forward``, ``render_backward``, ``prepare_view``, ``RenderOutputs``, ``RenderState``, ``sh_parts`` (the SH
-  coefficients as one ``[N, K]`` array or a model's ``(sh_dc, sh_rest)`` pair, as the kernels read them). The
+  coefficients as one ``[N, K]`` array or a model's ``(sh_dc, sh_rest)`` pair, as the kernels read them),
+  ``ScratchPool`` (finished renders' scratch arrays for the next render of the same sizes: ``pool=``). The
   per-pixel kernels behind them (``rasterize.rasterize_forward``, ``rasterize_backward.rasterize_backward``,
   their shared-memory twins in ``rasterize_tiled``) need the launchers' tile lists and state: use them
   through the launchers. (A kernel named like its module could not be re-exported here anyway: the
@@ -51,7 +52,7 @@ _MODULES = {
     "project": ("preprocess_gaussians", "project_frames", "sh_colour_backward", "screen_bounds"),
     "binning": ("bin_gaussians", "TileListSizer"),
     "renderer": ("render_gaussians", "render_forward", "render_backward", "prepare_view", "RenderOutputs",
-                 "RenderState", "sh_parts"),
+                 "RenderState", "sh_parts", "ScratchPool"),
     "opacity_field": ("opacity_along_ray", "opacity_along_ray_bounded", "point_view_tile", "opacity_min_over_view",
                       "opacity_min_over_view_whole"),
     "marching_tets": ("make_field_kernel", "field_params_type", "count_triangles", "write_triangle_edges",

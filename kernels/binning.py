@@ -270,7 +270,8 @@ def view_key(cam: CameraParams) -> bytes:
 
 def bin_gaussians(rect: wp.array, tiles_touched: wp.array, depth: wp.array, tiles_x: int, num_tiles: int,
                   ellipse: TileEllipses | None = None, cam: CameraParams | None = None, settings: RasterSettings | None = None,
-                  sizer: TileListSizer | None = None):  # fmt: skip
+                  sizer: TileListSizer | None = None, *, offsets: wp.array | None = None,
+                  ranges: tuple | None = None):  # fmt: skip
     """Sorted per-tile lists of Gaussian indices.
 
     Args:
@@ -281,6 +282,8 @@ def bin_gaussians(rect: wp.array, tiles_touched: wp.array, depth: wp.array, tile
             settings it ran with: bin into the tiles the ellipse meets. ``None``: every tile of ``rect``.
         sizer: size the lists from earlier calls' counts instead of reading this call's back (no host–device
             synchronisation; see :class:`TileListSizer`). ``None``: exact, one synchronisation.
+        offsets: ``[N]`` int32 array to hold the scan of the counts; ranges: ``(range_start, range_end)``,
+            ``[num_tiles]`` int32 arrays holding zeros, returned filled (each allocated when ``None``).
 
     Returns:
         ``(values, range_start, range_end, count)``: ``values [count]`` int32 Gaussian indices, sorted by
@@ -289,8 +292,9 @@ def bin_gaussians(rect: wp.array, tiles_touched: wp.array, depth: wp.array, tile
     """
     device = rect.device
     n = rect.shape[0]
-    range_start = wp.zeros(num_tiles, dtype=wp.int32, device=device)
-    range_end = wp.zeros(num_tiles, dtype=wp.int32, device=device)
+    if ranges is None:
+        ranges = tuple(wp.zeros(num_tiles, dtype=wp.int32, device=device) for _ in range(2))
+    range_start, range_end = ranges
     if n == 0:
         return wp.zeros(0, dtype=wp.int32, device=device), range_start, range_end, 0
     view = view_key(cam) if sizer is not None and cam is not None else None
@@ -301,7 +305,8 @@ def bin_gaussians(rect: wp.array, tiles_touched: wp.array, depth: wp.array, tile
         settings.tiles_x = int(tiles_x)
     else:
         wp.launch(count_tile_keys, dim=n, inputs=[rect, ellipse, cam, settings], outputs=[tiles_touched], device=device, record_tape=False)
-    offsets = wp.empty(n, dtype=wp.int32, device=device)
+    if offsets is None:
+        offsets = wp.empty(n, dtype=wp.int32, device=device)
     wp.utils.array_scan(tiles_touched, offsets, inclusive=True)
     count = sizer.plan(n, view) if sizer is not None else 0
     padded = count > 0

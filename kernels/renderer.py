@@ -19,6 +19,8 @@ accumulated, as everywhere in Warp). Per-pixel outputs are flat ``[H*W]`` arrays
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass, fields
 
 import warp as wp
@@ -82,10 +84,194 @@ class RenderState:
     aux: PixelAux
     num_entries: int  # Σ tiles touched
     tiled: bool  # shared-memory (CUDA) kernels
+    # the ScratchPool's SplatScratch and PixelScratch the arrays above live in (empty without a pool): given back to the
+    # pool once the backward ran (ScratchPool.give(*state.scratch)); the state must not be used after that
+    scratch: tuple = ()
 
     @property
     def device(self):
         return self.mu_v.device
+
+
+class SplatScratch:
+    """The per-Gaussian arrays one render works in (``[n]`` each), besides its inputs: ``mu_v, P, o_g, colour, radii``,
+    which the backward reads, with the :class:`Splats` struct over them (``opacity`` set per render), and the
+    binning's temporaries ``rect, touched, depth, ellipse, offsets``. ``BYTES_PER_GAUSSIAN`` (172) bytes a Gaussian:
+    76 kept for the backward, 96 of temporaries."""
+
+    sizes_kept = 1  # a ScratchPool keeps spares of the latest n only (the count changes for good under densification)
+
+    def __init__(self, n: int, device):
+        def empty(dtype):
+            return wp.empty(n, dtype=dtype, device=device)
+
+        self.mu_v, self.P, self.o_g, self.colour = empty(wp.vec3), empty(wp.mat33), empty(wp.vec3), empty(wp.vec3)
+        self.rect, self.touched, self.radii = empty(wp.vec4i), empty(wp.int32), empty(wp.int32)
+        self.depth = empty(float)
+        self.ellipse = empty_tile_ellipses(n, device)
+        self.offsets = empty(wp.int32)
+        self.splats = make_struct(Splats, P=self.P, o_g=self.o_g, colour=self.colour, mu_v=self.mu_v, radius=self.radii)
+
+    def arrays(self) -> list:
+        """The arrays that own memory (for :meth:`ScratchPool.nbytes`)."""
+        return [self.mu_v, self.P, self.o_g, self.colour, self.rect, self.touched, self.radii, self.depth,
+                self.ellipse.exact, self.ellipse.conic, self.ellipse.centre, self.offsets]  # fmt: skip
+
+    def forget(self) -> None:
+        """Drop the reference to a render's opacities: a spare holds only its own arrays."""
+        self.splats.opacity = None
+
+
+class PixelScratch:
+    """The per-pixel and per-tile arrays one render works in: the :class:`PixelAux` struct ``aux`` over five
+    ``[num_pixels]`` arrays (0 where only :func:`prepare_view` runs) and the tile ranges ``range_start, range_end``
+    (``[num_tiles]`` int32, zeroed before each use) with the :class:`TileLists` struct over them (``values`` set per
+    render); ``aux`` and ``lists`` are read by the backward. 20 bytes a pixel and 8 a tile."""
+
+    sizes_kept = 4  # a ScratchPool keeps spares of the 4 latest image sizes (views of a few sizes come back)
+
+    def __init__(self, num_pixels: int, num_tiles: int, device):
+        def empty(dtype, size):
+            return wp.empty(size, dtype=dtype, device=device)
+
+        self.range_start, self.range_end = empty(wp.int32, num_tiles), empty(wp.int32, num_tiles)
+        self.lists = make_struct(TileLists, range_start=self.range_start, range_end=self.range_end)
+        self.aux = make_struct(PixelAux, final_T=empty(float, num_pixels), last_end=empty(wp.int32, num_pixels),
+                               median_pos=empty(wp.int32, num_pixels), weight_sum=empty(float, num_pixels),
+                               dist_sum=empty(float, num_pixels))  # fmt: skip
+
+    def arrays(self) -> list:
+        """The arrays that own memory (for :meth:`ScratchPool.nbytes`)."""
+        aux = self.aux
+        return [self.range_start, self.range_end, aux.final_T, aux.last_end, aux.median_pos, aux.weight_sum,
+                aux.dist_sum]  # fmt: skip
+
+    def forget(self) -> None:
+        """Drop the reference to a render's tile lists: a spare holds only its own arrays."""
+        self.lists.values = None
+
+
+class GradScratch:
+    """The backward's temporaries for ``n`` Gaussians: the per-Gaussian gradient rows ``packed [n, GRAD_WIDTH]``
+    (16-byte aligned; zeroed before each use) with their column views ``g_P, g_o_g, g_colour`` and the
+    :class:`SplatGrads` struct over them (``grad2d_abs`` set per backward), and ``zero_mu_v [n]``, the zero gradient
+    of the camera-space means fed to the adjoint of ``project_frames`` (zeroed before each use). 76 bytes a
+    Gaussian."""
+
+    sizes_kept = 1
+
+    def __init__(self, n: int, device):
+        self.packed = wp.empty((n, GRAD_WIDTH), dtype=float, device=device)
+        if n and self.packed.ptr % 16:
+            raise RuntimeError("render_backward: the packed gradient rows must be 16-byte aligned")
+        self.g_P, self.g_o_g, self.g_colour = (_column_view(self.packed, col, dtype) for col, dtype in
+                                               ((GRAD_P, wp.mat33), (GRAD_O_G, wp.vec3), (GRAD_COLOUR, wp.vec3)))
+        self.grads = make_struct(SplatGrads, packed=self.packed)
+        self.zero_mu_v = wp.empty(n, dtype=wp.vec3, device=device)
+
+    def arrays(self) -> list:
+        """The arrays that own memory (for :meth:`ScratchPool.nbytes`)."""
+        return [self.packed, self.zero_mu_v]
+
+    def forget(self) -> None:
+        """Drop the reference to a backward's statistics array."""
+        self.grads.grad2d_abs = None
+
+
+class ScratchPool:
+    """Spare scratch arrays of finished renders (:class:`SplatScratch`, :class:`PixelScratch`, :class:`GradScratch`),
+    handed to later renders of the same sizes on the same device and stream (``render_forward(..., pool=)``,
+    ``render_backward(..., pool=)``): a render's host time is mostly Python, a new Warp array costs ~30 Python calls,
+    an allocation and a free, a struct field ~10 more, and a forward + backward makes ~20 of them.
+
+    Rules (each makes reuse unable to change a result):
+
+    - A scratch is only handed out by :meth:`take` and only comes back by :meth:`give`, once the host is done with it:
+      a forward's ``state.scratch`` after that state's :func:`render_backward` (or at once when no backward will come),
+      a backward's at its end. A scratch given twice, or to another pool, is refused.
+    - Spares are filed per kind, device and stream (the device's current stream at :meth:`take`, the one the render
+      launches on): kernels queued on that stream may still read a spare, and a render that takes it queues its own
+      behind them. One given back on another stream than it was taken on is dropped, not kept.
+    - Only exact sizes are handed out (``n`` for the per-Gaussian kinds, ``(num_pixels, num_tiles)`` for
+      :class:`PixelScratch`); every array a render reads is written or zeroed by that render first.
+
+    Memory, bounded whatever the sizes: per kind, device and stream, spares of the ``kind.sizes_kept`` sizes most
+    recently taken or given (1 for the per-Gaussian kinds, 4 for :class:`PixelScratch`), at most ``max_spares`` of
+    each size; spares of an older size are freed when a new size is taken or given. :meth:`nbytes` counts the spares,
+    :meth:`clear` frees them. A training loop with one render in flight holds one spare of each kind between renders:
+    ``248·N + 20·pixels + 8·tiles`` bytes that per-render arrays would have freed.
+    """
+
+    def __init__(self, max_spares: int = 2):
+        if int(max_spares) < 0:
+            raise ValueError(f"ScratchPool: max_spares must be >= 0, got {max_spares}")
+        self.max_spares = int(max_spares)
+        # (kind, device alias, stream handle) -> {sizes: [spare, ...]}, the least recently used sizes first
+        self._slots: dict[tuple, OrderedDict] = {}
+        self._lock = threading.Lock()  # torch runs a CUDA backward on a thread of its own
+
+    @staticmethod
+    def _where(kind, device) -> tuple:
+        return kind, device.alias, device.stream.cuda_stream if device.is_cuda else 0
+
+    def take(self, kind, device, *sizes):
+        """A ``kind(*sizes, device)``: a spare of exactly these sizes filed under ``device``'s current stream, else a
+        new one."""
+        where = self._where(kind, device)
+        scratch = None
+        with self._lock:
+            by_size = self._slots.get(where)
+            if by_size is not None:
+                spares = self._file(by_size, sizes, kind.sizes_kept)
+                scratch = spares.pop() if spares else None
+        if scratch is None:
+            scratch = kind(*sizes, device)
+        scratch.pool_slot = (self, where, sizes, device)
+        return scratch
+
+    def give(self, *scratches) -> None:
+        """Keep each of ``scratches`` (from :meth:`take`; the host no longer uses it) for a later :meth:`take`."""
+        for scratch in scratches:
+            pool, where, sizes, device = getattr(scratch, "pool_slot", None) or (None,) * 4
+            if pool is not self:
+                raise ValueError("ScratchPool.give: not a scratch taken from this pool, or given back already")
+            scratch.pool_slot = None
+            if where != self._where(where[0], device):
+                continue  # given back on another stream: dropped
+            scratch.forget()
+            with self._lock:
+                spares = self._file(self._slots.setdefault(where, OrderedDict()), sizes, where[0].sizes_kept)
+                if len(spares) < self.max_spares:
+                    spares.append(scratch)
+
+    @staticmethod
+    def _file(by_size: OrderedDict, sizes: tuple, sizes_kept: int) -> list:
+        """The spares of ``sizes`` in ``by_size``, made the most recently used; the least recently used sizes beyond
+        ``sizes_kept`` are dropped."""
+        spares = by_size.pop(sizes, None)
+        by_size[sizes] = spares = [] if spares is None else spares
+        while len(by_size) > sizes_kept:
+            by_size.popitem(last=False)
+        return spares
+
+    def spares(self) -> list:
+        """Every spare held now."""
+        with self._lock:
+            return [s for by_size in self._slots.values() for spares in by_size.values() for s in spares]
+
+    def nbytes(self) -> int:
+        """Bytes of the arrays the spares hold."""
+        return sum(a.capacity for s in self.spares() for a in s.arrays())
+
+    def clear(self) -> None:
+        """Free every spare."""
+        with self._lock:
+            self._slots = {}
+
+
+def _take(pool: ScratchPool | None, kind, device, *sizes):
+    """``pool.take(kind, device, *sizes)``, or a new ``kind(*sizes, device)`` without a pool."""
+    return kind(*sizes, device) if pool is None else pool.take(kind, device, *sizes)
 
 
 def _mark(profile, name: str, device) -> None:
@@ -153,41 +339,40 @@ def sh_parts(sh) -> tuple[wp.array, wp.array]:
 
 
 def prepare_view(means, quats, scales, opacities, sh, sh_degree: int, cam: CameraParams, settings: RasterSettings,
-                 profile: list | None = None, sizer: TileListSizer | None = None) -> tuple[Splats, TileLists, int]:
+                 profile: list | None = None, sizer: TileListSizer | None = None,
+                 scratch: tuple | None = None) -> tuple[Splats, TileLists, int]:  # fmt: skip
     """Per-view preprocessing and tile binning, shared by rendering and the opacity field.
 
     Returns ``(splats, lists, count)``: camera-space per-Gaussian data (``[N]`` each), the depth-sorted
     Gaussian indices of every tile, and the number of (Gaussian, tile) entries (allocated ones with a ``sizer``:
     see :func:`~.binning.bin_gaussians`). Memory: ``BYTES_PER_GAUSSIAN · N + BYTES_PER_TILE_ENTRY · count``.
-    The arguments as in :func:`render_forward`.
+    The arguments as in :func:`render_forward`; ``scratch``: the ``(SplatScratch, PixelScratch)`` to work in
+    (``splats`` and ``lists`` are their structs; new arrays when ``None``).
     """
     device = opacities.device
     n = opacities.shape[0]
-
-    def empty(dtype):
-        return wp.empty(n, dtype=dtype, device=device)
-
-    mu_v, P, o_g, colour = empty(wp.vec3), empty(wp.mat33), empty(wp.vec3), empty(wp.vec3)
-    rect, touched, radii, depth = empty(wp.vec4i), empty(wp.int32), empty(wp.int32), empty(float)
-    ellipse = empty_tile_ellipses(n, device)
+    num_tiles = settings.tiles_x * settings.tiles_y
+    s, px = (SplatScratch(n, device), PixelScratch(0, num_tiles, device)) if scratch is None else scratch
     sh_dc, sh_rest = sh_parts(sh)
     wp.launch(preprocess_gaussians, dim=n, inputs=[means, quats, scales, sh_dc, sh_rest, int(sh_degree), cam.R, cam.t, cam.centre],
-              outputs=[mu_v, P, o_g, colour], device=device, record_tape=False)  # fmt: skip
-    wp.launch(screen_bounds, dim=n, inputs=[mu_v, quats, scales, opacities, cam, settings],
-              outputs=[rect, touched, radii, depth, ellipse], device=device, record_tape=False)  # fmt: skip
+              outputs=[s.mu_v, s.P, s.o_g, s.colour], device=device, record_tape=False)  # fmt: skip
+    wp.launch(screen_bounds, dim=n, inputs=[s.mu_v, quats, scales, opacities, cam, settings],
+              outputs=[s.rect, s.touched, s.radii, s.depth, s.ellipse], device=device, record_tape=False)  # fmt: skip
     _mark(profile, "preprocess", device)
-    num_tiles = settings.tiles_x * settings.tiles_y
-    values, range_start, range_end, count = bin_gaussians(rect, touched, depth, settings.tiles_x, num_tiles, ellipse, cam, settings,
-                                                          sizer)
+    px.range_start.zero_()
+    px.range_end.zero_()
+    values, _, _, count = bin_gaussians(s.rect, s.touched, s.depth, settings.tiles_x, num_tiles, s.ellipse, cam,
+                                        settings, sizer, offsets=s.offsets, ranges=(px.range_start, px.range_end))
     _mark(profile, "binning", device)
-    lists = make_struct(TileLists, values=values, range_start=range_start, range_end=range_end)
-    splats = make_struct(Splats, P=P, o_g=o_g, colour=colour, opacity=opacities, mu_v=mu_v, radius=radii)
-    return splats, lists, count
+    px.lists.values = values
+    s.splats.opacity = opacities
+    return s.splats, px.lists, count
 
 
 def render_forward(means, quats, scales, opacities, sh, sh_degree: int, cam: CameraParams, settings: RasterSettings,
                    out: RenderOutputs | None = None, profile: list | None = None, tiled: bool | None = None,
-                   sizer: TileListSizer | None = None) -> tuple[RenderOutputs, RenderState]:  # fmt: skip
+                   sizer: TileListSizer | None = None,
+                   pool: ScratchPool | None = None) -> tuple[RenderOutputs, RenderState]:  # fmt: skip
     """Render ``N`` Gaussians (activated parameters) into ``out`` (allocated when ``None``).
 
     Args:
@@ -202,6 +387,9 @@ def render_forward(means, quats, scales, opacities, sh, sh_degree: int, cam: Cam
             :func:`use_tiled_kernels`.
         sizer: a :class:`~.binning.TileListSizer` kept across renders: no host–device synchronisation to size
             the tile lists (``None``: exact sizing, one synchronisation).
+        pool: a :class:`ScratchPool` to take the render's scratch arrays from (new ones when ``None``); the caller
+            gives ``state.scratch`` back to it once done with the state (``pool.give(*state.scratch)`` after
+            :func:`render_backward`, or at once when no backward will come). Same results either way.
     """
     device = opacities.device
     n = opacities.shape[0]
@@ -209,24 +397,19 @@ def render_forward(means, quats, scales, opacities, sh, sh_degree: int, cam: Cam
     _mark(profile, "start", device)
     if out is None:
         out = RenderOutputs.allocate(num_pixels, device)
-
-    def empty(dtype, size=n):
-        return wp.empty(size, dtype=dtype, device=device)
-
+    scratch = (_take(pool, SplatScratch, device, n),
+               _take(pool, PixelScratch, device, num_pixels, settings.tiles_x * settings.tiles_y))
     sh = sh_parts(sh)
-    splats, lists, count = prepare_view(means, quats, scales, opacities, sh, sh_degree, cam, settings, profile, sizer)
-    mu_v, P, o_g, colour, radii = splats.mu_v, splats.P, splats.o_g, splats.colour, splats.radius
-
-    final_T, last_end = empty(float, num_pixels), empty(wp.int32, num_pixels)
-    median_pos, weight_sum = empty(wp.int32, num_pixels), empty(float, num_pixels)
-    dist_sum = empty(float, num_pixels)
+    splats, lists, count = prepare_view(means, quats, scales, opacities, sh, sh_degree, cam, settings, profile, sizer,
+                                        scratch)
+    aux = scratch[1].aux
     tiled = use_tiled_kernels(device, settings, tiled)
-    aux = make_struct(PixelAux, final_T=final_T, last_end=last_end, median_pos=median_pos, weight_sum=weight_sum,
-                      dist_sum=dist_sum)
     _launch_raster(rasterize_forward, rasterize_forward_tiled, tiled, settings, [lists, splats, cam, settings], [out.as_struct(), aux], device)
     _mark(profile, "raster_forward", device)
-    state = RenderState((means, quats, scales, opacities, sh), int(sh_degree), cam, settings, mu_v, P, o_g, colour,
-                        radii, lists, splats, aux, count, tiled)  # fmt: skip
+    # without a pool the state keeps only what the backward reads: the binning's temporaries are freed here
+    state = RenderState((means, quats, scales, opacities, sh), int(sh_degree), cam, settings, splats.mu_v, splats.P,
+                        splats.o_g, splats.colour, splats.radius, lists, splats, aux, count, tiled,
+                        scratch if pool is not None else ())  # fmt: skip
     return out, state
 
 
@@ -236,7 +419,7 @@ def _column_view(packed: wp.array, column: int, dtype) -> wp.array:
 
 
 def render_backward(state: RenderState, grad_out: RenderOutputs, grad_in: tuple, grad2d=None, grad2d_abs=None, profile=None,
-                    zeroed: bool = False):
+                    zeroed: bool = False, pool: ScratchPool | None = None):
     """Accumulate the input gradients for the output gradients ``grad_out``.
 
     Args:
@@ -249,20 +432,24 @@ def render_backward(state: RenderState, grad_out: RenderOutputs, grad_in: tuple,
         profile: as in :func:`render_forward`.
         zeroed: the SH gradient arrays of ``grad_in`` hold zeros (fresh buffers): their rows are written instead of
             added into, which spares a load per coefficient (same result).
+        pool: a :class:`ScratchPool` to take the backward's :class:`GradScratch` from (given back at the end; new
+            arrays when ``None``). ``state.scratch`` is the caller's to give back.
     """
     device = state.device
     _mark(profile, "start", device)
     n = state.mu_v.shape[0]
     cam, settings = state.cam, state.settings
-    packed = wp.zeros((n, GRAD_WIDTH), dtype=float, device=device)
-    if n and packed.ptr % 16:
-        raise RuntimeError("render_backward: the packed gradient rows must be 16-byte aligned")
+    scratch = _take(pool, GradScratch, device, n)
+    packed = scratch.packed
+    packed.zero_()
     with_stats = grad2d is not None  # without: the kernels never touch grad2d / grad2d_abs, passed as null arrays
-    grads = make_struct(SplatGrads, packed=packed, grad2d_abs=grad2d_abs if with_stats else None)
+    grads = scratch.grads
+    grads.grad2d_abs = grad2d_abs if with_stats else None
     _launch_raster(rasterize_backward, rasterize_backward_tiled, state.tiled, settings,
                    [state.lists, state.splats, cam, settings, state.aux, grad_out.as_struct(), int(with_stats)], [grads], device)  # fmt: skip
     _mark(profile, "raster_backward", device)
-    gP, g_og, g_col = (_column_view(packed, col, dtype) for col, dtype in ((GRAD_P, wp.mat33), (GRAD_O_G, wp.vec3), (GRAD_COLOUR, wp.vec3)))
+    zero_mu_v, gP, g_og, g_col = scratch.zero_mu_v, scratch.g_P, scratch.g_o_g, scratch.g_colour
+    zero_mu_v.zero_()
     wp.launch(finish_splat_grads, dim=n, inputs=[packed, state.P, state.mu_v, cam, int(with_stats)],
               outputs=[grad_in[3], grad2d if with_stats else None], device=device,
               record_tape=False)  # fmt: skip
@@ -272,12 +459,14 @@ def render_backward(state: RenderState, grad_out: RenderOutputs, grad_in: tuple,
     wp.launch(project_frames, dim=n, inputs=[means, quats, scales, cam.R, cam.t],
               outputs=[state.mu_v, state.P, state.o_g],
               adj_inputs=[grad_in[0], grad_in[1], grad_in[2], wp.mat33(), wp.vec3()],
-              adj_outputs=[wp.zeros(n, dtype=wp.vec3, device=device), gP, g_og],
+              adj_outputs=[zero_mu_v, gP, g_og],
               adjoint=True, device=device, record_tape=False)  # fmt: skip
     wp.launch(sh_colour_backward, dim=n * SH_LANES,
               inputs=[means, sh_rest, state.sh_degree, cam.centre, state.colour, g_col],
               outputs=[grad_in[0], grad_dc, grad_rest, int(not zeroed)], device=device, record_tape=False)  # fmt: skip
     _mark(profile, "preprocess_backward", device)
+    if pool is not None:
+        pool.give(scratch)
 
 
 def render_gaussians(means, quats, scales, opacities, sh, sh_degree: int, cam: CameraParams, settings: RasterSettings,

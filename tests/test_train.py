@@ -231,6 +231,27 @@ def test_warm_up_pass_changes_nothing_that_training_reads(tiny_scene, tmp_path, 
     assert warm._rng.bit_generator.state == cold._rng.bit_generator.state
 
 
+def test_render_scratch_changes_nothing_that_training_reads(tiny_scene, straight_run, tmp_path):
+    """The trainer's RenderScratch (scratch arrays, structs and stream wrappers kept from one render to the next) leaves
+    the run bitwise as with every render's arrays made anew: through densification, pruning, the SH degree's
+    increase and the opacity reset (straight_run), and with two views per step."""
+    trainer = straight_run[0]
+    assert trainer.render_scratch.nbytes() > 0  # the straight run rendered through it
+    plain = Trainer(tiny_scene, _config(), tmp_path / "plain", "cpu")
+    plain.render_scratch = None
+    plain.run()
+    for name, value in trainer.gaussians.params.items():
+        assert torch.equal(value, plain.gaussians.params[name]), name
+    runs = [Trainer(tiny_scene, _config(iterations=12, views_per_step=2, checkpoint_every=0), tmp_path / str(i), "cpu")
+            for i in range(2)]
+    runs[1].render_scratch = None
+    for run in runs:
+        run.run()
+    assert len(runs[0].gaussians) != straight_run[2]  # densified
+    for name, value in runs[0].gaussians.params.items():
+        assert torch.equal(value, runs[1].gaussians.params[name]), name
+
+
 def test_overflowed_tile_lists_are_reported(straight_run, caplog):
     """Renders that dropped tile-list entries (a GPU run's sizer; none on the CPU) are said at the end of training,
     not only counted in metrics.json."""

@@ -7,6 +7,7 @@ host wait), and the GPU time is the elapsed time between two events around the K
 the sleep). Parts, on an 800×600 view (DTU's size):
 
 - ``render``: ``gof_warp.render`` forward + backward of N random Gaussians (the Warp glue: arrays, launches);
+  ``render_scratch``: the same through a ``RenderScratch``, as the trainer renders (a tree that has it);
 - ``loss[+appearance]_<mode>``: the training loss forward + backward with the regularisers, without and with the
   decoupled appearance in its L1 term (eager, compiled, compiled with CUDA graphs: ``mode="reduce-overhead"``);
 - ``appearance_<variant>``: the decoupled-appearance CNN alone, eager, forward + backward (default, channels-last);
@@ -83,11 +84,18 @@ def main() -> None:
     if "render" in wanted:
         sizer = TileListSizer()
 
-        def render_part():
-            out = render(g, cam, tile_lists=sizer)
+        def render_part(**kept):
+            out = render(g, cam, tile_lists=sizer, **kept)
             (out["rgb"].sum() + out["alpha"].sum() + out["median_depth"].sum() + out["normal"].sum()
              + out["distortion"].sum()).backward()
         parts["render"] = render_part
+        try:
+            from gof_warp.render import RenderScratch
+        except ImportError:  # a tree from before it
+            pass
+        else:
+            scratch = RenderScratch()
+            parts["render_scratch"] = lambda: render_part(scratch=scratch)
 
     if "loss" in wanted:
         maps = {"rgb": torch.rand(H, W, 3, generator=rng), "alpha": torch.rand(H, W, generator=rng),

@@ -22,8 +22,10 @@ Python-level calls, and the torch operators dispatched.
 
 The box's speed drifts, and one process differs from the next by a few per cent (memory layout): compare code
 versions by alternating processes, several of each (e.g. ``PYTHONPATH=<other tree>`` for the other version).
+``--scratch`` renders through one ``gof_warp.render.RenderScratch``, as the trainer does (a tree that has it).
 
     python benchmarks/train/host_glue_cpu.py [--gaussians 64] [--size 32] [--calls 50] [--reps 5] [--cprofile 25]
+                                             [--scratch]
 """
 
 from __future__ import annotations
@@ -88,6 +90,7 @@ def main() -> None:
     ap.add_argument("--cprofile", type=int, default=0, help="also print the N functions of most own time")
     ap.add_argument("--clock", choices=("wall", "thread"), default="wall",
                     help="thread: this thread's CPU time (time.thread_time) instead of the wall clock")
+    ap.add_argument("--scratch", action="store_true", help="render through a RenderScratch, as the trainer")
     args = ap.parse_args()
 
     from gof_warp.camera import look_at
@@ -102,9 +105,14 @@ def main() -> None:
     g.requires_grad_(True)
     sizer = TileListSizer()
     clock = time.thread_time if args.clock == "thread" else time.perf_counter
+    kept = {}
+    if args.scratch:
+        from gof_warp.render import RenderScratch
+
+        kept["scratch"] = RenderScratch()
 
     def step():  # as host_budget.py's render part
-        out = render(g, cam, tile_lists=sizer)
+        out = render(g, cam, tile_lists=sizer, **kept)
         (out["rgb"].sum() + out["alpha"].sum() + out["median_depth"].sum() + out["normal"].sum()
          + out["distortion"].sum()).backward()
 
@@ -161,8 +169,8 @@ def main() -> None:
     floor = _time(floor_step, args.calls, args.reps, clock)
 
     outside = [w - k for w, k in zip(walls, kernels)]
-    print(f"{args.gaussians} Gaussians, {size}x{size} pixels, {args.calls} renders x {args.reps} "
-          f"(ms per forward+backward: median, min, then all):")
+    print(f"{args.gaussians} Gaussians, {size}x{size} pixels, {args.calls} renders x {args.reps}"
+          f"{' through a RenderScratch' if args.scratch else ''} (ms per forward+backward: median, min, then all):")
     for name, values in (("wall", walls), ("kernels", kernels), ("outside", outside), ("floor", floor)):
         all_values = ", ".join(f"{v:.3f}" for v in values)
         print(f"  {name:8s} {statistics.median(values):7.3f} {min(values):7.3f}   [{all_values}]")
