@@ -167,6 +167,25 @@ def test_cache_key_follows_the_image_files_not_the_decoder(synthetic, tmp_path):
     assert cache_key([moved_file] + views[1:], SfmConfig()) == cache_key([pixels] + views[1:], SfmConfig())
 
 
+def test_missing_pycolmap_is_a_clear_error(synthetic, tmp_path, monkeypatch):
+    """Without pycolmap (and no cache for these views) the triangulation says what is missing and what to do, and
+    `model.init=auto` can fall back to random points (it catches GofError, not ImportError)."""
+    import builtins
+
+    real_import = builtins.__import__
+
+    def no_pycolmap(name, *args, **kwargs):
+        if name == "pycolmap":
+            raise ModuleNotFoundError("No module named 'pycolmap'")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_pycolmap)
+    scene, _ = synthetic
+    with pytest.raises(SfmError, match="needs pycolmap.*model.init=random") as err:
+        triangulate_known_poses(scene.train[:4], cache_dir=tmp_path)
+    assert isinstance(err.value, GofError)
+
+
 def test_corrupt_cache_is_recomputed(synthetic, triangulated, tmp_path, caplog):
     scene, _ = synthetic
     result, cache, _ = triangulated

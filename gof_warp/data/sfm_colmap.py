@@ -29,8 +29,13 @@ def _import_pycolmap():
     """pycolmap, imported after Pillow's C module: with pycolmap's wheel loaded first, Pillow's PNG writer aborts the
     process ("double free", measured with pycolmap 4.2.1), so this process could no longer write its pictures."""
     import PIL.Image  # noqa: F401  (first: see above)
-    import pycolmap
 
+    try:
+        import pycolmap
+    except ImportError as e:
+        raise SfmError(f"triangulating points from the known poses needs pycolmap, which cannot be imported here ({e}); "
+                       "install it (`pip install pycolmap`), carry the scene's sfm_known_poses/ cache made for the "
+                       "same views, or start from random points (model.init=random)") from e
     return pycolmap
 
 
