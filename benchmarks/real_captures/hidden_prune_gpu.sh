@@ -4,7 +4,9 @@
 #   bgf, bg, def: synthetic background_full, background, default at 400x400 with 100 views, generated on GPU 0; bgf and
 #     bg start from points triangulated on the CPU (.s17pts/<preset>/points3d.ply: the GPU machine has no pycolmap);
 #   fox, can, dtu: the real captures fox, colmap_can, dtu_scan24, carried in .data/ or parked in /tmp/gofdata
-#     (dtu with its triangulation cache, sfm_known_poses/, made on the CPU).
+#     (dtu with its triangulation cache, sfm_known_poses/, made on the CPU by the same split `train` uses there: for
+#     the dtu preset all 49 views, e.g. `python -m gof_warp.train .data/dtu_scan24 --iterations 1`; the GPU machine
+#     has no pycolmap, so a cache made for other views stops the run there).
 # patch (optional, session 30): a patch file (relative to the checkout) applied to a private copy of the code that this
 # run alone trains with: an A/B of a code change on two GPUs of one host, each alone on its GPU.
 #   PHASE=train TRAIN_S=500 bash benchmarks/real_captures/hidden_prune_gpu.sh    # generate, train (resumable)
