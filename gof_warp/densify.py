@@ -324,6 +324,15 @@ class Densifier:
         return (cfg.late_prune_interval > 0 and cfg.stop_iter <= iteration < cfg.filter_3d_until_iter
                 and iteration % cfg.late_prune_interval == 0)
 
+    def hidden_prune_due(self, iteration: int) -> bool:
+        """Whether :meth:`step` prunes the hidden Gaussians at ``iteration`` (when it is given a ``hidden`` test)."""
+        return iteration in self.config.hidden_prune_iters
+
+    def count_may_change(self, iteration: int, hidden: bool) -> bool:
+        """Whether :meth:`step` may add or remove Gaussians at ``iteration`` (``hidden``: it is given a hidden test)."""
+        return (self.densify_due(iteration) or self.late_prune_due(iteration)
+                or (hidden and self.hidden_prune_due(iteration)))
+
     def step(self, iteration: int, gaussians: Gaussians, optimizer, extent: float,
              near_camera: Callable[[], torch.Tensor] | None = None,
              hidden: Callable[[], torch.Tensor] | None = None) -> DensifyReport:
@@ -345,7 +354,7 @@ class Densifier:
                 report.opacity_reset = True
         elif self.late_prune_due(iteration):
             self._late_prune(iteration, gaussians, optimizer, extent, near_camera, report)
-        if hidden is not None and iteration in cfg.hidden_prune_iters:
+        if hidden is not None and self.hidden_prune_due(iteration):
             self._hidden_prune(iteration, gaussians, optimizer, hidden, report)
         report.filter_3d_due = report.densified or (
             iteration % cfg.filter_3d_interval == 0 and cfg.stop_iter < iteration < cfg.filter_3d_until_iter)

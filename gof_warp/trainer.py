@@ -308,7 +308,7 @@ class Trainer:
         with _stage("train.all_reduce"):
             self.ranks.sum_gradients(self._trained_params())
         cam = self.cameras[mine[0]]  # the view the spike monitor files the loss under
-        if self.render_scratch is not None and self._count_may_change(it):
+        if self.render_scratch is not None and self.densifier.count_may_change(it, hidden=self._hidden is not None):
             self.render_scratch.clear()  # its spares are for this count: freed before the densifier allocates
         with torch.no_grad(), _stage("train.densify"):
             if self.densifier.densify_due(it):
@@ -334,12 +334,6 @@ class Trainer:
         restart = (report.opacity_reset or it == cfg.loss.regularization_from_iter
                    or (self.multiview is not None and it == cfg.loss.multiview.from_iter))
         return IterationScalars(it, cam.name, len(g), restart, self.elapsed, {}), terms
-
-    def _count_may_change(self, it: int) -> bool:
-        """Whether the densifier may add or remove Gaussians at iteration ``it``."""
-        d = self.densifier
-        hidden_prune = self._hidden is not None and it in d.config.hidden_prune_iters
-        return d.densify_due(it) or d.late_prune_due(it) or hidden_prune
 
     def _render_view(self, it: int, idx: int) -> dict[str, torch.Tensor]:
         """Render view ``idx``, back-propagate its loss (÷ ``views_per_step``) and gather its densification

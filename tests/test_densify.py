@@ -361,3 +361,16 @@ def test_late_prune_runs_after_densification_only_on_its_interval_and_with_the_n
                 {"near_camera_fraction": 0.25}):  # the last: no late prunes to act at
         with pytest.raises(GofError):
             DensifyConfig(**bad)
+
+
+def test_count_may_change_follows_the_schedule():
+    """count_may_change (the trainer frees its render scratch on it) says yes exactly at the iterations whose step can
+    change the count: densification, a late prune, a hidden prune given a hidden test."""
+    d = Densifier(DensifyConfig(start_iter=100, stop_iter=1000, interval=100, late_prune_interval=50,
+                                filter_3d_until_iter=2000, hidden_prune_iters=[1225]))
+    assert d.count_may_change(500, hidden=False) and d.densify_due(500)
+    assert not d.count_may_change(550, hidden=False) and not d.count_may_change(100, hidden=True)
+    assert d.count_may_change(1050, hidden=False) and d.late_prune_due(1050)
+    assert not d.count_may_change(1225, hidden=False) and d.count_may_change(1225, hidden=True)
+    assert d.hidden_prune_due(1225) and not d.hidden_prune_due(1200)
+    assert not d.count_may_change(2050, hidden=True)  # past filter_3d_until_iter: no late prune
