@@ -58,10 +58,10 @@ def parse_args(argv=None) -> argparse.Namespace:
                          f"model, whose octree at cell factor {DEFAULT_CELL_FACTOR} has fewer than "
                          f"{OctreeConfig.small_leaves:,} leaves, unless --cell-factor is given)")
     ap.add_argument("--cell-factor", type=float, default=None,
-                    help="the octree grid: leaf side at most this times a Gaussian's 3-sigma box width (smaller: finer; "
-                         f"default {DEFAULT_CELL_FACTOR}, or with --grid octree {SMALL_CELL_FACTOR} for a grid of fewer "
-                         f"than {OctreeConfig.small_leaves:,} leaves at {DEFAULT_CELL_FACTOR}; given, it is used as it "
-                         "is, and --grid auto keeps the octree)")
+                    help="the octree grid: leaf side at most this times a Gaussian's 3-sigma box width (smaller: "
+                         f"finer; default {DEFAULT_CELL_FACTOR}, or with --grid octree {SMALL_CELL_FACTOR} for a grid "
+                         f"of fewer than {OctreeConfig.small_leaves:,} leaves at {DEFAULT_CELL_FACTOR}; given, it is "
+                         "used as it is, and --grid auto keeps the octree)")
     ap.add_argument("--piece-tets", type=int, default=None,
                     help="--grid octree: make and march the grid's tetrahedra in pieces of at most this many, so they are "
                          f"never held whole (default {OctreeConfig.piece_tets}; the mesh is the same for any value)")

@@ -165,12 +165,13 @@ def unoccluded_weight(gaussians, camera: Camera) -> torch.Tensor:
     pc = camera.to_camera_tensor(means)
     z = pc[:, 2]
     zs = torch.where(z > 0, z, torch.ones_like(z))
+    R = means.new_tensor(camera.R)
     J = means.new_zeros(means.shape[0], 2, 3)
     J[:, 0, 0] = camera.fx / zs
     J[:, 0, 2] = -camera.fx * pc[:, 0] / zs**2
     J[:, 1, 1] = camera.fy / zs
     J[:, 1, 2] = -camera.fy * pc[:, 1] / zs**2
-    M = J @ means.new_tensor(camera.R) @ quat_to_rotmat(gaussians.rotations.detach()) * gaussians.scales.detach()[:, None, :]  # [N, 2, 3]
+    M = J @ R @ quat_to_rotmat(gaussians.rotations.detach()) * gaussians.scales.detach()[:, None, :]  # [N, 2, 3]
     det = torch.linalg.det(M @ M.transpose(1, 2)).clamp_min(0.0)
     return torch.where(z > 0, gaussians.opacities.detach().reshape(-1) * 2 * math.pi * det.sqrt(),
                        torch.zeros_like(z))

@@ -88,9 +88,9 @@ class TetraConfig:
                              "delaunay_chunks": self.delaunay_chunks is not None}
             asked = [name for name, set_ in delaunay_only.items() if set_]
             if asked:
-                raise GofError(f"{', '.join(asked)}: Delaunay-grid settings, but the grid is {self.grid!r} (the octree, "
-                               "or with 'auto', the default, the Delaunay grid only for a small model); add --grid "
-                               "delaunay (TetraConfig.grid = 'delaunay') to use them")
+                raise GofError(f"{', '.join(asked)}: Delaunay-grid settings, but the grid is {self.grid!r} (the "
+                               "octree, or with 'auto', the default, the Delaunay grid only for a small model); add "
+                               "--grid delaunay (TetraConfig.grid = 'delaunay') to use them")
         elif self.octree != OctreeConfig():
             raise GofError(f"octree settings ({self.octree}; --cell-factor, --piece-tets) apply to the octree grid, but the grid "
                            "is 'delaunay': drop them or use --grid octree")

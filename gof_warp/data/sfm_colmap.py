@@ -33,9 +33,9 @@ def _import_pycolmap():
     try:
         import pycolmap
     except ImportError as e:
-        raise SfmError(f"triangulating points from the known poses needs pycolmap, which cannot be imported here ({e}); "
-                       "install it (`pip install pycolmap`), carry the scene's sfm_known_poses/ cache made for the "
-                       "same views, or start from random points (model.init=random)") from e
+        raise SfmError(f"triangulating points from the known poses needs pycolmap, which cannot be imported here "
+                       f"({e}); install it (`pip install pycolmap`), carry the scene's sfm_known_poses/ cache made "
+                       "for the same views, or start from random points (model.init=random)") from e
     return pycolmap
 
 
