@@ -65,6 +65,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--piece-tets", type=int, default=None,
                     help="--grid octree: make and march the grid's tetrahedra in pieces of at most this many, so they are "
                          f"never held whole (default {OctreeConfig.piece_tets}; the mesh is the same for any value)")
+    ap.add_argument("--reach-filter", action=argparse.BooleanOptionalAction, default=None,
+                    help="the octree grid: keep only the tetrahedra with a vertex inside some Gaussian's oriented "
+                         "3-sigma box, where the Delaunay grid reaches (off by default: it can cut a surface of flat "
+                         "Gaussians that no grid vertex falls in; benchmarks/extract/README.md, session 32)")
     ap.add_argument("--opacity-min", type=float, default=None, help="drop Gaussians below this opacity first")
     ap.add_argument("--corner-min-extent", type=float, default=None,
                     help="tetra: only the centre point for Gaussians whose 3-sigma extent is below this (world units)")
@@ -128,13 +132,16 @@ def extract_run(a, ranks, device) -> None:
                                        delaunay_workers=a.delaunay_workers, band=a.band,
                                        delaunay_processes=a.delaunay_processes, grid=a.grid,
                                        octree=OctreeConfig(**{k: v for k, v in (("cell_factor", a.cell_factor),
-                                                                                ("piece_tets", a.piece_tets))
+                                                                                ("piece_tets", a.piece_tets),
+                                                                                ("reach_filter", a.reach_filter))
                                                               if v is not None})))
     if a.resolution:
         cfg.cubes_resolution = a.resolution
         cfg.tsdf.resolution = a.resolution
     cfg.validate()
+    t_load = time.perf_counter()
     gaussians, cameras, views, render_config = load_run(run, a.scene, device)
+    command = {"load_s": round(time.perf_counter() - t_load, 3)}
     from .progress import Stages
 
     timer = StageTimer(device, progress=Stages(quiet=a.quiet or not ranks.is_main))
@@ -151,21 +158,27 @@ def extract_run(a, ranks, device) -> None:
         raise GofError(empty_mesh_message(gaussians, a.method, empty, cfg))
     base = Path(a.out) if a.out else (run if run.is_dir() else run.parent) / f"mesh_{a.method}.ply"
     outputs = []
+    t_save = time.perf_counter()
     for level, (v, f) in zip(levels, meshes):
         path = base if len(meshes) == 1 else base.with_name(f"{base.stem}_{level:g}{base.suffix}")
         save_mesh(path, v, f)
         outputs.append({"path": str(path), "level": level, "vertices": int(len(v)), "faces": int(len(f))})
         print(f"wrote {path}: {len(v)} vertices, {len(f)} faces")
-    write_json_atomic(base.with_suffix(".json"), {
+    command["save_s"] = round(time.perf_counter() - t_save, 3)
+    summary = {
         "method": a.method, "binary_steps": a.binary_steps, "min_views": a.min_views, "num_gaussians": len(gaussians),
         "num_views": len(cameras), "device": device, "processes": ranks.world, "total_time_s": round(total, 3),
-        "stages": timer.stages, "meshes": outputs, **({"ranks": per_rank} if ranks.active else {})})
+        "command": command, "stages": timer.stages, "meshes": outputs, **({"ranks": per_rank} if ranks.active else {})}
+    write_json_atomic(base.with_suffix(".json"), summary)
     if not a.no_pictures:  # a picture per mesh; a failure only warns: the mesh is already written
         from .pictures import pictures_or_warning
 
+        t_pictures = time.perf_counter()
         for o in outputs:
             for p in pictures_or_warning(run, mesh_path=o["path"], device=device, scene=a.scene):
                 print(f"wrote {p}")
+        command["pictures_s"] = round(time.perf_counter() - t_pictures, 3)
+        write_json_atomic(base.with_suffix(".json"), summary)  # again, with the pictures' time
 
 
 def rank_summary(ranks, device, stages: dict, total_s: float) -> dict:

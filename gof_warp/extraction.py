@@ -254,8 +254,9 @@ def _octree_grid(gaussians, cameras, config: MeshConfig, field_fn, timer: StageT
     saying why, and :func:`_tetra_grid` takes the Delaunay grid."""
     sub: dict = {}
     with timer("octree_grid"):
-        grid = octree_tets_from_gaussians(gaussians.means.detach(), gaussians.scales.detach(),
-                                          gaussians.opacities.detach(), cameras, config.tetra, stats=sub)
+        grid = octree_tets_from_gaussians(gaussians.means.detach(), gaussians.rotations.detach(),
+                                          gaussians.scales.detach(), gaussians.opacities.detach(), cameras,
+                                          config.tetra, stats=sub)
     timer.stages["octree_grid"]["substages"] = sub
     if grid is None:
         oc = config.tetra.octree
@@ -271,9 +272,11 @@ def _octree_grid(gaussians, cameras, config: MeshConfig, field_fn, timer: StageT
 
 
 class _OctreePieces:
-    """The octree grid's tetrahedra in view, piece by piece: each piece of :meth:`OctreeTets.pieces
+    """The octree grid's tetrahedra kept, piece by piece: each piece of :meth:`OctreeTets.pieces
     <gof_warp.octree_tets.OctreeTets.pieces>` without the tetrahedra that have a corner no view sees (``seen [P]``
-    false). ``n_pieces(world)``: enough pieces of at most ``piece_tets`` made tetrahedra, and one per rank at least."""
+    false) and, when the grid has its ``reach`` (``OctreeConfig.reach_filter``), those with no corner inside a
+    Gaussian's 3σ box. ``n_pieces(world)``: enough pieces of at most ``piece_tets`` made tetrahedra, and one per rank
+    at least."""
 
     def __init__(self, grid, seen: torch.Tensor, piece_tets: int):
         self.grid, self.seen, self.piece_tets = grid, seen, piece_tets
@@ -282,14 +285,19 @@ class _OctreePieces:
         return max(world, -(-self.grid.count // self.piece_tets))
 
     def pieces(self, n_pieces: int, first: int, last: int, tally: dict):
-        """Yield the tetrahedra in view of pieces ``first … last - 1`` of ``n_pieces``; ``tally`` counts the kept
-        (``"tetrahedra"``) and left out (``"tetrahedra_out_of_view"``) ones."""
+        """Yield the kept tetrahedra of pieces ``first … last - 1`` of ``n_pieces``; ``tally`` counts the kept
+        (``"tetrahedra"``), out-of-view (``"tetrahedra_out_of_view"``) and, in view, out-of-reach
+        (``"tetrahedra_out_of_reach"``) ones."""
         for _, t in self.grid.pieces(n_pieces, first, last):
-            in_view = _in_view(t, self.seen)
-            kept = int(in_view.sum())
-            tally["tetrahedra"] = tally.get("tetrahedra", 0) + kept
-            tally["tetrahedra_out_of_view"] = tally.get("tetrahedra_out_of_view", 0) + t.shape[0] - kept
-            yield t[in_view]
+            t_long = t.long()
+            keep = self.seen[t_long].all(dim=1)
+            in_view = int(keep.sum())
+            if self.grid.reach is not None:
+                keep &= self.grid.reach[t_long].any(dim=1)
+                tally["tetrahedra_out_of_reach"] = tally.get("tetrahedra_out_of_reach", 0) + in_view - int(keep.sum())
+            tally["tetrahedra"] = tally.get("tetrahedra", 0) + int(keep.sum())
+            tally["tetrahedra_out_of_view"] = tally.get("tetrahedra_out_of_view", 0) + t.shape[0] - in_view
+            yield t[keep]
 
 
 class _WholeTets:
@@ -415,8 +423,8 @@ def _march(points, tets, values, config: MeshConfig, field_fn, ranks: Ranks, cou
         own = gathered if ranks.is_main else pieces  # rank 0: every rank's pieces; the others: their own
         meshes = [merge_keyed_pieces([p[level] for p in own]) for level in range(len(config.levels))]
     counts["search"] = {**plan.decisions, "calls": len(plan.timings)}
-    tallies = ranks.all_gather_objects(tally)  # what each rank marched (and, octree, left out of view)
-    for name in ("tetrahedra", "tetrahedra_out_of_view"):
+    tallies = ranks.all_gather_objects(tally)  # what each rank marched (and, octree, left out of view or reach)
+    for name in ("tetrahedra", "tetrahedra_out_of_view", "tetrahedra_out_of_reach"):
         if name in tally:
             counts[name] = sum(t.get(name, 0) for t in tallies)
     counts["pieces"] = n_pieces

@@ -20,6 +20,11 @@ the Gaussians' device (torch; CUDA or CPU):
 3. **Occupancy.** Only leaves inside an asked-for cell (some Gaussian's box) get tetrahedra. The empty space between
    boxes is left out, as the paper's cell filter leaves out Delaunay cells with edges longer than the Gaussians'
    reach: there the field only changes at the shadow boundaries behind objects, which are not surfaces.
+4. **Reach** (optional, off by default: ``OctreeConfig.reach_filter``, applied by the caller that has the rotations:
+   :func:`gof_warp.tetra.octree_tets_from_gaussians`). An occupied leaf fills the whole cube around a box, also where
+   no Gaussian is (under a ground, between objects); :attr:`OctreeTets.reach` marks the points inside some
+   Gaussian's oriented 3σ box (:mod:`gof_warp.reach`), and the extraction keeps only the tetrahedra with such a
+   vertex: where the Delaunay grid's points and cell filter reach.
 
 Coordinates are integers on the lattice of the finest level's half cells: ``2^(depth+1)`` units along the root cube,
 21 bits per axis packed in one int64 key (``depth <= 19``: the far corner, ``2^(depth+1)``, must fit). Points are ``lo + key · size / 2^(depth+1)``.
@@ -109,6 +114,12 @@ class OctreeConfig:
     # (OctreeTets.pieces), so the tetrahedra are never held whole; the mesh is the same for any value. 2^24: 0.27 GB of
     # indices and the marching's 24 B per tetrahedron (DTU scan 24's 35.7M tetrahedra: three pieces)
     piece_tets: int = 1 << 24
+    # keep only the tetrahedra with a vertex inside some Gaussian's oriented 3σ box (gof_warp.reach). Off by default:
+    # where a surface is made of flat Gaussians, whether any octree vertex falls inside their thin boxes depends on how
+    # the lattice happens to lie. Measured (benchmarks/extract/README.md, sessions 31-32): the background model's crop
+    # Chamfer +5.5 % of the Delaunay grid's without it, +1.7 % / +5.2 % with unfiltered / 3D-filtered boxes; on
+    # background_full 12 % of the ground lost (264 of 1,324 ground patches); colmap_can loses a floater but gets holes
+    reach_filter: bool = False
 
     def validate(self):
         if self.cell_factor is not None and not (self.cell_factor > 0 and math.isfinite(self.cell_factor)):
@@ -119,6 +130,8 @@ class OctreeConfig:
             raise GofError(f"octree depth must be an integer in [1, {MAX_DEPTH}], got {self.depth!r}")
         if isinstance(self.piece_tets, bool) or not isinstance(self.piece_tets, int) or self.piece_tets < 1:
             raise GofError(f"octree piece_tets must be a positive integer, got {self.piece_tets!r}")
+        if not isinstance(self.reach_filter, bool):
+            raise GofError(f"octree reach_filter must be true or false, got {self.reach_filter!r}")
         if not 0.0 <= self.box_percentile < 50.0:
             raise GofError(f"octree box_percentile must be in [0, 50), got {self.box_percentile!r}")
 
@@ -444,6 +457,9 @@ class OctreeTets:
     points: torch.Tensor  # [P, 3] float32 world positions
     count: int  # tetrahedra
     chunk: int = LEAF_CHUNK
+    # [P] bool: the point lies in some Gaussian's oriented 3σ box (gof_warp.reach), set by the caller that has the
+    # Gaussians' rotations (gof_warp.tetra.octree_tets_from_gaussians with OctreeConfig.reach_filter); None: not asked
+    reach: torch.Tensor | None = None
 
     def pieces(self, n_pieces: int, first: int = 0, last: int | None = None):
         """Yield ``(k, tets [T_k, 4] int32)`` for the pieces ``first <= k < last`` of ``n_pieces`` (the ranges of

@@ -37,6 +37,7 @@ from .delaunay import default_workers, delaunay
 from .errors import GofError
 from .model import quat_to_rotmat
 from .octree_tets import OctreeConfig, OctreeTets, octree_grid_tets
+from .reach import points_in_boxes
 
 log = logging.getLogger(__name__)
 
@@ -92,8 +93,8 @@ class TetraConfig:
                                "octree, or with 'auto', the default, the Delaunay grid only for a small model); add "
                                "--grid delaunay (TetraConfig.grid = 'delaunay') to use them")
         elif self.octree != OctreeConfig():
-            raise GofError(f"octree settings ({self.octree}; --cell-factor, --piece-tets) apply to the octree grid, but the grid "
-                           "is 'delaunay': drop them or use --grid octree")
+            raise GofError(f"octree settings ({self.octree}; --cell-factor, --piece-tets, --no-reach-filter) apply to the "
+                           "octree grid, but the grid is 'delaunay': drop them or use --grid octree")
 
     @classmethod
     def fast(cls, **overrides) -> TetraConfig:
@@ -305,14 +306,19 @@ def grid_points(means, rotations, scales, opacities=None, cameras: Sequence[Came
                         corner_min_extent=cfg.corner_min_extent)
 
 
-def octree_tets_from_gaussians(means, scales, opacities=None, cameras: Sequence[Camera] | None = None,
+def octree_tets_from_gaussians(means, rotations, scales, opacities=None, cameras: Sequence[Camera] | None = None,
                                config: TetraConfig | None = None, stats: dict | None = None) -> OctreeTets | None:
     """The octree grid (:mod:`gof_warp.octree_tets`) over the Gaussians' 3σ boxes (radius ``3 max(s)``), with the
     Delaunay grid's selection: ``opacity_min``, and the frustum mask applied to the centres. Returns the grid's
     :class:`~gof_warp.octree_tets.OctreeTets` (points held, tetrahedra made in pieces) on the means' device, or, with
-    ``config.grid = "auto"``, None for a small model, whose grid is the Delaunay one (``stats`` says why)."""
+    ``config.grid = "auto"``, None for a small model, whose grid is the Delaunay one (``stats`` says why). With
+    ``config.octree.reach_filter`` its ``reach [P]`` marks the points inside some selected Gaussian's oriented 3σ box
+    (:func:`gof_warp.reach.points_in_boxes`; ``stats["octree_points_in_reach"]``).
+
+    ``means [N, 3]``, ``rotations [N, 4]`` (wxyz), ``scales [N, 3]`` (standard deviations), ``opacities [N]``."""
     cfg = config or TetraConfig()
     mu = _as_tensor(means, "means", (3,))
+    q = _as_tensor(rotations, "rotations", (4,), mu.shape[0]).to(mu.device)
     s = _checked_scales(scales, mu.shape[0], mu.device)
     keep = _opacity_mask(opacities, cfg.opacity_min, mu.shape[0], mu.device)
     if cameras and cfg.frustum_mask:
@@ -321,8 +327,15 @@ def octree_tets_from_gaussians(means, scales, opacities=None, cameras: Sequence[
         raise GofError(f"no Gaussian is left for the octree grid: of {mu.shape[0]}, none has its centre in some camera's "
                        f"view (near {cfg.near:g}, far {cfg.far:g})"
                        + (f" and opacity >= opacity_min {cfg.opacity_min:g}" if cfg.opacity_min is not None else ""))
-    return octree_grid_tets(mu[keep], BOX_SIGMAS * s[keep].max(dim=1).values, cfg.octree, stats=stats,
+    mu, q, s = mu[keep], q[keep], s[keep]
+    grid = octree_grid_tets(mu, BOX_SIGMAS * s.max(dim=1).values, cfg.octree, stats=stats,
                             small_grid="none" if cfg.grid == "auto" else "finer")
+    if grid is not None and cfg.octree.reach_filter:
+        t0 = time.perf_counter()
+        grid.reach = points_in_boxes(grid.points, mu, q, BOX_SIGMAS * s)
+        if stats is not None:
+            stats.update(octree_points_in_reach=int(grid.reach.sum()), reach=round(time.perf_counter() - t0, 4))
+    return grid
 
 
 def tetrahedral_grid(means, rotations, scales, opacities=None, cameras: Sequence[Camera] | None = None,

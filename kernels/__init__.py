@@ -37,6 +37,8 @@ Stable names (module, kind):
   ``descend_bracket_tree``, ``interpolate_in_brackets``, ``count_nonfinite`` and the funcs ``tet_case``, ``edge_key``,
   ``tree_node``; ``build_case_tables``.
 * 3D filter: ``nearest_seen_depth`` (kernel: the nearest depth at which any camera sees each centre).
+* reach of the Gaussians: ``oriented_box_bounds`` (kernel: the axis-aligned bounds of oriented boxes, for a
+  ``wp.Bvh``), ``points_in_boxes`` (kernel: which points lie in some oriented box) and the func ``in_oriented_box``.
 * TSDF: ``integrate_tsdf``, ``sample_grid_trilinear``; ray casting of meshes: ``cast_pinhole_rays``,
   ``shade_hits``, ``resolve_pixels``; lenses: ``distort_opencv``, ``undistort_remap``.
 """
@@ -61,6 +63,7 @@ _MODULES = {
                       "tree_node", "interpolate_in_brackets", "count_nonfinite", "tet_case", "edge_key",
                       "build_case_tables"),
     "filter3d": ("nearest_seen_depth",),
+    "reach": ("in_oriented_box", "oriented_box_bounds", "points_in_boxes"),
     "tsdf": ("integrate_tsdf", "sample_grid_trilinear"),
     "raycast": ("cast_pinhole_rays", "shade_hits", "resolve_pixels"),
     "undistort": ("distort_opencv", "undistort_remap"),

@@ -255,6 +255,9 @@ def test_cli_writes_mesh_and_stats(run_folder, method, tmp_path, cli_in_process)
     assert stats["meshes"][0]["faces"] == len(mesh.faces) >= min_faces
     assert stats["num_gaussians"] == 2 and stats["total_time_s"] > 0
     assert all("time_s" in v for k, v in stats["stages"].items() if k != "counts")
+    # the whole command's other phases: loading, writing the mesh, its picture
+    assert set(stats["command"]) == {"load_s", "save_s", "pictures_s"}
+    assert (run_folder / "pictures" / f"mesh_m_{method}.png").is_file()
 
 
 def test_cli_errors_name_the_problem(run_folder, tmp_path, cli_in_process):
