@@ -72,6 +72,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     ap.add_argument("--opacity-min", type=float, default=None, help="drop Gaussians below this opacity first")
     ap.add_argument("--corner-min-extent", type=float, default=None,
                     help="tetra: only the centre point for Gaussians whose 3-sigma extent is below this (world units)")
+    ap.add_argument("--keep-hidden", action="store_true",
+                    help="keep the faces no training camera sees (by default they are dropped: level crossings under a "
+                         "ground, inside objects or behind walls that no photo supports; gof_warp.visibility)")
     ap.add_argument("--min-component-faces", type=int, default=0)
     ap.add_argument("--min-views", type=int, default=OpacityFieldConfig.min_views,
                     help="mesh only space that at least this many training views see (default %(default)s, GOF's; 2 "
@@ -125,6 +128,7 @@ def extract_run(a, ranks, device) -> None:
               f"{info['bytes'] / 2**20:.1f} MiB, {info['time_s']['total']:.1f} s")
         return
     cfg = MeshConfig(method=a.method, levels=tuple(a.levels), binary_steps=a.binary_steps,
+                     drop_hidden=not a.keep_hidden,
                      min_component_faces=a.min_component_faces, max_faces=a.max_faces, max_error=a.max_error,
                      search_steps_per_call=a.search_steps_per_call, field=OpacityFieldConfig(min_views=a.min_views),
                      tetra=TetraConfig(backend=a.delaunay, opacity_min=a.opacity_min,

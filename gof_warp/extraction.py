@@ -38,6 +38,7 @@ from .opacity_field import OpacityFieldConfig, opacity_field
 from .render import RenderConfig
 from .tetra import TetraConfig, grid_points, level_band, octree_tets_from_gaussians, tetrahedralize
 from .tsdf import TSDFConfig, extract_tsdf_mesh, fuse_tsdf
+from .visibility import faces_seen
 
 log = logging.getLogger("gof_warp.extract")  # one logger name for the stage and its CLI
 METHODS = ("tetra", "cubes", "tsdf")
@@ -62,6 +63,9 @@ class MeshConfig:
     # tetra: bisection steps served by one opacity-field call (0: on CUDA chosen from the field's measured cost,
     # SearchPlanner, on the CPU one; d >= 1 fixed). The mesh is the same for any value; only the calls change.
     search_steps_per_call: int = 0
+    # drop the faces no training camera sees (gof_warp.visibility): level crossings under a ground, inside objects,
+    # behind walls, which the octree grid finds and no photo supports. False: GOF's mesh as marched
+    drop_hidden: bool = True
 
     def validate(self):
         if self.method not in METHODS:
@@ -453,7 +457,7 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
             marching is split by space, each rank marching its share of the tetrahedra (the pieces joined on rank 0
             into the one-process mesh), and the binary search by views (every rank searches every crossing edge
             over its views, the minimum reduced per field call). Cubes: each field evaluation is shared out by views. The
-            post-processing (crop, components, decimation) runs on rank 0 only; the other ranks return their raw
+            post-processing (hidden faces, crop, components, decimation) runs on rank 0 only; the other ranks return their raw
             meshes (their pieces, on the tetra path). TSDF fusion is not shared out (every rank fuses every view).
     Returns:
         list of ``(vertices [V, 3] float32, faces [F, 3] int32)``, one per ``config.levels``.
@@ -523,7 +527,13 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
         meshes = [(v, f)]
     if not ranks.is_main:  # rank 0 post-processes and writes
         return meshes
-    meshes = [_postprocess(np.asarray(v, np.float32), np.asarray(f, np.int64), config) for v, f in meshes]
+    meshes = [(np.asarray(v, np.float32), np.asarray(f, np.int64)) for v, f in meshes]
+    if config.drop_hidden:
+        with timer("hidden_faces"):
+            seen = [faces_seen(v, f, cameras, near=render_config.near, device=gaussians.device) for v, f in meshes]
+            meshes = [(v, f[s]) for (v, f), s in zip(meshes, seen)]
+        timer.stages["hidden_faces"]["dropped"] = [int((~s).sum()) for s in seen]
+    meshes = [_postprocess(v, f, config) for v, f in meshes]
     if config.max_faces is not None or config.max_error is not None:
         from .decimate import decimate
 
