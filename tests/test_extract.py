@@ -255,9 +255,26 @@ def test_cli_writes_mesh_and_stats(run_folder, method, tmp_path, cli_in_process)
     assert stats["meshes"][0]["faces"] == len(mesh.faces) >= min_faces
     assert stats["num_gaussians"] == 2 and stats["total_time_s"] > 0
     assert all("time_s" in v for k, v in stats["stages"].items() if k != "counts")
-    # the whole command's other phases: loading, writing the mesh, its picture
+    # the whole command's other phases: loading, writing the mesh, its picture; the hidden faces counted
     assert set(stats["command"]) == {"load_s", "save_s", "pictures_s"}
+    dropped = stats["stages"]["hidden_faces"]["dropped"]
+    assert len(dropped) == 1 and 0 <= dropped[0] < stats["meshes"][0]["faces"] + dropped[0]
     assert (run_folder / "pictures" / f"mesh_m_{method}.png").is_file()
+
+
+def test_cli_keep_hidden_skips_the_drop(run_folder, tmp_path, cli_in_process):
+    """``--keep-hidden``: no hidden-face stage, and no fewer faces than the default mesh."""
+    from gof_warp.extract import main
+
+    faces = {}
+    for name, extra in (("drop", []), ("keep", ["--keep-hidden"])):
+        out = tmp_path / f"{name}.ply"
+        rc, err = cli_in_process(main, str(run_folder), "--out", str(out), "--device", "cpu", "--no-pictures", "--quiet",
+                                 *extra)
+        assert rc == 0, err[-3000:]
+        stats = json.loads(out.with_suffix(".json").read_text())
+        faces[name] = (stats["meshes"][0]["faces"], "hidden_faces" in stats["stages"])
+    assert faces["drop"][1] and not faces["keep"][1] and faces["keep"][0] >= faces["drop"][0] > 0
 
 
 def test_cli_errors_name_the_problem(run_folder, tmp_path, cli_in_process):
