@@ -309,6 +309,18 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0), fx=500.0, fy=None, cx=None, cy=None
     return Camera(R=R, t=-R @ eye, fx=fx, fy=fy, cx=cx, cy=cy, width=width, height=height, name=name)
 
 
+def camera_arrays(cameras) -> dict[str, np.ndarray]:
+    """The cameras packed for kernels that loop over them, float64, one row per camera: ``R [C, 3, 3]``,
+    ``t [C, 3]`` (world-to-camera), ``f [C, 2]`` (fx, fy), ``c [C, 2]`` (cx, cy), ``wh [C, 2]`` (width, height)."""
+    return {
+        "R": np.array([c.R for c in cameras], np.float64).reshape(-1, 3, 3),
+        "t": np.array([c.t for c in cameras], np.float64).reshape(-1, 3),
+        "f": np.array([[c.fx, c.fy] for c in cameras], np.float64).reshape(-1, 2),
+        "c": np.array([[c.cx, c.cy] for c in cameras], np.float64).reshape(-1, 2),
+        "wh": np.array([[c.width, c.height] for c in cameras], np.float64).reshape(-1, 2),
+    }
+
+
 def camera_extent(cameras) -> float:
     """Scene extent as 3DGS computes it: 1.1 × the largest distance of a camera centre from their mean.
 

@@ -294,7 +294,7 @@ class _OctreePieces:
         (``"tetrahedra_out_of_reach"``) ones."""
         for _, t in self.grid.pieces(n_pieces, first, last):
             t_long = t.long()
-            keep = self.seen[t_long].all(dim=1)
+            keep = _in_view(t_long, self.seen)
             in_view = int(keep.sum())
             if self.grid.reach is not None:
                 keep &= self.grid.reach[t_long].any(dim=1)
@@ -457,8 +457,8 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
             marching is split by space, each rank marching its share of the tetrahedra (the pieces joined on rank 0
             into the one-process mesh), and the binary search by views (every rank searches every crossing edge
             over its views, the minimum reduced per field call). Cubes: each field evaluation is shared out by views. The
-            post-processing (hidden faces, crop, components, decimation) runs on rank 0 only; the other ranks return their raw
-            meshes (their pieces, on the tetra path). TSDF fusion is not shared out (every rank fuses every view).
+            post-processing (hidden faces, crop, components, decimation) runs on rank 0 only; the other ranks return
+            their raw meshes (their pieces, on the tetra path). TSDF fusion is not shared out (every rank fuses every view).
     Returns:
         list of ``(vertices [V, 3] float32, faces [F, 3] int32)``, one per ``config.levels``.
     """

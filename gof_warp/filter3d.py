@@ -23,7 +23,7 @@ from collections.abc import Sequence
 import torch
 import warp as wp
 
-from .camera import Camera
+from .camera import Camera, camera_arrays
 from .devices import warp_device
 from .errors import GofError
 from .kernels.filter3d import nearest_seen_depth
@@ -36,14 +36,7 @@ DEFAULT_CHUNK_ELEMENTS = 1 << 22  # cameras × Gaussians evaluated at once (≈ 
 
 
 def _camera_tensors(cameras: Sequence[Camera], dtype, device) -> dict[str, torch.Tensor]:
-    t = lambda rows: torch.tensor(rows, dtype=dtype, device=device)  # noqa: E731
-    return {
-        "R": t([c.R.tolist() for c in cameras]),
-        "t": t([c.t.tolist() for c in cameras]),
-        "f": t([[c.fx, c.fy] for c in cameras]),
-        "c": t([[c.cx, c.cy] for c in cameras]),
-        "wh": t([[c.width, c.height] for c in cameras]),
-    }
+    return {k: torch.as_tensor(v, dtype=dtype, device=device) for k, v in camera_arrays(cameras).items()}
 
 
 @torch.no_grad()

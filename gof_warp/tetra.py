@@ -93,7 +93,7 @@ class TetraConfig:
                                "octree, or with 'auto', the default, the Delaunay grid only for a small model); add "
                                "--grid delaunay (TetraConfig.grid = 'delaunay') to use them")
         elif self.octree != OctreeConfig():
-            raise GofError(f"octree settings ({self.octree}; --cell-factor, --piece-tets, --no-reach-filter) apply to the "
+            raise GofError(f"octree settings ({self.octree}; --cell-factor, --piece-tets, --reach-filter) apply to the "
                            "octree grid, but the grid is 'delaunay': drop them or use --grid octree")
 
     @classmethod

@@ -22,7 +22,7 @@ from collections.abc import Sequence
 import numpy as np
 import warp as wp
 
-from .camera import Camera
+from .camera import Camera, camera_arrays
 from .devices import warp_device
 from .errors import GofError
 from .kernels.visibility import PROBE_MIN_PX, PROBE_TO_CORNER
@@ -32,7 +32,7 @@ HIDDEN_EPS_PX = 1.0  # pixel footprints a face may lie behind what the ray meets
 
 
 def _checked(verts, faces, cameras) -> tuple[np.ndarray, np.ndarray, list]:
-    v = np.asarray(verts, np.float64)
+    v = np.asarray(verts)  # float32 from the extraction: the kernel's precision, no float64 copy
     f = np.asarray(faces, np.int64)
     if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
         raise GofError(f"faces_seen: verts [V, 3] and faces [F, 3], got {v.shape} and {f.shape}")
@@ -47,13 +47,9 @@ def _checked(verts, faces, cameras) -> tuple[np.ndarray, np.ndarray, list]:
 
 
 def _camera_arrays(cams: Sequence[Camera], near: float) -> dict[str, np.ndarray]:
-    """Per camera: ``R, t, f, c, wh`` and its near plane, the larger of ``near`` and the camera's own (as rendered)."""
-    return {"near": np.array([max(float(near), float(c.near)) for c in cams], np.float64),
-            "R": np.stack([np.asarray(c.R, np.float64) for c in cams]),
-            "t": np.stack([np.asarray(c.t, np.float64) for c in cams]),
-            "f": np.array([[c.fx, c.fy] for c in cams], np.float64),
-            "c": np.array([[c.cx, c.cy] for c in cams], np.float64),
-            "wh": np.array([[c.width, c.height] for c in cams], np.float64)}
+    """:func:`~gof_warp.camera.camera_arrays` and each camera's near plane, the larger of ``near`` and its own (as
+    rendered)."""
+    return {**camera_arrays(cams), "near": np.array([max(float(near), float(c.near)) for c in cams], np.float64)}
 
 
 def faces_seen(verts, faces, cameras: Sequence[Camera], *, near: float = 0.0, eps_px: float = HIDDEN_EPS_PX,
@@ -61,8 +57,9 @@ def faces_seen(verts, faces, cameras: Sequence[Camera], *, near: float = 0.0, ep
     """``[F]`` bool: whether some camera sees each face of ``verts [V, 3]``, ``faces [F, 3]`` (module docstring):
     one of the face's probes (its centroid ``g``, and where the face spans ``PROBE_MIN_PX`` pixels or more in that
     image ``0.25 g + 0.75 v`` towards each corner ``v``) lies in front of the camera (depth ``>`` the larger of
-    ``near`` and the camera's own ``near``, as the renderer clips) and inside its image, and the ray from the camera's centre to it meets nothing of the mesh before ``eps_px`` pixel footprints short
-    of it. Float32 Warp kernel on ``device``; :func:`faces_seen_reference` is its float64 reference."""
+    ``near`` and the camera's own ``near``, as the renderer clips) and inside its image, and the ray from the camera's
+    centre to it meets nothing of the mesh before ``eps_px`` pixel footprints short of it. Float32 Warp kernel on
+    ``device``; :func:`faces_seen_reference` is its float64 reference."""
     v, f, cams = _checked(verts, faces, cameras)
     if len(f) == 0:
         return np.zeros(0, bool)
@@ -73,7 +70,7 @@ def faces_seen(verts, faces, cameras: Sequence[Camera], *, near: float = 0.0, ep
     cam = _camera_arrays(cams, near)
     arr = lambda a, dt: wp.array(np.ascontiguousarray(a, np.float32), dtype=dt, device=dev)  # noqa: E731
     points = arr(v, wp.vec3)
-    indices = wp.array(f.astype(np.int32), dtype=wp.int32, device=dev)
+    indices = wp.array(f.astype(np.int32, copy=False), dtype=wp.int32, device=dev)
     mesh = wp.Mesh(points=points, indices=indices.flatten())
     seen = wp.zeros(len(f), dtype=wp.int8, device=dev)
     wp.launch(_faces_seen_kernel, dim=len(f), device=dev,
@@ -88,6 +85,7 @@ def faces_seen_reference(verts, faces, cameras: Sequence[Camera], *, near: float
                          eps_px: float = HIDDEN_EPS_PX) -> np.ndarray:
     """:func:`faces_seen` in float64 numpy, every ray against every triangle (Möller–Trumbore; small meshes)."""
     v, f, cams = _checked(verts, faces, cameras)
+    v = v.astype(np.float64)
     cam = _camera_arrays(cams, near)
     g = v[f].mean(axis=1)  # [F, 3] centroids, then the probes towards each corner
     probes = [g] + [g + PROBE_TO_CORNER * (v[f[:, j]] - g) for j in range(3)]

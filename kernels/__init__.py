@@ -39,7 +39,8 @@ Stable names (module, kind):
 * 3D filter: ``nearest_seen_depth`` (kernel: the nearest depth at which any camera sees each centre).
 * reach of the Gaussians: ``oriented_box_bounds`` (kernel: the axis-aligned bounds of oriented boxes, for a
   ``wp.Bvh``), ``points_in_boxes`` (kernel: which points lie in some oriented box) and the func ``in_oriented_box``.
-* visibility of a mesh: ``faces_seen`` (kernel: which faces some camera sees, by rays to each face's centroid and, for large faces, towards its corners).
+* visibility of a mesh: ``faces_seen`` (kernel: which faces some camera sees, by rays to each face's centroid and,
+  for large faces, towards its corners).
 * TSDF: ``integrate_tsdf``, ``sample_grid_trilinear``; ray casting of meshes: ``cast_pinhole_rays``,
   ``shade_hits``, ``resolve_pixels``; lenses: ``distort_opencv``, ``undistort_remap``.
 """
