@@ -178,8 +178,9 @@ def extract_run(a, ranks, device) -> None:
         from .pictures import pictures_or_warning
 
         t_pictures = time.perf_counter()
-        for o in outputs:
-            for p in pictures_or_warning(run, mesh_path=o["path"], device=device, scene=a.scene):
+        for o, m in zip(outputs, meshes):  # the model and meshes in memory: no second read of the files
+            for p in pictures_or_warning(run, mesh_path=o["path"], device=device, scene=a.scene, gaussians=gaussians,
+                                         mesh=m):
                 print(f"wrote {p}")
         command["pictures_s"] = round(time.perf_counter() - t_pictures, 3)
         write_json_atomic(base.with_suffix(".json"), summary)  # again, with the pictures' time

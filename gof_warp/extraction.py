@@ -31,7 +31,6 @@ from .arrays import distinct, even_split
 from .camera import Camera
 from .distributed import Ranks
 from .errors import GofError, ModelError
-from .io_utils import atomic_path
 from .marching import compact_mesh, marching_tetrahedra, merge_keyed_pieces, search_edges
 from .marching_inputs import MAX_STEPS_PER_CALL
 from .opacity_field import OpacityFieldConfig, opacity_field
@@ -553,11 +552,9 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
 
 
 def save_mesh(path, verts: np.ndarray, faces: np.ndarray) -> None:
-    """Write a triangle mesh as binary PLY, atomically."""
-    import trimesh
+    """Write a triangle mesh as binary PLY (float32 vertices, int32 indices), atomically."""
+    from .ply import write_ply_mesh
 
-    mesh = trimesh.Trimesh(vertices=verts, faces=faces, process=False)
-    with atomic_path(path) as tmp:
-        mesh.export(tmp, file_type="ply")
+    write_ply_mesh(path, verts, faces)
 
 

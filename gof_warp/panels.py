@@ -17,8 +17,9 @@ composed into one labelled picture (library code; the run loading and the CLI ar
   tinted red.
 
 Wide images are downscaled (cameras scaled exactly, photos resampled) so that the picture stays at most
-``max_width`` (2000) pixels wide. Memory: one view at a time; :func:`shade_mesh` holds
-``H·W·s²`` samples (``s`` = supersampling) of a few floats each.
+``max_width`` (2000) pixels wide. The mesh is made ready for ray casting once (:class:`CastMesh`: its BVH) and
+drawn from every row's camera. Memory: one view at a time; :func:`shade_cast_mesh` holds ``H·W·s²`` samples
+(``s`` = supersampling) of a few floats each, besides the mesh and its BVH.
 """
 
 from __future__ import annotations
@@ -100,63 +101,102 @@ def _sample_directions(camera: Camera, samples: int) -> np.ndarray:
     return d / np.linalg.norm(d, axis=-1, keepdims=True)
 
 
+@dataclass
+class CastMesh:
+    """A triangle mesh made ready for ray casting once (checked, uploaded, its ``wp.Mesh`` BVH built), then drawn
+    from any number of cameras by :func:`shade_cast_mesh`. ``vertices`` ``[V, 3]`` float64 and ``faces`` ``[F, 3]``
+    int64 are host copies (the face normals of the hit faces come from them); ``bvh`` lives on ``device``."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    bvh: object | None  # wp.Mesh; None for a mesh with no faces
+    device: object
+
+    @classmethod
+    def build(cls, vertices, faces, device=None) -> "CastMesh":
+        """Check ``vertices`` ``[V, 3]`` / ``faces`` ``[F, 3]`` (numpy, torch or array-like) and build the BVH on
+        ``device`` (Warp/torch device name; default: the device of ``vertices`` if it is a tensor, else CPU)."""
+        import warp as wp
+
+        dev = _warp_device(device, vertices)
+        v, f = _check_mesh(vertices, faces)
+        bvh = None
+        if len(f):
+            points = wp.array(v.astype(np.float32), dtype=wp.vec3, device=dev)
+            indices = wp.array(f.astype(np.int32).ravel(), dtype=wp.int32, device=dev)
+            bvh = wp.Mesh(points=points, indices=indices)
+        return cls(vertices=v, faces=f, bvh=bvh, device=dev)
+
+
 def shade_mesh(vertices, faces, camera: Camera, *, mode: str = "shaded", supersample: int = 2, device=None,
                background=BACKGROUND, near: float = 0.0) -> np.ndarray:
-    """Ray cast a triangle mesh from ``camera`` and shade it for viewing.
-
-    Each sample ray (``supersample²`` per pixel, on the grid of :mod:`gof_warp.kernels.raycast`; 1 = the
-    pixel centres) finds its closest triangle through a ``wp.Mesh`` BVH. A hit on a face whose normal
-    ``(p1 - p0) × (p2 - p0)`` points towards the camera is shaded ``FRONT_COLOR``, one seen from behind
-    ``BACK_COLOR`` (two-sided: inside-out parts and holes show red); both times
-    ``AMBIENT + (1 - AMBIENT) · |n · d|`` (a headlight). ``mode="normals"`` colours the camera-facing
-    world normal as ``(n + 1) / 2`` instead (back faces mixed half with red). Misses get ``background``.
-    Pixels average their samples.
+    """Ray cast a triangle mesh from ``camera`` and shade it for viewing (:func:`shade_cast_mesh` on
+    ``CastMesh.build(vertices, faces, device)``; build a :class:`CastMesh` once to draw one mesh from many cameras).
 
     Args:
         vertices: ``[V, 3]`` world positions (numpy, torch or anything array-like).
         faces: ``[F, 3]`` vertex indices.
-        camera: :class:`~gof_warp.camera.Camera` (OpenCV axes, world-to-camera).
-        mode: ``"shaded"`` or ``"normals"``.
-        supersample: samples per pixel axis (≥ 1).
+        camera, mode, supersample, background, near: as in :func:`shade_cast_mesh`.
         device: Warp/torch device name; default: the device of ``vertices`` if it is a tensor, else CPU.
-        background: RGB in ``[0, 1]``.
-        near: depth in front of which nothing is drawn (the camera's clip; 0: none).
 
     Returns:
         ``[H, W, 3]`` uint8 image.
     """
-    import warp as wp
+    _check_shading(camera, mode, supersample)
+    return shade_cast_mesh(CastMesh.build(vertices, faces, device), camera, mode=mode, supersample=supersample,
+                           background=background, near=near)
 
+
+def _check_shading(camera, mode: str, supersample) -> None:
     if not isinstance(camera, Camera):
         raise TypeError(f"shade_mesh: camera must be a gof_warp.camera.Camera, got {type(camera).__name__}")
     if mode not in ("shaded", "normals"):
         raise ValueError(f"shade_mesh: mode must be 'shaded' or 'normals', got {mode!r}")
     if int(supersample) != supersample or supersample < 1:
         raise ValueError(f"shade_mesh: supersample must be an integer >= 1, got {supersample}")
+
+
+def shade_cast_mesh(mesh: CastMesh, camera: Camera, *, mode: str = "shaded", supersample: int = 2,
+                    background=BACKGROUND, near: float = 0.0) -> np.ndarray:
+    """Ray cast a :class:`CastMesh` from ``camera`` and shade it for viewing.
+
+    Each sample ray (``supersample²`` per pixel, on the grid of :mod:`gof_warp.kernels.raycast`; 1 = the
+    pixel centres) finds its closest triangle through the mesh's BVH. A hit on a face whose normal
+    ``(p1 - p0) × (p2 - p0)`` points towards the camera is shaded ``FRONT_COLOR``, one seen from behind
+    ``BACK_COLOR`` (two-sided: inside-out parts and holes show red); both times
+    ``AMBIENT + (1 - AMBIENT) · |n · d|`` (a headlight). ``mode="normals"`` colours the camera-facing
+    world normal as ``(n + 1) / 2`` instead (back faces mixed half with red). Misses get ``background``.
+    Pixels average their samples. Only the faces some ray hits have their normals computed.
+
+    Args:
+        mesh: :class:`CastMesh`.
+        camera: :class:`~gof_warp.camera.Camera` (OpenCV axes, world-to-camera).
+        mode: ``"shaded"`` or ``"normals"``.
+        supersample: samples per pixel axis (≥ 1).
+        background: RGB in ``[0, 1]``.
+        near: depth in front of which nothing is drawn (the camera's clip; 0: none).
+
+    Returns:
+        ``[H, W, 3]`` uint8 image.
+    """
+    _check_shading(camera, mode, supersample)
     s = int(supersample)
-    dev = _warp_device(device, vertices)
-    v, f = _check_mesh(vertices, faces)
     bg = np.asarray(background, np.float32)
     h, w = camera.height, camera.width
-    if len(f) == 0:
+    if mesh.bvh is None:
         log.warning("shade_mesh: the mesh has no faces; the picture is background only")
         return np.broadcast_to(np.round(bg * 255).astype(np.uint8), (h, w, 3)).copy()
 
-    points = wp.array(v.astype(np.float32), dtype=wp.vec3, device=dev)
-    indices = wp.array(f.astype(np.int32).ravel(), dtype=wp.int32, device=dev)
-    mesh = wp.Mesh(points=points, indices=indices)
-    hits = raycast.cast_pinhole_rays(mesh, camera.R, camera.t, camera.fx, camera.fy, camera.cx, camera.cy, w, h, s,
-                                     min_depth=float(near))
+    hits = raycast.cast_pinhole_rays(mesh.bvh, camera.R, camera.t, camera.fx, camera.fy, camera.cx, camera.cy, w, h,
+                                     s, min_depth=float(near))
     face = hits["face"].numpy()
 
-    tri = v[f]
-    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    length = np.linalg.norm(fn, axis=1, keepdims=True)
-    fn = np.where(length > 0, fn / np.where(length > 0, length, 1.0), 0.0)
-
     hit = face >= 0
+    tri = mesh.vertices[mesh.faces[face[hit]]]  # [hits, 3, 3]: only the faces some ray meets
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    n = np.where(length > 0, n / np.where(length > 0, length, 1.0), 0.0)
     d = _sample_directions(camera, s)[hit]
-    n = fn[face[hit]]
     cos = -np.einsum("ij,ij->i", n, d)  # > 0: the face's normal points towards the camera
     back = cos < 0
     if mode == "shaded":
@@ -302,7 +342,7 @@ def view_panels(gaussians, cameras: list[Camera], *, photos: list | None = None,
         gaussians: :class:`~gof_warp.model.Gaussians` (rendered on their own device).
         cameras: the views to show (one row each).
         photos: ``[H, W, 3]`` uint8 per camera (None entries: "no photo"), or None for no photo column.
-        mesh: ``(vertices [V, 3], faces [F, 3])`` or None for no mesh column.
+        mesh: ``(vertices [V, 3], faces [F, 3])``, a :class:`CastMesh`, or None for no mesh column.
         render_config: :class:`~gof_warp.render.RenderConfig` (default thresholds if None).
         path: if given, the PNG is written there atomically.
         labels: one text per row (default: the camera names).
@@ -329,6 +369,8 @@ def view_panels(gaussians, cameras: list[Camera], *, photos: list | None = None,
         canvas[MARGIN:MARGIN + HEADER_H, x0:x0 + col_w] = _text_strip(COLUMN_TITLES[name], col_w, HEADER_H)
     labels = labels or [c.name for c in cameras]
     mesh_device = device if device is not None else getattr(gaussians, "device", None)
+    if mesh is not None and not isinstance(mesh, CastMesh):
+        mesh = CastMesh.build(mesh[0], mesh[1], mesh_device)  # once for every row
     clip = render_config or RenderConfig()
     for r, cam in enumerate(cams):
         tiles = render_columns(gaussians, cam, render_config, distortion=distortion)
@@ -337,7 +379,7 @@ def view_panels(gaussians, cameras: list[Camera], *, photos: list | None = None,
             tiles["photo"] = (np.full((cam.height, cam.width, 3), np.round(np.asarray(BACKGROUND) * 255), np.uint8)
                               if p is None else _resize(np.asarray(p, np.uint8), cam.width, cam.height))
         if mesh is not None:
-            tiles["mesh"] = shade_mesh(mesh[0], mesh[1], cam, device=mesh_device, near=clip.clip_near(cam))
+            tiles["mesh"] = shade_cast_mesh(mesh, cam, near=clip.clip_near(cam))
         x0, y0, _, _ = boxes[(r, columns[0])]
         canvas[y0 - LABEL_H:y0, x0:width - MARGIN] = _text_strip(labels[r], width - MARGIN - x0, LABEL_H)
         for name in columns:

@@ -53,6 +53,7 @@ from .panels import (  # noqa: F401 - the drawing lives in panels; re-exported f
     MAX_WIDTH,
     PANEL_COLOR,
     TEXT_COLOR,
+    CastMesh,
     Panels,
     _resize,
     _warp_device,
@@ -62,6 +63,7 @@ from .panels import (  # noqa: F401 - the drawing lives in panels; re-exported f
     fit_scale,
     panel_layout,
     render_columns,
+    shade_cast_mesh,
     shade_mesh,
     view_panels,
     write_png,
@@ -163,7 +165,7 @@ def mesh_picture_stem(mesh_path) -> str:
 
 
 def write_run_pictures(run_dir, *, mesh_path=None, views: int = 3, out_dir=None, device=None, scene=None,
-                       max_width: int = MAX_WIDTH) -> list[Path]:
+                       max_width: int = MAX_WIDTH, gaussians=None, mesh=None) -> list[Path]:
     """Write the picture of a run (module docstring) and return its path(s).
 
     Args:
@@ -175,6 +177,10 @@ def write_run_pictures(run_dir, *, mesh_path=None, views: int = 3, out_dir=None,
         out_dir: where to write (default ``RUN/pictures``).
         device: torch device for the Gaussians and the ray casting (default: CUDA if available, else CPU).
         scene: scene folder for cameras and photos (default: what the run names, else ``RUN/scene``).
+        gaussians: the run's :class:`~gof_warp.model.Gaussians` already in memory (``extract`` passes its own),
+            used instead of reading ``point_cloud.ply`` again.
+        mesh: the mesh at ``mesh_path`` already in memory, ``(vertices [V, 3], faces [F, 3])``, used instead of
+            reading the file again (``mesh_path`` still names the picture).
     """
     from .config import from_dict
     from .data import DataConfig
@@ -196,8 +202,10 @@ def write_run_pictures(run_dir, *, mesh_path=None, views: int = 3, out_dir=None,
     render_config = from_dict(RenderConfig, config.get("render", {}) or {}, "config.yaml: render")
     data_config = from_dict(DataConfig, config.get("data", {}) or {}, "config.yaml: data")
     render_config = dataclasses.replace(render_config, background=tuple(data_config.background))
-    gaussians = Gaussians.load_ply(ply, device=device)
-    mesh = _load_mesh(Path(mesh_path)) if mesh_path is not None else None
+    if gaussians is None:
+        gaussians = Gaussians.load_ply(ply, device=device)
+    if mesh is None and mesh_path is not None:
+        mesh = _load_mesh(Path(mesh_path))
 
     cams_file = base / "cameras.json"
     cams_json: dict = {}

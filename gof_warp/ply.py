@@ -136,3 +136,30 @@ def write_ply_vertices(path, columns: dict[str, np.ndarray]) -> None:
         with open(tmp, "wb") as f:
             f.write(("\n".join(header) + "\n").encode("ascii"))
             f.write(table.tobytes())
+
+
+def write_ply_mesh(path, vertices, faces) -> None:
+    """Write a triangle mesh as a binary little-endian PLY, atomically: ``vertices`` ``[V, 3]`` (stored as float32
+    ``x y z``), ``faces`` ``[F, 3]`` vertex indices (a ``uchar`` count and three ``int`` per face, the layout every
+    mesh tool reads). Raises :class:`~gof_warp.errors.PlyError` for wrong shapes or indices outside the vertices."""
+    v = np.asarray(vertices)
+    f = np.asarray(faces)
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise PlyError(f"{path}: vertices must have shape [V, 3], got {list(v.shape)}")
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise PlyError(f"{path}: faces must have shape [F, 3], got {list(f.shape)}")
+    if f.size and (f.min() < 0 or f.max() >= len(v)):
+        raise PlyError(f"{path}: faces index vertices outside [0, {len(v) - 1}]")
+    if len(v) > np.iinfo(np.int32).max:
+        raise PlyError(f"{path}: {len(v)} vertices do not fit PLY int indices")
+    header = ["ply", "format binary_little_endian 1.0", "comment written by gof_warp", f"element vertex {len(v)}",
+              "property float x", "property float y", "property float z", f"element face {len(f)}",
+              "property list uchar int vertex_indices", "end_header"]
+    table = np.empty(len(f), dtype=np.dtype([("n", "u1"), ("i", "<i4", (3,))]))
+    table["n"] = 3
+    table["i"] = f
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as out:
+            out.write(("\n".join(header) + "\n").encode("ascii"))
+            out.write(np.ascontiguousarray(v, dtype="<f4").tobytes())
+            out.write(table.tobytes())

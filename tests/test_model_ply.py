@@ -176,3 +176,29 @@ def test_shape_errors_and_subset():
     loss.backward()
     assert all(g.params[k].grad is not None for k in ("log_scales", "opacity_logits", "quats"))
     assert math.isclose(float(g.params["log_scales"].grad.sum()), float(g.raw_scales.detach().sum()), rel_tol=1e-5)
+
+
+def test_mesh_ply_written_by_us_reads_back_exactly_in_trimesh_and_refuses_bad_meshes(tmp_path):
+    import trimesh
+
+    from gof_warp.ply import write_ply_mesh
+
+    rng = np.random.default_rng(3)
+    v = rng.normal(size=(50, 3)).astype(np.float32)
+    f = rng.integers(0, 50, size=(70, 3))
+    path = tmp_path / "m.ply"
+    write_ply_mesh(path, v.astype(np.float64), f)
+    m = trimesh.load(path, process=False, force="mesh")
+    np.testing.assert_array_equal(np.asarray(m.vertices, np.float32), v)
+    np.testing.assert_array_equal(np.asarray(m.faces), f)
+    body = path.read_bytes().split(b"end_header\n", 1)[1]
+    assert len(body) == 50 * 12 + 70 * 13, "float32 xyz per vertex, a uchar count and three int32 per face"
+    assert struct.unpack("<B3i", body[600:613]) == (3, *f[0].tolist())
+    write_ply_mesh(tmp_path / "empty.ply", np.zeros((0, 3)), np.zeros((0, 3), int))  # an empty mesh is a valid file
+    assert len(trimesh.load(tmp_path / "empty.ply", process=False, force="mesh").faces) == 0
+    before = path.read_bytes()
+    for bad_v, bad_f, match in ((v[:, :2], f, "vertices"), (v, f[:, :2], "faces"), (v, f + 50, "outside"),
+                                (v, -f - 1, "outside")):
+        with pytest.raises(PlyError, match=match):
+            write_ply_mesh(path, bad_v, bad_f)
+    assert path.read_bytes() == before, "a refused mesh leaves the file already there as it was"

@@ -110,6 +110,19 @@ def test_one_quad_supersampled_edges_and_normals_mode(device):
     np.testing.assert_allclose(normals, expected, atol=1)
 
 
+@pytest.mark.parametrize("mode", ["shaded", "normals"])
+def test_one_cast_mesh_drawn_from_many_cameras_matches_shading_each_alone(mode, device):
+    v, f = _cube()
+    f = f.copy()
+    f[::3] = f[::3, ::-1]  # front and back faces both in view
+    cast = pictures.CastMesh.build(v, f, device)
+    cams = [CAM] + [look_at([2.0 * np.cos(a), 1.2, 2.0 * np.sin(a)], [0.0, 0.0, 0.0], up=(0, 1, 0), fx=18.0, width=21,
+                            height=17, name=f"c{a:.1f}") for a in (0.3, 2.0, 4.1)]
+    for cam in cams:
+        np.testing.assert_array_equal(pictures.shade_cast_mesh(cast, cam, mode=mode, supersample=2),
+                                      shade_mesh(v, f, cam, mode=mode, supersample=2, device=device))
+
+
 def test_shade_mesh_validates_its_inputs():
     v, f = _cube()
     with pytest.raises(ValueError, match="faces"):
@@ -287,6 +300,9 @@ def test_extract_writes_the_mesh_picture_unless_told_not_to(tiny_run, tmp_path, 
     assert extract.main(args) == 0
     picture = np.asarray(Image.open(run / "pictures" / "mesh_m.png"))
     assert picture.shape[1] == panel_layout(["photo", "render", "depth", "normal", "mesh"], [(40, 30)])[0]
+    # drawn from the model and mesh in memory: the same picture as from the files written
+    (again,) = pictures.write_run_pictures(run, mesh_path=out, out_dir=tmp_path / "again", device="cpu")
+    np.testing.assert_array_equal(np.asarray(Image.open(again)), picture)
 
     def broken(*a, **k):
         raise RuntimeError("no pictures today")
