@@ -29,6 +29,7 @@ rank profiles its own share of the data-parallel step (``train.all_reduce``: the
 from __future__ import annotations
 
 import argparse
+import contextlib
 import gzip
 import json
 import platform
@@ -62,6 +63,15 @@ def _with_model(trainer, ply: Path) -> None:
     trainer.gaussians = g
     trainer.optimizer = make_optimizer(g, trainer.config.optim, trainer.scene.extent)
     trainer.densifier.reset_stats()
+
+
+def _cudnn_setting(cfg):
+    """``gof_warp.devices.cudnn_benchmark`` as the trainer's config asks (a no-op in trees from before it)."""
+    try:
+        from gof_warp.devices import cudnn_benchmark
+    except ImportError:
+        return contextlib.nullcontext()
+    return cudnn_benchmark(getattr(cfg, "cudnn_benchmark", False))
 
 
 def _run_loop(trainer, n: int) -> float:
@@ -175,9 +185,12 @@ def main(argv=None) -> int:
         _with_model(trainer, a.ply)
     trainer.iteration = a.start
     trainer.densifier.update_sh_degree(a.start + 1, trainer.gaussians)
-    _run_loop(trainer, 20)  # warm-up: Warp module loads, allocator pools, Adam state
-    n0 = len(trainer.gaussians)
-    wall = _run_loop(trainer, a.iterations)
+    # the cuDNN setting a run trains under (Trainer.run sets it around its loop; this script calls the loop itself)
+    with _cudnn_setting(cfg):
+        _run_loop(trainer, 20)  # warm-up: Warp module loads, allocator pools, Adam state
+        n0 = len(trainer.gaussians)
+        wall = _run_loop(trainer, a.iterations)
+        traced = profile(trainer, a.trace, a.out)
     result = {
         "label": a.label, "scene": str(a.scene), "config": a.config, "overrides": a.overrides,
         "start_iteration": a.start, "phase": "regularised" if a.start >= cfg.densify.stop_iter else "densifying",
@@ -186,7 +199,7 @@ def main(argv=None) -> int:
         "torch": torch.__version__, "iterations": a.iterations, "wall_ms_per_it": round(wall * 1e3 / a.iterations, 3),
         "processes": ranks.world, "rank": ranks.rank, "views_per_step": trainer.views_per_step,
     }
-    result.update(profile(trainer, a.trace, a.out))
+    result.update(traced)
     sizer = getattr(trainer, "tile_lists", None)  # absent in code before the TileListSizer
     result["tile_lists"] = None if sizer is None else sizer.stats()
     (a.out / "profile.json").write_text(json.dumps(result, indent=1))
