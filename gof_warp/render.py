@@ -200,10 +200,10 @@ class RenderScratch:
       forward and per backward; every render launches on torch's current stream, as without it.
 
     Memory, for ``N`` Gaussians and images of ``P`` pixels in ``T`` tiles: with one render in flight at a time (the
-    trainer) the spares held between renders are ``248·N + 20·P + 8·T`` bytes (a forward's 172 B a Gaussian and a
+    trainer) the spares held between renders are ``268·N + 20·P + 8·T`` bytes (a forward's 192 B a Gaussian and a
     backward's 76, which per-render arrays would have freed), plus ``20·P + 8·T`` for each of up to 3 more image sizes
     rendered last; at most ``max_spares`` times that with renders overlapping. That is the most it adds to the memory
-    in use at any moment (between renders; during one, 172 B a Gaussian at most): ~210 MB at 800k Gaussians on
+    in use at any moment (between renders; during one, 192 B a Gaussian at most): ~225 MB at 800k Gaussians on
     800×600 images. Spares of an older ``N`` are freed when a new one is taken, and :meth:`clear` frees them all (the
     trainer does before a step that densifies or prunes). On the host, the struct caches hold ~3.5 MB when full
     (1024 views and 1024 settings); one stream wrapper per torch stream rendered on (torch's streams are a fixed pool).

@@ -236,7 +236,7 @@ class Trainer:
         self.tile_lists = (TileListSizer(config.tile_list_margin)
                            if self.device.type == "cuda" and config.tile_list_margin else None)
         # the training renders' scratch arrays, structs and stream wrappers, reused from one render to the next (less
-        # host time per render, same results; 248 B a Gaussian held between renders, see RenderScratch). None: made
+        # host time per render, same results; 268 B a Gaussian held between renders, see RenderScratch). None: made
         # anew per render
         self.render_scratch: RenderScratch | None = RenderScratch()
         self._rng = np.random.default_rng(config.seed)

@@ -13,6 +13,9 @@ Kernels, one thread per Gaussian:
   conic of its exact silhouette (:mod:`.tile_overlap`) with which the binning keeps only the tiles of the
   rectangle that the ellipse meets (for an ellipsoid crossing the near plane: the general conic of the
   lines through the camera that meet it).
+* :func:`pixel_conics` (not differentiable) — the same silhouette at the per-pixel cutoff, in pixel units and float32,
+  with which the per-pixel kernels skip a (pixel, Gaussian) pair in a few operations instead of the ray–Gaussian
+  maths (pairs it skips are ones the exact test drops too).
 
 Bounding box (``docs/rendering.md``): image column ``u = fx x/z + cx`` is constant on planes through the
 camera with normal ``n = (fx, 0, cx − u)``. Such a plane touches the ellipsoid (centre ``μ``, covariance
@@ -29,10 +32,13 @@ import warp as wp
 
 from .gaussian_math import quat_to_rotation, sh_basis, sh_to_color
 from .render_types import CameraParams, RasterSettings
-from .tile_overlap import TileEllipses, store_ellipse, tile_ellipse
+from .tile_overlap import TileEllipses, pixel_conic, store_ellipse, tile_ellipse
 
 # Relative enlargement of k for the box: the per-pixel float32 d² has a relative error ~1e-6.
 BOUNDS_K_MARGIN = wp.constant(1.0e-4)
+# Relative enlargement of k for the per-pixel early reject (pixel_conics): its silhouette is stored in float32 and
+# tested at pixel centres in float32; 1 % keeps every pair the exact test could keep far inside it.
+PIXEL_CONIC_K_MARGIN = wp.constant(1.0e-2)
 
 
 @wp.func
@@ -183,6 +189,19 @@ def _axis_bounds(m_a: wp.float64, m_z: wp.float64, s_aa: wp.float64, s_az: wp.fl
     return wp.vec2d(f * (qb - disc) / qa + c, f * (qb + disc) / qa + c)
 
 
+@wp.func
+def cutoff_k(op: float, settings: RasterSettings) -> float:
+    """The Mahalanobis radius beyond which the per-pixel test drops a Gaussian of opacity ``op``:
+    ``min(k_max, √(2 ln(op / alpha_min)))`` (its alpha falls under ``alpha_min`` there), or −1 when it can reach no
+    pixel at all (``op ≤ alpha_min``)."""
+    kk = settings.k_max
+    if settings.alpha_min > 0.0:
+        if not (op > settings.alpha_min):
+            return -1.0
+        kk = wp.min(kk, wp.sqrt(2.0 * wp.log(op / settings.alpha_min)))
+    return kk
+
+
 @wp.kernel
 def screen_bounds(
     mu_v: wp.array(dtype=wp.vec3),
@@ -211,13 +230,8 @@ def screen_bounds(
     rect[k] = wp.vec4i(0, 0, 0, 0)
     tiles_touched[k] = 0
     radii[k] = 0
-    op = opacities[k]
-    kk = settings.k_max
-    if settings.alpha_min > 0.0:
-        if not (op > settings.alpha_min):
-            return
-        kk = wp.min(kk, wp.sqrt(2.0 * wp.log(op / settings.alpha_min)))
-    if not (mv[2] > settings.near):
+    kk = cutoff_k(opacities[k], settings)
+    if kk < 0.0 or not (mv[2] > settings.near):
         return
     k64 = wp.float64(kk) * (wp.float64(1.0) + wp.float64(BOUNDS_K_MARGIN))
     k2 = k64 * k64
@@ -271,3 +285,43 @@ def screen_bounds(
     one_column = r[2] - r[0] == 1 and x_inside
     if settings.tile_cull != 0 and not (one_row or one_column):
         store_ellipse(ellipse, k, tile_ellipse(wp.vec3d(mx, my, mz), R_v, s, Sigma, k2, in_front))
+
+
+@wp.kernel
+def pixel_conics(
+    mu_v: wp.array(dtype=wp.vec3),
+    quats: wp.array(dtype=wp.vec4),
+    scales: wp.array(dtype=wp.vec3),
+    opacities: wp.array(dtype=float),
+    radii: wp.array(dtype=wp.int32),
+    cam: CameraParams,
+    settings: RasterSettings,
+    conic: wp.array(dtype=wp.vec3),
+    centre: wp.array(dtype=wp.vec2),
+):
+    """The per-pixel kernels' early reject (``[N]`` each, after :func:`screen_bounds`, whose ``radii`` say which
+    Gaussians any tile lists): the silhouette of the ellipsoid at the opacity-aware cutoff :func:`cutoff_k` enlarged
+    by ``PIXEL_CONIC_K_MARGIN``, in pixel units (:class:`~.tile_overlap.PixelConic`). A pixel outside it has its line
+    of sight pass farther than ``k (1 + margin)`` from the Gaussian (Mahalanobis), so the exact per-pixel test
+    (``d² ≤ k²`` at the line's closest point) rejects the pair anyway; the 1 % margin is far above float32 rounding in
+    either test. Ellipsoids that cross the near plane, or contain the camera, get ``conic = 0`` (nothing rejected)."""
+    k = wp.tid()
+    conic[k] = wp.vec3(0.0)
+    centre[k] = wp.vec2(0.0)
+    if radii[k] == 0:
+        return
+    kk = cutoff_k(opacities[k], settings)
+    mv = mu_v[k]
+    if kk < 0.0:
+        return
+    k64 = wp.float64(kk) * (wp.float64(1.0) + wp.float64(PIXEL_CONIC_K_MARGIN))
+    R_v = wp.mat33d(cam.R * quat_to_rotation(quats[k]))
+    s = wp.vec3d(scales[k])
+    Sigma = R_v * wp.diag(wp.cw_mul(s, s)) * wp.transpose(R_v)
+    mz = wp.float64(mv[2])
+    if not (mz - k64 * wp.sqrt(Sigma[2, 2]) > wp.float64(settings.near)):
+        return
+    e = tile_ellipse(wp.vec3d(wp.float64(mv[0]), wp.float64(mv[1]), mz), R_v, s, Sigma, k64 * k64, True)
+    pc = pixel_conic(e, cam)
+    conic[k] = pc.conic
+    centre[k] = pc.centre

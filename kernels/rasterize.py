@@ -36,6 +36,15 @@ def gaussian_alpha(h: RayHit, opacity: float, settings: RasterSettings) -> float
 
 
 @wp.func
+def pixel_outside(conic: wp.vec3, centre: wp.vec2, px: int, py: int) -> bool:
+    """The early reject: pixel ``(px, py)`` lies outside a Gaussian's pixel silhouette (``project.pixel_conics``), so
+    its exact test would drop the pair; a few operations instead of :func:`~.gaussian_math.ray_gaussian`."""
+    du = float(px) - centre[0]
+    dv = float(py) - centre[1]
+    return conic[0] * du * du + 2.0 * conic[1] * du * dv + conic[2] * dv * dv > 1.0
+
+
+@wp.func
 def tile_pixel(tid: int, settings: RasterSettings) -> wp.vec3i:
     """``(tile, px, py)`` of thread ``tid`` in the tile-major numbering."""
     n = settings.tile_size * settings.tile_size
@@ -172,6 +181,8 @@ def rasterize_forward(lists: TileLists, splats: Splats, cam: CameraParams, setti
     s = pixel_state_init(start, 0)
     for e in range(start, lists.range_end[tp[0]]):
         g = lists.values[e]
+        if pixel_outside(splats.conic[g], splats.centre[g], px, py):
+            continue
         s = composite(s, e, splats.P[g], splats.o_g[g], splats.colour[g], splats.opacity[g], r, settings)
         if s.done != 0:
             break

@@ -17,7 +17,7 @@ from __future__ import annotations
 import warp as wp
 
 from .gaussian_math import pixel_ray
-from .rasterize import composite, pixel_state_init, write_pixel
+from .rasterize import composite, pixel_outside, pixel_state_init, write_pixel
 from .rasterize_backward import BackState, backward_step, pixel_grads
 from .render_types import CameraParams, PixelAux, PixelMaps, RasterSettings, SplatGrads, Splats, TileLists
 
@@ -58,6 +58,8 @@ def rasterize_forward_tiled(lists: TileLists, splats: Splats, cam: CameraParams,
     sO = splats.o_g
     sC = splats.colour
     sA = splats.opacity
+    sK = splats.conic
+    sM = splats.centre
     for batch in range(start, end, TILE_PIXELS):
         alive = wp.tile_sum(wp.tile(1 - s.done))
         if wp.tile_extract(alive, 0) == 0:
@@ -67,8 +69,12 @@ def rasterize_forward_tiled(lists: TileLists, splats: Splats, cam: CameraParams,
         tO = wp.tile_load_indexed(sO, indices=ids, shape=(TILE_PIXELS,), axis=0, storage="shared")
         tC = wp.tile_load_indexed(sC, indices=ids, shape=(TILE_PIXELS,), axis=0, storage="shared")
         tA = wp.tile_load_indexed(sA, indices=ids, shape=(TILE_PIXELS,), axis=0, storage="shared")
+        tK = wp.tile_load_indexed(sK, indices=ids, shape=(TILE_PIXELS,), axis=0, storage="shared")
+        tM = wp.tile_load_indexed(sM, indices=ids, shape=(TILE_PIXELS,), axis=0, storage="shared")
         if s.done == 0:
             for i in range(wp.min(TILE_PIXELS, end - batch)):
+                if pixel_outside(wp.tile_extract(tK, i), wp.tile_extract(tM, i), p[0], p[1]):
+                    continue
                 s = composite(s, batch + i, wp.tile_extract(tP, i), wp.tile_extract(tO, i), wp.tile_extract(tC, i),
                               wp.tile_extract(tA, i), r, settings)  # fmt: skip
                 if s.done != 0:
@@ -99,6 +105,8 @@ def rasterize_backward_tiled(lists: TileLists, splats: Splats, cam: CameraParams
     sO = splats.o_g
     sC = splats.colour
     sA = splats.opacity
+    sK = splats.conic
+    sM = splats.centre
     for batch_end in range(block_last, start, -TILE_PIXELS):
         batch = wp.max(start, batch_end - TILE_PIXELS)
         ids = wp.tile_load(values, shape=(TILE_PIXELS,), offset=(batch,), storage="shared")
@@ -106,15 +114,29 @@ def rasterize_backward_tiled(lists: TileLists, splats: Splats, cam: CameraParams
         tO = wp.tile_load_indexed(sO, indices=ids, shape=(TILE_PIXELS,), axis=0, storage="shared")
         tC = wp.tile_load_indexed(sC, indices=ids, shape=(TILE_PIXELS,), axis=0, storage="shared")
         tA = wp.tile_load_indexed(sA, indices=ids, shape=(TILE_PIXELS,), axis=0, storage="shared")
+        tK = wp.tile_load_indexed(sK, indices=ids, shape=(TILE_PIXELS,), axis=0, storage="shared")
+        tM = wp.tile_load_indexed(sM, indices=ids, shape=(TILE_PIXELS,), axis=0, storage="shared")
         for i in range(batch_end - batch - 1, -1, -1):
             e = batch + i
             g = wp.tile_extract(ids, i)
+            active = 0
+            if e < my_last:
+                if not pixel_outside(wp.tile_extract(tK, i), wp.tile_extract(tM, i), p[0], p[1]):
+                    active = 1
+            # a lane the early reject (or its pixel's end) leaves out reads nothing more of the entry
             z = float(0.0)
-            if with_stats != 0:
-                z = mu_v[g][2]
+            Pk = wp.mat33(0.0)
+            og = wp.vec3(0.0)
+            col = wp.vec3(0.0)
+            op = float(0.0)
+            if active != 0:
+                Pk = wp.tile_extract(tP, i)
+                og = wp.tile_extract(tO, i)
+                col = wp.tile_extract(tC, i)
+                op = wp.tile_extract(tA, i)
+                if with_stats != 0:
+                    z = mu_v[g][2]
             # every lane of the block is here (block-uniform loop), so backward_step may reduce over the warp
-            b = backward_step(b, pg, e, g, wp.where(e < my_last, 1, 0), wp.tile_extract(tP, i), wp.tile_extract(tO, i),
-                              wp.tile_extract(tC, i), wp.tile_extract(tA, i), r, z, cam, settings, with_stats, 1, lane,
-                              grads)  # fmt: skip
+            b = backward_step(b, pg, e, g, active, Pk, og, col, op, r, z, cam, settings, with_stats, 1, lane, grads)
         # keep the next batch's loads from overwriting shared data other threads still read
         wp.tile_sum(wp.tile(0))

@@ -26,7 +26,7 @@ from dataclasses import dataclass, fields
 import warp as wp
 
 from .binning import TileListSizer, bin_gaussians
-from .project import SH_LANES, preprocess_gaussians, project_frames, screen_bounds, sh_colour_backward
+from .project import SH_LANES, pixel_conics, preprocess_gaussians, project_frames, screen_bounds, sh_colour_backward
 from .rasterize import rasterize_forward
 from .rasterize_backward import finish_splat_grads, rasterize_backward
 from .rasterize_tiled import TILE_PIXELS, TILE_SIZE, rasterize_backward_tiled, rasterize_forward_tiled
@@ -34,10 +34,10 @@ from .render_types import (GRAD_COLOUR, GRAD_O_G, GRAD_P, GRAD_WIDTH, CameraPara
                            SplatGrads, Splats, TileLists, make_struct)
 from .tile_overlap import empty_tile_ellipses
 
-#: Bytes of per-Gaussian renderer state (mu_v 12, P 36, o_g 12, colour 12, rect 16, counts/radii/depth/
-#: offsets 16, tile-test exact/conic/centre 4 + 48 + 16) and per (Gaussian, tile) entry (int64 key + int32 value, ×2 for the
+#: Bytes of per-Gaussian renderer state (mu_v 12, P 36, o_g 12, colour 12, pixel conic/centre 12 + 8, rect 16,
+#: counts/radii/depth/offsets 16, tile-test exact/conic/centre 4 + 48 + 16) and per (Gaussian, tile) entry (int64 key + int32 value, ×2 for the
 #: radix sort's scratch).
-BYTES_PER_GAUSSIAN = 172
+BYTES_PER_GAUSSIAN = 192
 BYTES_PER_TILE_ENTRY = 24
 
 
@@ -96,8 +96,8 @@ class RenderState:
 class SplatScratch:
     """The per-Gaussian arrays one render works in (``[n]`` each), besides its inputs: ``mu_v, P, o_g, colour, radii``,
     which the backward reads, with the :class:`Splats` struct over them (``opacity`` set per render), and the
-    binning's temporaries ``rect, touched, depth, ellipse, offsets``. ``BYTES_PER_GAUSSIAN`` (172) bytes a Gaussian:
-    76 kept for the backward, 96 of temporaries."""
+    binning's temporaries ``rect, touched, depth, ellipse, offsets``. ``BYTES_PER_GAUSSIAN`` (192) bytes a Gaussian:
+    96 kept for the backward (``conic, centre`` of the early reject among them), 96 of temporaries."""
 
     sizes_kept = 1  # a ScratchPool keeps spares of the latest n only (the count changes for good under densification)
 
@@ -106,16 +106,18 @@ class SplatScratch:
             return wp.empty(n, dtype=dtype, device=device)
 
         self.mu_v, self.P, self.o_g, self.colour = empty(wp.vec3), empty(wp.mat33), empty(wp.vec3), empty(wp.vec3)
+        self.conic, self.centre = empty(wp.vec3), empty(wp.vec2)
         self.rect, self.touched, self.radii = empty(wp.vec4i), empty(wp.int32), empty(wp.int32)
         self.depth = empty(float)
         self.ellipse = empty_tile_ellipses(n, device)
         self.offsets = empty(wp.int32)
-        self.splats = make_struct(Splats, P=self.P, o_g=self.o_g, colour=self.colour, mu_v=self.mu_v, radius=self.radii)
+        self.splats = make_struct(Splats, P=self.P, o_g=self.o_g, colour=self.colour, mu_v=self.mu_v, radius=self.radii,
+                                  conic=self.conic, centre=self.centre)
 
     def arrays(self) -> list:
         """The arrays that own memory (for :meth:`ScratchPool.nbytes`)."""
-        return [self.mu_v, self.P, self.o_g, self.colour, self.rect, self.touched, self.radii, self.depth,
-                self.ellipse.exact, self.ellipse.conic, self.ellipse.centre, self.offsets]  # fmt: skip
+        return [self.mu_v, self.P, self.o_g, self.colour, self.conic, self.centre, self.rect, self.touched, self.radii,
+                self.depth, self.ellipse.exact, self.ellipse.conic, self.ellipse.centre, self.offsets]  # fmt: skip
 
     def forget(self) -> None:
         """Drop the reference to a render's opacities: a spare holds only its own arrays."""
@@ -358,6 +360,8 @@ def prepare_view(means, quats, scales, opacities, sh, sh_degree: int, cam: Camer
               outputs=[s.mu_v, s.P, s.o_g, s.colour], device=device, record_tape=False)  # fmt: skip
     wp.launch(screen_bounds, dim=n, inputs=[s.mu_v, quats, scales, opacities, cam, settings],
               outputs=[s.rect, s.touched, s.radii, s.depth, s.ellipse], device=device, record_tape=False)  # fmt: skip
+    wp.launch(pixel_conics, dim=n, inputs=[s.mu_v, quats, scales, opacities, s.radii, cam, settings],
+              outputs=[s.conic, s.centre], device=device, record_tape=False)  # fmt: skip
     _mark(profile, "preprocess", device)
     px.range_start.zero_()
     px.range_end.zero_()

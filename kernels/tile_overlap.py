@@ -148,6 +148,54 @@ def tile_ellipse(mu: wp.vec3d, R_v: wp.mat33d, s: wp.vec3d, Sigma: wp.mat33d, k2
     return e
 
 
+@wp.struct
+class PixelConic:
+    """An elliptic silhouette in pixel units for the per-pixel kernels' early reject (:func:`pixel_conic`): pixel
+    ``(px, py)`` (integer indices; its centre at ``+0.5``) lies outside iff ``A du² + 2B du dv + C dv² > 1`` with
+    ``du = px − centre.x``, ``dv = py − centre.y``. ``conic = (A, B, C) = 0`` never rejects."""
+
+    conic: wp.vec3
+    centre: wp.vec2
+
+
+@wp.func
+def pixel_conic(e: TileEllipse, cam: CameraParams) -> PixelConic:
+    """The silhouette of ``e`` (a :func:`tile_ellipse` in normalised coordinates) in pixel units, centred on the
+    ellipse: with ``M`` its 2×2 part and ``q_c < 0`` its value at the centre ``c = −M⁻¹ (q02, q12)``, a pixel is
+    outside iff ``(p − c)ᵀ M (p − c) > −q_c`` (in pixels: divided by ``fx, fy``). Only a proper ellipse
+    (``exact == 1``) gives one; anything else (a conic that is not an ellipse, non-finite values, an empty ellipse)
+    gives ``conic = 0``, which rejects nothing. Centre-relative so that float32 evaluation errs little."""
+    out = PixelConic()
+    out.conic = wp.vec3(0.0)
+    out.centre = wp.vec2(0.0)
+    if e.exact != 1:
+        return out
+    c = e.conic
+    zero = wp.float64(0.0)
+    det = c[0] * c[3] - c[1] * c[1]
+    if not (det > zero):
+        return out
+    ca = -(c[3] * c[2] - c[1] * c[4]) / det
+    cb = (c[1] * c[2] - c[0] * c[4]) / det
+    neg_qc = -(c[5] + c[2] * ca + c[4] * cb)
+    if not (neg_qc > zero):
+        return out
+    fx = wp.float64(cam.fx)
+    fy = wp.float64(cam.fy)
+    A = c[0] / (fx * fx * neg_qc)
+    B = c[1] / (fx * fy * neg_qc)
+    C = c[3] / (fy * fy * neg_qc)
+    u = wp.float64(cam.cx) + fx * ca - wp.float64(0.5)  # pixel index whose centre is the ellipse's centre
+    v = wp.float64(cam.cy) + fy * cb - wp.float64(0.5)
+    total = A + B + C + u + v
+    lim = wp.float64(1.0e30)
+    if not (total - total == zero) or A > lim or C > lim or wp.abs(u) > lim or wp.abs(v) > lim:
+        return out
+    out.conic = wp.vec3(float(A), float(B), float(C))
+    out.centre = wp.vec2(float(u), float(v))
+    return out
+
+
 @wp.func
 def conic_at(c: vec6d, a: wp.float64, b: wp.float64) -> wp.float64:
     """``q(a, b) = (a, b, 1) Q (a, b, 1)ᵀ``."""
