@@ -19,7 +19,7 @@ Stable names (module, kind):
 * Gaussian math (``@wp.func``): ``quat_to_rotation``, ``sh_to_color``, ``pixel_ray``, ``ray_gaussian``,
   ``normal_direction``.
 * projection and binning: kernels ``preprocess_gaussians`` (its gradient: the adjoint of ``project_frames`` +
-  ``sh_colour_backward``), ``screen_bounds``, ``pixel_conics`` (the per-pixel kernels' early reject); host
+  ``sh_colour_backward``), ``screen_bounds``, ``ray_conics`` (the early reject of the per-pixel kernels and the field); host
   ``bin_gaussians`` and its ``TileListSizer`` (tile lists sized without a host–device synchronisation per render).
 * rendering on ``wp.array``s (host launchers, ``wp.Tape``-aware): ``render_gaussians``,
   ``render_forward``, ``render_backward``, ``prepare_view``, ``RenderOutputs``, ``RenderState``, ``sh_parts`` (the SH
@@ -53,7 +53,7 @@ _MODULES = {
     "render_types": ("CameraParams", "RasterSettings", "Splats", "TileLists", "PixelMaps", "PixelAux", "SplatGrads",
                      "make_camera_params", "camera_params_from", "make_raster_settings", "make_struct"),
     "gaussian_math": ("RayHit", "quat_to_rotation", "sh_to_color", "pixel_ray", "ray_gaussian", "normal_direction"),
-    "project": ("preprocess_gaussians", "project_frames", "sh_colour_backward", "screen_bounds", "pixel_conics"),
+    "project": ("preprocess_gaussians", "project_frames", "sh_colour_backward", "screen_bounds", "ray_conics"),
     "binning": ("bin_gaussians", "TileListSizer"),
     "renderer": ("render_gaussians", "render_forward", "render_backward", "prepare_view", "RenderOutputs",
                  "RenderState", "sh_parts", "ScratchPool"),

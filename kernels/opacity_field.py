@@ -6,7 +6,8 @@ shared with rendering) contributes ``α = min(alpha_max, opacity · G(min(t*, z)
 ``G(t) = exp(−½ ‖o_g + t r_g‖²)`` — it rises along the ray until its maximum at ``t*`` and then stays
 flat — composited front to back like colour: ``O += α T``, ``T ← T (1 − α)``. The same per-pair rules
 as rendering apply (skip ``t* ≤ near``, ``d² > k_max²``, ``α < alpha_min``), so far along a pixel's ray
-the field equals that pixel's rendered alpha. Compositing stops once ``T < transmittance_min`` (the
+the field equals that pixel's rendered alpha; and the same early reject (``rasterize.ray_outside``: a ray outside the
+Gaussian's silhouette at its cutoff has ``α(t*) < alpha_min``, so ``α(min(t*, z))`` is too) skips those pairs first. Compositing stops once ``T < transmittance_min`` (the
 remaining contribution is below that bound; GOF composites to the end).
 
 The field of a point over several views is the minimum over the views in whose image it projects (in
@@ -20,6 +21,7 @@ from __future__ import annotations
 
 import warp as wp
 
+from .rasterize import ray_outside
 from .render_types import CameraParams, RasterSettings, Splats, TileLists
 
 
@@ -37,6 +39,8 @@ def opacity_along_ray_bounded(lists: TileLists, splats: Splats, tile: int, r: wp
     k_max2 = settings.k_max * settings.k_max
     for e in range(lists.range_start[tile], lists.range_end[tile]):
         k = lists.values[e]
+        if ray_outside(splats.conic[k], splats.centre[k], r):  # d² > k² on the whole line: skipped below anyway
+            continue
         og = splats.o_g[k]
         rg = splats.P[k] * r
         A = wp.dot(rg, rg)

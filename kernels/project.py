@@ -13,9 +13,9 @@ Kernels, one thread per Gaussian:
   conic of its exact silhouette (:mod:`.tile_overlap`) with which the binning keeps only the tiles of the
   rectangle that the ellipse meets (for an ellipsoid crossing the near plane: the general conic of the
   lines through the camera that meet it).
-* :func:`pixel_conics` (not differentiable) — the same silhouette at the per-pixel cutoff, in pixel units and float32,
-  with which the per-pixel kernels skip a (pixel, Gaussian) pair in a few operations instead of the ray–Gaussian
-  maths (pairs it skips are ones the exact test drops too).
+* :func:`ray_conics` (not differentiable) — the same silhouette at the per-pixel cutoff, in normalised image
+  coordinates and float32, with which the per-pixel kernels and the opacity field skip a (ray, Gaussian) pair in a
+  few operations instead of the ray–Gaussian maths (pairs it skips are ones the exact test drops too).
 
 Bounding box (``docs/rendering.md``): image column ``u = fx x/z + cx`` is constant on planes through the
 camera with normal ``n = (fx, 0, cx − u)``. Such a plane touches the ellipsoid (centre ``μ``, covariance
@@ -32,12 +32,12 @@ import warp as wp
 
 from .gaussian_math import quat_to_rotation, sh_basis, sh_to_color
 from .render_types import CameraParams, RasterSettings
-from .tile_overlap import TileEllipses, pixel_conic, store_ellipse, tile_ellipse
+from .tile_overlap import TileEllipses, ray_conic, store_ellipse, tile_ellipse
 
 # Relative enlargement of k for the box: the per-pixel float32 d² has a relative error ~1e-6.
 BOUNDS_K_MARGIN = wp.constant(1.0e-4)
-# Relative enlargement of k for the per-pixel early reject (pixel_conics): its silhouette is stored in float32 and
-# tested at pixel centres in float32; 1 % keeps every pair the exact test could keep far inside it.
+# Relative enlargement of k for the per-pixel early reject (ray_conics): its silhouette is stored in float32 and
+# tested on float32 rays; 1 % keeps every pair the exact test could keep far inside it.
 PIXEL_CONIC_K_MARGIN = wp.constant(1.0e-2)
 
 
@@ -288,7 +288,7 @@ def screen_bounds(
 
 
 @wp.kernel
-def pixel_conics(
+def ray_conics(
     mu_v: wp.array(dtype=wp.vec3),
     quats: wp.array(dtype=wp.vec4),
     scales: wp.array(dtype=wp.vec3),
@@ -299,12 +299,13 @@ def pixel_conics(
     conic: wp.array(dtype=wp.vec3),
     centre: wp.array(dtype=wp.vec2),
 ):
-    """The per-pixel kernels' early reject (``[N]`` each, after :func:`screen_bounds`, whose ``radii`` say which
-    Gaussians any tile lists): the silhouette of the ellipsoid at the opacity-aware cutoff :func:`cutoff_k` enlarged
-    by ``PIXEL_CONIC_K_MARGIN``, in pixel units (:class:`~.tile_overlap.PixelConic`). A pixel outside it has its line
-    of sight pass farther than ``k (1 + margin)`` from the Gaussian (Mahalanobis), so the exact per-pixel test
-    (``d² ≤ k²`` at the line's closest point) rejects the pair anyway; the 1 % margin is far above float32 rounding in
-    either test. Ellipsoids that cross the near plane, or contain the camera, get ``conic = 0`` (nothing rejected)."""
+    """The early reject of the per-pixel kernels and the opacity field (``[N]`` each, after :func:`screen_bounds`,
+    whose ``radii`` say which Gaussians any tile lists): the silhouette of the ellipsoid at the opacity-aware cutoff
+    :func:`cutoff_k` enlarged by ``PIXEL_CONIC_K_MARGIN``, in normalised image coordinates
+    (:class:`~.tile_overlap.RayConic`). A ray outside it passes farther than ``k (1 + margin)`` from the Gaussian
+    (Mahalanobis), so the exact test (``d² ≤ k²`` at the line's closest point) rejects the pair anyway; the 1 % margin
+    is far above float32 rounding in either test. Ellipsoids that reach the near plane, or contain the camera, get
+    ``conic = 0`` (nothing rejected)."""
     k = wp.tid()
     conic[k] = wp.vec3(0.0)
     centre[k] = wp.vec2(0.0)
@@ -321,7 +322,6 @@ def pixel_conics(
     mz = wp.float64(mv[2])
     if not (mz - k64 * wp.sqrt(Sigma[2, 2]) > wp.float64(settings.near)):
         return
-    e = tile_ellipse(wp.vec3d(wp.float64(mv[0]), wp.float64(mv[1]), mz), R_v, s, Sigma, k64 * k64, True)
-    pc = pixel_conic(e, cam)
-    conic[k] = pc.conic
-    centre[k] = pc.centre
+    rc = ray_conic(tile_ellipse(wp.vec3d(wp.float64(mv[0]), wp.float64(mv[1]), mz), R_v, s, Sigma, k64 * k64, True))
+    conic[k] = rc.conic
+    centre[k] = rc.centre

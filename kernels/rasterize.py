@@ -36,12 +36,13 @@ def gaussian_alpha(h: RayHit, opacity: float, settings: RasterSettings) -> float
 
 
 @wp.func
-def pixel_outside(conic: wp.vec3, centre: wp.vec2, px: int, py: int) -> bool:
-    """The early reject: pixel ``(px, py)`` lies outside a Gaussian's pixel silhouette (``project.pixel_conics``), so
-    its exact test would drop the pair; a few operations instead of :func:`~.gaussian_math.ray_gaussian`."""
-    du = float(px) - centre[0]
-    dv = float(py) - centre[1]
-    return conic[0] * du * du + 2.0 * conic[1] * du * dv + conic[2] * dv * dv > 1.0
+def ray_outside(conic: wp.vec3, centre: wp.vec2, r: wp.vec3) -> bool:
+    """The early reject: the camera-space ray ``r`` (``r.z = 1``) passes outside a Gaussian's silhouette
+    (``project.ray_conics``), so the exact test would drop the pair; a few operations instead of
+    :func:`~.gaussian_math.ray_gaussian`."""
+    da = r[0] - centre[0]
+    db = r[1] - centre[1]
+    return conic[0] * da * da + 2.0 * conic[1] * da * db + conic[2] * db * db > 1.0
 
 
 @wp.func
@@ -181,7 +182,7 @@ def rasterize_forward(lists: TileLists, splats: Splats, cam: CameraParams, setti
     s = pixel_state_init(start, 0)
     for e in range(start, lists.range_end[tp[0]]):
         g = lists.values[e]
-        if pixel_outside(splats.conic[g], splats.centre[g], px, py):
+        if ray_outside(splats.conic[g], splats.centre[g], r):
             continue
         s = composite(s, e, splats.P[g], splats.o_g[g], splats.colour[g], splats.opacity[g], r, settings)
         if s.done != 0:

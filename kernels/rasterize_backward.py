@@ -29,7 +29,7 @@ from __future__ import annotations
 import warp as wp
 
 from .gaussian_math import normal_direction, pixel_ray, ray_gaussian
-from .rasterize import distortion_depth, distortion_depth_grad, gaussian_alpha, pixel_outside, tile_pixel
+from .rasterize import distortion_depth, distortion_depth_grad, gaussian_alpha, ray_outside, tile_pixel
 from .render_types import GRAD_COLOUR, GRAD_O_G, GRAD_OPACITY, GRAD_P, CameraParams, PixelAux, PixelMaps, RasterSettings, SplatGrads, Splats, TileLists
 
 wp.set_module_options({"enable_backward": False})
@@ -269,7 +269,7 @@ def rasterize_backward(lists: TileLists, splats: Splats, cam: CameraParams, sett
         z = float(0.0)
         if with_stats != 0:
             z = splats.mu_v[g][2]
-        active = wp.where(pixel_outside(splats.conic[g], splats.centre[g], px, py), 0, 1)
+        active = wp.where(ray_outside(splats.conic[g], splats.centre[g], r), 0, 1)
         b = backward_step(b, pg, e, g, active, splats.P[g], splats.o_g[g], splats.colour[g], splats.opacity[g], r, z, cam,
                           settings, with_stats, 0, 0, grads)  # fmt: skip
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 import warp as wp
 
 from .gaussian_math import pixel_ray
-from .rasterize import composite, pixel_outside, pixel_state_init, write_pixel
+from .rasterize import composite, pixel_state_init, ray_outside, write_pixel
 from .rasterize_backward import BackState, backward_step, pixel_grads
 from .render_types import CameraParams, PixelAux, PixelMaps, RasterSettings, SplatGrads, Splats, TileLists
 
@@ -73,7 +73,7 @@ def rasterize_forward_tiled(lists: TileLists, splats: Splats, cam: CameraParams,
         tM = wp.tile_load_indexed(sM, indices=ids, shape=(TILE_PIXELS,), axis=0, storage="shared")
         if s.done == 0:
             for i in range(wp.min(TILE_PIXELS, end - batch)):
-                if pixel_outside(wp.tile_extract(tK, i), wp.tile_extract(tM, i), p[0], p[1]):
+                if ray_outside(wp.tile_extract(tK, i), wp.tile_extract(tM, i), r):
                     continue
                 s = composite(s, batch + i, wp.tile_extract(tP, i), wp.tile_extract(tO, i), wp.tile_extract(tC, i),
                               wp.tile_extract(tA, i), r, settings)  # fmt: skip
@@ -121,7 +121,7 @@ def rasterize_backward_tiled(lists: TileLists, splats: Splats, cam: CameraParams
             g = wp.tile_extract(ids, i)
             active = 0
             if e < my_last:
-                if not pixel_outside(wp.tile_extract(tK, i), wp.tile_extract(tM, i), p[0], p[1]):
+                if not ray_outside(wp.tile_extract(tK, i), wp.tile_extract(tM, i), r):
                     active = 1
             # a lane the early reject (or its pixel's end) leaves out reads nothing more of the entry
             z = float(0.0)

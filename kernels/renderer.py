@@ -26,7 +26,7 @@ from dataclasses import dataclass, fields
 import warp as wp
 
 from .binning import TileListSizer, bin_gaussians
-from .project import SH_LANES, pixel_conics, preprocess_gaussians, project_frames, screen_bounds, sh_colour_backward
+from .project import SH_LANES, preprocess_gaussians, project_frames, ray_conics, screen_bounds, sh_colour_backward
 from .rasterize import rasterize_forward
 from .rasterize_backward import finish_splat_grads, rasterize_backward
 from .rasterize_tiled import TILE_PIXELS, TILE_SIZE, rasterize_backward_tiled, rasterize_forward_tiled
@@ -34,7 +34,7 @@ from .render_types import (GRAD_COLOUR, GRAD_O_G, GRAD_P, GRAD_WIDTH, CameraPara
                            SplatGrads, Splats, TileLists, make_struct)
 from .tile_overlap import empty_tile_ellipses
 
-#: Bytes of per-Gaussian renderer state (mu_v 12, P 36, o_g 12, colour 12, pixel conic/centre 12 + 8, rect 16,
+#: Bytes of per-Gaussian renderer state (mu_v 12, P 36, o_g 12, colour 12, ray conic/centre 12 + 8, rect 16,
 #: counts/radii/depth/offsets 16, tile-test exact/conic/centre 4 + 48 + 16) and per (Gaussian, tile) entry (int64 key + int32 value, ×2 for the
 #: radix sort's scratch).
 BYTES_PER_GAUSSIAN = 192
@@ -360,7 +360,7 @@ def prepare_view(means, quats, scales, opacities, sh, sh_degree: int, cam: Camer
               outputs=[s.mu_v, s.P, s.o_g, s.colour], device=device, record_tape=False)  # fmt: skip
     wp.launch(screen_bounds, dim=n, inputs=[s.mu_v, quats, scales, opacities, cam, settings],
               outputs=[s.rect, s.touched, s.radii, s.depth, s.ellipse], device=device, record_tape=False)  # fmt: skip
-    wp.launch(pixel_conics, dim=n, inputs=[s.mu_v, quats, scales, opacities, s.radii, cam, settings],
+    wp.launch(ray_conics, dim=n, inputs=[s.mu_v, quats, scales, opacities, s.radii, cam, settings],
               outputs=[s.conic, s.centre], device=device, record_tape=False)  # fmt: skip
     _mark(profile, "preprocess", device)
     px.range_start.zero_()

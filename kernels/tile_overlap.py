@@ -149,23 +149,24 @@ def tile_ellipse(mu: wp.vec3d, R_v: wp.mat33d, s: wp.vec3d, Sigma: wp.mat33d, k2
 
 
 @wp.struct
-class PixelConic:
-    """An elliptic silhouette in pixel units for the per-pixel kernels' early reject (:func:`pixel_conic`): pixel
-    ``(px, py)`` (integer indices; its centre at ``+0.5``) lies outside iff ``A du² + 2B du dv + C dv² > 1`` with
-    ``du = px − centre.x``, ``dv = py − centre.y``. ``conic = (A, B, C) = 0`` never rejects."""
+class RayConic:
+    """An elliptic silhouette in normalised image coordinates ``(a, b) = (x/z, y/z)`` for the per-pixel kernels' early
+    reject (:func:`ray_conic`): the camera-space ray ``r`` (``r.z = 1``) passes outside iff
+    ``A da² + 2B da db + C db² > 1`` with ``da = r.x − centre.x``, ``db = r.y − centre.y``. ``conic = (A, B, C) = 0``
+    never rejects."""
 
     conic: wp.vec3
     centre: wp.vec2
 
 
 @wp.func
-def pixel_conic(e: TileEllipse, cam: CameraParams) -> PixelConic:
-    """The silhouette of ``e`` (a :func:`tile_ellipse` in normalised coordinates) in pixel units, centred on the
-    ellipse: with ``M`` its 2×2 part and ``q_c < 0`` its value at the centre ``c = −M⁻¹ (q02, q12)``, a pixel is
-    outside iff ``(p − c)ᵀ M (p − c) > −q_c`` (in pixels: divided by ``fx, fy``). Only a proper ellipse
-    (``exact == 1``) gives one; anything else (a conic that is not an ellipse, non-finite values, an empty ellipse)
-    gives ``conic = 0``, which rejects nothing. Centre-relative so that float32 evaluation errs little."""
-    out = PixelConic()
+def ray_conic(e: TileEllipse) -> RayConic:
+    """The silhouette of ``e`` (a :func:`tile_ellipse`) centred on the ellipse: with ``M`` its 2×2 part and
+    ``q_c < 0`` its value at the centre ``c = −M⁻¹ (q02, q12)``, a ray is outside iff ``(r − c)ᵀ M (r − c) > −q_c``.
+    Only a proper ellipse (``exact == 1``) gives one; anything else (a conic that is not an ellipse, non-finite values,
+    an empty ellipse) gives ``conic = 0``, which rejects nothing. Centre-relative, so that float32 evaluation errs
+    little."""
+    out = RayConic()
     out.conic = wp.vec3(0.0)
     out.centre = wp.vec2(0.0)
     if e.exact != 1:
@@ -180,19 +181,15 @@ def pixel_conic(e: TileEllipse, cam: CameraParams) -> PixelConic:
     neg_qc = -(c[5] + c[2] * ca + c[4] * cb)
     if not (neg_qc > zero):
         return out
-    fx = wp.float64(cam.fx)
-    fy = wp.float64(cam.fy)
-    A = c[0] / (fx * fx * neg_qc)
-    B = c[1] / (fx * fy * neg_qc)
-    C = c[3] / (fy * fy * neg_qc)
-    u = wp.float64(cam.cx) + fx * ca - wp.float64(0.5)  # pixel index whose centre is the ellipse's centre
-    v = wp.float64(cam.cy) + fy * cb - wp.float64(0.5)
-    total = A + B + C + u + v
+    A = c[0] / neg_qc
+    B = c[1] / neg_qc
+    C = c[3] / neg_qc
+    total = A + B + C + ca + cb
     lim = wp.float64(1.0e30)
-    if not (total - total == zero) or A > lim or C > lim or wp.abs(u) > lim or wp.abs(v) > lim:
+    if not (total - total == zero) or A > lim or C > lim or wp.abs(ca) > lim or wp.abs(cb) > lim:
         return out
     out.conic = wp.vec3(float(A), float(B), float(C))
-    out.centre = wp.vec2(float(u), float(v))
+    out.centre = wp.vec2(float(ca), float(cb))
     return out
 
 

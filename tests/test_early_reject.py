@@ -1,11 +1,12 @@
-"""The per-pixel kernels' early reject (``project.pixel_conics``, ``rasterize.pixel_outside``): the silhouette of each
-Gaussian's ellipsoid at its opacity-aware cutoff (enlarged by 1 %), in pixel units, lets a (pixel, Gaussian) pair be
-skipped in a few operations instead of the ray–Gaussian maths.
+"""The early reject of the per-pixel kernels and the opacity field (``project.ray_conics``, ``rasterize.ray_outside``):
+the silhouette of each Gaussian's ellipsoid at its opacity-aware cutoff (enlarged by 1 %), in normalised image
+coordinates, lets a (ray, Gaussian) pair be skipped in a few operations instead of the ray–Gaussian maths.
 
 - golden case: a sphere straight ahead has the circle of its tangent cone as its silhouette;
 - against float64 brute force over every pixel of random anisotropic Gaussians (``test_render_binning``'s culling
-  scene: discs, needles, some across the near plane): no pair the exact per-pixel test keeps is rejected, and every pair whose line of sight passes 2 % beyond
-  the cutoff is (for the Gaussians that get a silhouette: all that lie beyond the near plane);
+  scene: discs, needles, some across the near plane): no pair the exact per-pixel test keeps is rejected, and every
+  pair whose line of sight passes 2 % beyond the cutoff is (for the Gaussians that get a silhouette: all that lie
+  beyond the near plane);
 - renders and gradients with and without the reject are bitwise equal (the rejected pairs never changed a pixel); on
   CUDA the forward is, and the gradients agree within the spread of the float atomics' order.
 """
@@ -21,7 +22,7 @@ import warp as wp
 
 from gof_warp.camera import Camera, look_at
 from gof_warp.kernels import renderer
-from gof_warp.kernels.project import PIXEL_CONIC_K_MARGIN, pixel_conics, preprocess_gaussians, screen_bounds
+from gof_warp.kernels.project import PIXEL_CONIC_K_MARGIN, preprocess_gaussians, ray_conics, screen_bounds
 from gof_warp.kernels.render_types import CameraParams, RasterSettings, camera_params_from, make_raster_settings
 from gof_warp.kernels.renderer import sh_parts
 from gof_warp.kernels.tile_overlap import empty_tile_ellipses
@@ -57,15 +58,15 @@ def _silhouettes(cam, means, quats, scales, opac, device="cpu"):
     wp.launch(screen_bounds, n, inputs=[mu_v, arr(quats, wp.vec4), arr(scales, wp.vec3), arr(opac, float), camp, settings],
               outputs=[rect, touched, radii, depth, empty_tile_ellipses(n, device)], device=device)  # fmt: skip
     conic, centre = wp.empty(n, dtype=wp.vec3, device=device), wp.empty(n, dtype=wp.vec2, device=device)
-    wp.launch(pixel_conics, n, inputs=[mu_v, arr(quats, wp.vec4), arr(scales, wp.vec3), arr(opac, float), radii, camp,
+    wp.launch(ray_conics, n, inputs=[mu_v, arr(quats, wp.vec4), arr(scales, wp.vec3), arr(opac, float), radii, camp,
                                        settings], outputs=[conic, centre], device=device)  # fmt: skip
     return conic.numpy().astype(np.float64), centre.numpy().astype(np.float64), radii.numpy()
 
 
-def _power(conic, centre, px, py):
-    """``A du² + 2B du dv + C dv²`` (float64 of the stored float32 values) for pixel indices ``px, py``."""
-    du, dv = px - centre[0], py - centre[1]
-    return conic[0] * du * du + 2.0 * conic[1] * du * dv + conic[2] * dv * dv
+def _power(conic, centre, a, b):
+    """``A da² + 2B da db + C db²`` (float64 of the stored float32 values) for rays ``(a, b, 1)``."""
+    da, db = a - centre[0], b - centre[1]
+    return conic[0] * da * da + 2.0 * conic[1] * da * db + conic[2] * db * db
 
 
 def test_sphere_straight_ahead_has_the_circle_of_its_tangent_cone():
@@ -74,10 +75,10 @@ def test_sphere_straight_ahead_has_the_circle_of_its_tangent_cone():
     conic, centre, radii = _silhouettes(cam, np.array([[0.0, 0.0, z]]), np.array([[1.0, 0.0, 0.0, 0.0]]),
                                         np.full((1, 3), sigma), np.array([opacity]))
     k = float(_cutoff(np.array([opacity]))[0]) * (1.0 + float(PIXEL_CONIC_K_MARGIN))
-    radius_px = f * k * sigma / math.sqrt(z * z - (k * sigma) ** 2)  # tan of the cone's half-angle, times f
+    radius = k * sigma / math.sqrt(z * z - (k * sigma) ** 2)  # tan of the tangent cone's half-angle
     assert radii[0] > 0
-    np.testing.assert_allclose(conic[0], [1.0 / radius_px**2, 0.0, 1.0 / radius_px**2], rtol=1e-5, atol=1e-9)
-    np.testing.assert_allclose(centre[0], [cam.cx - 0.5, cam.cy - 0.5], atol=1e-4)
+    np.testing.assert_allclose(conic[0], [1.0 / radius**2, 0.0, 1.0 / radius**2], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(centre[0], [0.0, 0.0], atol=1e-7)
 
 
 def test_reject_never_drops_a_pair_the_exact_test_keeps_and_drops_the_rest():
@@ -96,7 +97,7 @@ def test_reject_never_drops_a_pair_the_exact_test_keeps_and_drops_the_rest():
         t = (Pd @ Pmu) / (Pd**2).sum(-1)
         d2 = (np.cross(Pmu, Pd) ** 2).sum(-1) / (Pd**2).sum(-1)
         kept = (d2 <= k[g] ** 2) & (t > NEAR)
-        power = _power(conic[g], centre[g], px, py)
+        power = _power(conic[g], centre[g], d[..., 0], d[..., 1])
         assert not (kept & (power > 1.0)).any(), f"Gaussian {g}: a pair the exact test keeps is rejected"
         kept_pairs += int(kept.sum())
         if conic[g].any():
@@ -145,7 +146,7 @@ def test_renders_and_gradients_are_the_same_without_the_reject(tile_size, device
         return {**{k: v.detach().cpu() for k, v in out.items()}, **{f"grad_{k}": x.grad.cpu() for k, x in zip(names, leaves)}}
 
     with_reject = run()
-    monkeypatch.setattr(renderer, "pixel_conics", _no_reject)
+    monkeypatch.setattr(renderer, "ray_conics", _no_reject)
     without = run()
     for key in with_reject:
         if key.startswith("grad_") and device != "cpu":  # CUDA's float atomics add in a varying order (the forward
@@ -158,3 +159,28 @@ def test_renders_and_gradients_are_the_same_without_the_reject(tile_size, device
     conic, _, radii = _silhouettes(cam, scene["means"].numpy(), quats, scene["scales"].numpy(), scene["opacities"].numpy(),
                                    device)
     assert (conic.any(axis=1) & (radii > 0)).sum() > 0.8 * (radii > 0).sum()  # the reject is on for most of them
+
+
+def test_opacity_field_is_bitwise_the_same_without_the_reject(monkeypatch):
+    """The field skips the same pairs first (a ray outside the silhouette has ``α(t*) < alpha_min``): bit for bit the
+    field without it, on a scene of flat and needle Gaussians seen from seven views at points near and between them."""
+    from test_opacity_field import _cameras, _scene
+
+    from gof_warp.model import Gaussians
+    from gof_warp.opacity_field import OpacityFieldConfig, opacity_field
+    from gof_warp.render import RenderConfig
+
+    means, quats, scales, opac = _scene(n=60, seed=7)
+    scales[::3, 2] *= 0.02  # discs
+    scales[1::3, 1:] *= 0.05  # needles
+    g = Gaussians.from_activated(means, quats, scales, opac, device="cpu")
+    cams = _cameras(n=7)
+    rng = np.random.default_rng(8)
+    points = np.concatenate([rng.uniform(-0.8, 0.8, (400, 3)), means + 0.1 * rng.normal(size=means.shape)])
+    cfg = dict(render_config=RenderConfig(), config=OpacityFieldConfig(cpu_processes=1), return_seen=True)
+    with_reject, seen = opacity_field(g, cams, points, **cfg)
+    monkeypatch.setattr(renderer, "ray_conics", _no_reject)
+    without, seen_without = opacity_field(g, cams, points, **cfg)
+    np.testing.assert_array_equal(with_reject.numpy(), without.numpy())
+    np.testing.assert_array_equal(seen.numpy(), seen_without.numpy())
+    assert ((with_reject.numpy() > 0.05) & (with_reject.numpy() < 0.95)).sum() > 100, "partial opacities exercised"
