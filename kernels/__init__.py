@@ -19,8 +19,9 @@ Stable names (module, kind):
 * Gaussian math (``@wp.func``): ``quat_to_rotation``, ``sh_to_color``, ``pixel_ray``, ``ray_gaussian``,
   ``normal_direction``.
 * projection and binning: kernels ``preprocess_gaussians`` (its gradient: the adjoint of ``project_frames`` +
-  ``sh_colour_backward``), ``screen_bounds``, ``ray_conics`` (the early reject of the per-pixel kernels and the field); host
-  ``bin_gaussians`` and its ``TileListSizer`` (tile lists sized without a host–device synchronisation per render).
+  ``sh_colour_backward``), ``screen_bounds``, ``ray_conics`` (the early reject of the per-pixel kernels and the
+  field); host ``bin_gaussians`` and its ``TileListSizer`` (tile lists sized without a host–device synchronisation per
+  render).
 * rendering on ``wp.array``s (host launchers, ``wp.Tape``-aware): ``render_gaussians``,
   ``render_forward``, ``render_backward``, ``prepare_view``, ``RenderOutputs``, ``RenderState``, ``sh_parts`` (the SH
   coefficients as one ``[N, K]`` array or a model's ``(sh_dc, sh_rest)`` pair, as the kernels read them),

@@ -7,8 +7,9 @@ shared with rendering) contributes ``α = min(alpha_max, opacity · G(min(t*, z)
 flat — composited front to back like colour: ``O += α T``, ``T ← T (1 − α)``. The same per-pair rules
 as rendering apply (skip ``t* ≤ near``, ``d² > k_max²``, ``α < alpha_min``), so far along a pixel's ray
 the field equals that pixel's rendered alpha; and the same early reject (``rasterize.ray_outside``: a ray outside the
-Gaussian's silhouette at its cutoff has ``α(t*) < alpha_min``, so ``α(min(t*, z))`` is too) skips those pairs first. Compositing stops once ``T < transmittance_min`` (the
-remaining contribution is below that bound; GOF composites to the end).
+Gaussian's silhouette at its cutoff has ``α(t*) < alpha_min``, so ``α(min(t*, z))`` is too) skips those pairs first.
+Compositing stops once ``T < transmittance_min`` (the remaining contribution is below that bound; GOF composites to
+the end).
 
 The field of a point over several views is the minimum over the views in whose image it projects (in
 front of the near plane; for a camera with its own, farther clip, see :func:`point_view_tile`):

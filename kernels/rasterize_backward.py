@@ -270,8 +270,8 @@ def rasterize_backward(lists: TileLists, splats: Splats, cam: CameraParams, sett
         if with_stats != 0:
             z = splats.mu_v[g][2]
         active = wp.where(ray_outside(splats.conic[g], splats.centre[g], r), 0, 1)
-        b = backward_step(b, pg, e, g, active, splats.P[g], splats.o_g[g], splats.colour[g], splats.opacity[g], r, z, cam,
-                          settings, with_stats, 0, 0, grads)  # fmt: skip
+        b = backward_step(b, pg, e, g, active, splats.P[g], splats.o_g[g], splats.colour[g], splats.opacity[g], r, z,
+                          cam, settings, with_stats, 0, 0, grads)  # fmt: skip
 
 
 @wp.kernel

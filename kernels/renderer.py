@@ -35,8 +35,8 @@ from .render_types import (GRAD_COLOUR, GRAD_O_G, GRAD_P, GRAD_WIDTH, CameraPara
 from .tile_overlap import empty_tile_ellipses
 
 #: Bytes of per-Gaussian renderer state (mu_v 12, P 36, o_g 12, colour 12, ray conic/centre 12 + 8, rect 16,
-#: counts/radii/depth/offsets 16, tile-test exact/conic/centre 4 + 48 + 16) and per (Gaussian, tile) entry (int64 key + int32 value, ×2 for the
-#: radix sort's scratch).
+#: counts/radii/depth/offsets 16, tile-test exact/conic/centre 4 + 48 + 16) and per (Gaussian, tile) entry (int64 key
+#: + int32 value, ×2 for the radix sort's scratch).
 BYTES_PER_GAUSSIAN = 192
 BYTES_PER_TILE_ENTRY = 24
 

@@ -55,7 +55,8 @@ def _silhouettes(cam, means, quats, scales, opac, device="cpu"):
                                                sh_rest, 0, camp.R, camp.t, camp.centre],
               outputs=[mu_v, P, o_g, col], device=device)  # fmt: skip
     rect, touched, radii, depth = (wp.empty(n, dtype=t, device=device) for t in (wp.vec4i, wp.int32, wp.int32, float))
-    wp.launch(screen_bounds, n, inputs=[mu_v, arr(quats, wp.vec4), arr(scales, wp.vec3), arr(opac, float), camp, settings],
+    wp.launch(screen_bounds, n, inputs=[mu_v, arr(quats, wp.vec4), arr(scales, wp.vec3), arr(opac, float), camp,
+                                        settings],
               outputs=[rect, touched, radii, depth, empty_tile_ellipses(n, device)], device=device)  # fmt: skip
     conic, centre = wp.empty(n, dtype=wp.vec3, device=device), wp.empty(n, dtype=wp.vec2, device=device)
     wp.launch(ray_conics, n, inputs=[mu_v, arr(quats, wp.vec4), arr(scales, wp.vec3), arr(opac, float), radii, camp,
@@ -143,7 +144,8 @@ def test_renders_and_gradients_are_the_same_without_the_reject(tile_size, device
         loss = sum((out[k] * torch.randn(out[k].shape, generator=w).to(device)).sum() for k in sorted(out)
                    if out[k].is_floating_point())
         loss.backward()
-        return {**{k: v.detach().cpu() for k, v in out.items()}, **{f"grad_{k}": x.grad.cpu() for k, x in zip(names, leaves)}}
+        grads = {f"grad_{k}": x.grad.cpu() for k, x in zip(names, leaves)}
+        return {**{k: v.detach().cpu() for k, v in out.items()}, **grads}
 
     with_reject = run()
     monkeypatch.setattr(renderer, "ray_conics", _no_reject)
@@ -156,8 +158,8 @@ def test_renders_and_gradients_are_the_same_without_the_reject(tile_size, device
             assert torch.equal(with_reject[key], without[key]), key
     assert float(with_reject["alpha"].mean()) > 0.3  # the scene covers the image
     quats = scene["quats"].numpy() / np.linalg.norm(scene["quats"].numpy(), axis=1, keepdims=True)
-    conic, _, radii = _silhouettes(cam, scene["means"].numpy(), quats, scene["scales"].numpy(), scene["opacities"].numpy(),
-                                   device)
+    conic, _, radii = _silhouettes(cam, scene["means"].numpy(), quats, scene["scales"].numpy(),
+                                   scene["opacities"].numpy(), device)
     assert (conic.any(axis=1) & (radii > 0)).sum() > 0.8 * (radii > 0).sum()  # the reject is on for most of them
 
 

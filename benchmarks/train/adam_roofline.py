@@ -50,7 +50,8 @@ def main() -> None:
     floats = a.gaussians * sum(torch.Size(s).numel() for s in SHAPES.values())
     result["floats"] = floats
     for mode in ("fused", "foreach"):
-        params = [torch.nn.Parameter(torch.randn((a.gaussians, *s), device=dev, generator=gen)) for s in SHAPES.values()]
+        params = [torch.nn.Parameter(torch.randn((a.gaussians, *s), device=dev, generator=gen))
+                  for s in SHAPES.values()]
         for p in params:
             p.grad = torch.randn(p.shape, device=dev, generator=gen) * 1e-3
         groups = [{"params": [p], "lr": LR[n], "name": n} for p, n in zip(params, SHAPES)]
