@@ -202,6 +202,8 @@ def write_run_pictures(run_dir, *, mesh_path=None, views: int = 3, out_dir=None,
     render_config = from_dict(RenderConfig, config.get("render", {}) or {}, "config.yaml: render")
     data_config = from_dict(DataConfig, config.get("data", {}) or {}, "config.yaml: data")
     render_config = dataclasses.replace(render_config, background=tuple(data_config.background))
+    if mesh is not None and mesh_path is None:
+        raise GofError("write_run_pictures: a mesh in memory needs mesh_path too (it names the picture)")
     if gaussians is None:
         gaussians = Gaussians.load_ply(ply, device=device)
     if mesh is None and mesh_path is not None:

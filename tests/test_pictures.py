@@ -7,6 +7,7 @@ from PIL import Image
 
 from gof_warp import pictures
 from gof_warp.camera import Camera, look_at
+from gof_warp.errors import GofError
 from gof_warp.pictures import BACKGROUND, panel_layout, shade_mesh
 
 BG = np.round(np.asarray(BACKGROUND) * 255).astype(np.uint8)
@@ -303,6 +304,8 @@ def test_extract_writes_the_mesh_picture_unless_told_not_to(tiny_run, tmp_path, 
     # drawn from the model and mesh in memory: the same picture as from the files written
     (again,) = pictures.write_run_pictures(run, mesh_path=out, out_dir=tmp_path / "again", device="cpu")
     np.testing.assert_array_equal(np.asarray(Image.open(again)), picture)
+    with pytest.raises(GofError, match="mesh_path"):
+        pictures.write_run_pictures(run, mesh=cube, out_dir=tmp_path / "again", device="cpu")
 
     def broken(*a, **k):
         raise RuntimeError("no pictures today")
