@@ -55,6 +55,7 @@ import time
 
 import numpy as np
 
+from .arrays import check_triangles
 from .errors import GofError
 
 log = logging.getLogger(__name__)
@@ -71,12 +72,7 @@ def _library():
 
 
 def _check(verts, faces, max_faces, max_error, error_samples) -> tuple[np.ndarray, np.ndarray]:
-    v = np.asarray(verts)
-    f = np.asarray(faces)
-    if v.ndim != 2 or v.shape[1] != 3:
-        raise GofError(f"decimate: verts must have shape [V, 3], got {v.shape}")
-    if f.ndim != 2 or f.shape[1] != 3:
-        raise GofError(f"decimate: faces must have shape [F, 3], got {f.shape}")
+    v, f = check_triangles(verts, faces, "decimate", GofError)
     if not np.issubdtype(v.dtype, np.number) or np.issubdtype(v.dtype, np.complexfloating):
         raise GofError(f"decimate: verts must be real numbers, got dtype {v.dtype}")
     if f.size and not np.issubdtype(f.dtype, np.integer):
@@ -85,8 +81,6 @@ def _check(verts, faces, max_faces, max_error, error_samples) -> tuple[np.ndarra
     if not np.isfinite(v).all():
         raise GofError(f"decimate: verts hold {int((~np.isfinite(v)).any(axis=1).sum())} vertices with NaN or inf")
     f = f.astype(np.int64)
-    if f.size and (f.min() < 0 or f.max() >= len(v)):
-        raise GofError(f"decimate: face indices must lie in [0, {len(v)}), got [{f.min()}, {f.max()}]")
     if max_faces is not None:
         if isinstance(max_faces, bool) or not isinstance(max_faces, (int, np.integer)) or max_faces < 1:
             raise GofError(f"decimate: max_faces must be a positive integer, got {max_faces!r}")

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from .arrays import check_triangles
 from .camera import Camera
 from .devices import resolve_device, warp_device
 from .errors import GofError
@@ -78,16 +79,9 @@ def _as_numpy(x, dtype):
 
 
 def _check_mesh(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
-    v = _as_numpy(vertices, np.float64)
-    f = _as_numpy(faces, np.int64)
-    if v.ndim != 2 or v.shape[1] != 3:
-        raise ValueError(f"shade_mesh: vertices must have shape [V, 3], got {list(v.shape)}")
-    if f.ndim != 2 or f.shape[1] != 3:
-        raise ValueError(f"shade_mesh: faces must have shape [F, 3], got {list(f.shape)}")
+    v, f = check_triangles(_as_numpy(vertices, np.float64), _as_numpy(faces, np.int64), "shade_mesh")
     if not np.all(np.isfinite(v)):
         raise ValueError("shade_mesh: vertices hold NaN/inf")
-    if f.size and (f.min() < 0 or f.max() >= len(v)):
-        raise ValueError(f"shade_mesh: faces index vertices outside [0, {len(v) - 1}]")
     return v, f
 
 

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .arrays import check_triangles
 from .errors import PlyError
 from .io_utils import atomic_path
 
@@ -142,14 +143,7 @@ def write_ply_mesh(path, vertices, faces) -> None:
     """Write a triangle mesh as a binary little-endian PLY, atomically: ``vertices`` ``[V, 3]`` (stored as float32
     ``x y z``), ``faces`` ``[F, 3]`` vertex indices (a ``uchar`` count and three ``int`` per face, the layout every
     mesh tool reads). Raises :class:`~gof_warp.errors.PlyError` for wrong shapes or indices outside the vertices."""
-    v = np.asarray(vertices)
-    f = np.asarray(faces)
-    if v.ndim != 2 or v.shape[1] != 3:
-        raise PlyError(f"{path}: vertices must have shape [V, 3], got {list(v.shape)}")
-    if f.ndim != 2 or f.shape[1] != 3:
-        raise PlyError(f"{path}: faces must have shape [F, 3], got {list(f.shape)}")
-    if f.size and (f.min() < 0 or f.max() >= len(v)):
-        raise PlyError(f"{path}: faces index vertices outside [0, {len(v) - 1}]")
+    v, f = check_triangles(vertices, faces, path, PlyError)
     if len(v) > np.iinfo(np.int32).max:
         raise PlyError(f"{path}: {len(v)} vertices do not fit PLY int indices")
     header = ["ply", "format binary_little_endian 1.0", "comment written by gof_warp", f"element vertex {len(v)}",

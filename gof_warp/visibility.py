@@ -22,6 +22,7 @@ from collections.abc import Sequence
 import numpy as np
 import warp as wp
 
+from .arrays import check_triangles
 from .camera import Camera, camera_arrays
 from .devices import warp_device
 from .errors import GofError
@@ -32,12 +33,8 @@ HIDDEN_EPS_PX = 1.0  # pixel footprints a face may lie behind what the ray meets
 
 
 def _checked(verts, faces, cameras) -> tuple[np.ndarray, np.ndarray, list]:
-    v = np.asarray(verts)  # float32 from the extraction: the kernel's precision, no float64 copy
-    f = np.asarray(faces, np.int64)
-    if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
-        raise GofError(f"faces_seen: verts [V, 3] and faces [F, 3], got {v.shape} and {f.shape}")
-    if len(f) and (f.min() < 0 or f.max() >= len(v)):
-        raise GofError(f"faces_seen: face indices must lie in [0, {len(v)})")
+    # float32 from the extraction: the kernel's precision, no float64 copy
+    v, f = check_triangles(verts, np.asarray(faces, np.int64), "faces_seen", GofError)
     if not np.isfinite(v).all():
         raise GofError("faces_seen: verts has NaN/inf entries")
     cams = list(cameras)
