@@ -26,15 +26,10 @@ class AppearanceModel(nn.Module):
     Args:
         num_images: how many images get an embedding (index = the image's position in the scene).
         embedding_dim: length of each embedding (GOF: 64).
-        channels_last: keep the convolutions' weights and activations channel-last (the trainer's choice on CUDA);
-            the outputs are the same function of the same parameters.
     """
 
-    def __init__(self, num_images: int, embedding_dim: int = 64, channels_last: bool = False):
+    def __init__(self, num_images: int, embedding_dim: int = 64):
         super().__init__()
-        #: run the convolutions on channel-last (NHWC) tensors, cuDNN's native layout for its tensor-core kernels: on a
-        #: GPU the trainer asks for it, which saves cuDNN's NCHW↔NHWC copies around every convolution (same maths).
-        self.channels_last = bool(channels_last)
         self.embedding = nn.Embedding(num_images, embedding_dim)
         nn.init.normal_(self.embedding.weight, 0.0, 1e-4)
         self.head = nn.Conv2d(3 + embedding_dim, 256, 3, padding=1)
@@ -42,8 +37,6 @@ class AppearanceModel(nn.Module):
         self.ups = nn.ModuleList(nn.Conv2d(c // 4, c // 2, 3, padding=1) for c in chans[:-1])
         self.conv = nn.Conv2d(16, 16, 3, padding=1)
         self.out = nn.Conv2d(16, 3, 3, padding=1)
-        if self.channels_last:
-            self.to(memory_format=torch.channels_last)
 
     @staticmethod
     def crop(image: torch.Tensor) -> torch.Tensor:
@@ -69,10 +62,7 @@ class AppearanceModel(nn.Module):
             return torch.ones_like(render[:, :0, :0])
         small = F.interpolate(crop[None], size=(h // DOWNSAMPLE, w // DOWNSAMPLE), mode="bilinear", align_corners=True)
         emb = embedding[None, :, None, None].expand(1, -1, small.shape[2], small.shape[3])
-        x = torch.cat([small, emb], dim=1)
-        if self.channels_last:  # every later layer (pixel shuffle, interpolation, convolutions) keeps the layout
-            x = x.contiguous(memory_format=torch.channels_last)
-        x = F.relu(self.head(x))
+        x = F.relu(self.head(torch.cat([small, emb], dim=1)))
         for conv in self.ups:
             x = F.relu(conv(F.pixel_shuffle(x, 2)))
         x = F.interpolate(x, size=(h, w), mode="bilinear", align_corners=True)

@@ -26,22 +26,15 @@ in 3DGS/GOF.
 
 from __future__ import annotations
 
-import contextlib
 import math
 from dataclasses import dataclass
 
 import torch
-import warp as wp
 
 from .errors import GofError
-from .kernels.adam import adam_update
 from .model import PARAM_NAMES, Gaussians
 
 ADAM_MOMENTS = ("exp_avg", "exp_avg_sq")
-ADAM_KINDS = ("auto", "torch", "warp")
-#: device types on which ``optim.adam = "auto"`` takes :class:`FlatAdam` (measured: ``benchmarks/train/README.md``,
-#: session 34); elsewhere torch's Adam
-FLAT_ADAM_AUTO = ("cuda",)
 
 
 @dataclass
@@ -63,24 +56,11 @@ class OptimConfig:
     eps: float = 1e-15
     betas: tuple[float, float] = (0.9, 0.999)
     fused: bool | None = None  # torch's one-kernel Adam; None: on CUDA yes, on the CPU no (the loop version)
-    # the Gaussians' Adam: "torch" (torch.optim.Adam, `fused` as above), "warp" (:class:`FlatAdam`: one Warp kernel
-    # per parameter, one pass over its memory) or "auto" (FLAT_ADAM_AUTO's choice per device type)
-    adam: str = "auto"
-
-    def __post_init__(self):
-        if self.adam not in ADAM_KINDS:
-            raise GofError(f"optim.adam must be one of {ADAM_KINDS}, got {self.adam!r}")
 
     def adam_kwargs(self, device) -> dict:
         """``torch.optim.Adam`` keyword arguments for parameters on ``device`` (eps, betas, fused)."""
         fused = torch.device(device).type == "cuda" if self.fused is None else bool(self.fused)
         return {"eps": self.eps, "betas": tuple(self.betas), "fused": fused}
-
-    def adam_kind(self, device) -> str:
-        """``"torch"`` or ``"warp"``: the Gaussians' Adam for parameters on ``device``."""
-        if self.adam != "auto":
-            return self.adam
-        return "warp" if torch.device(device).type in FLAT_ADAM_AUTO else "torch"
 
     def param_lr(self, name: str) -> float:
         """Constant learning rate of a non-position parameter."""
@@ -108,9 +88,8 @@ def position_lr(iteration: int, config: OptimConfig, extent: float) -> float:
     return delay * math.exp(math.log(lr_init) * (1.0 - t) + math.log(lr_final) * t)
 
 
-def make_optimizer(gaussians: Gaussians, config: OptimConfig, extent: float) -> torch.optim.Optimizer:
-    """Adam (``torch.optim.Adam`` or :class:`FlatAdam`, by ``config.adam_kind``) with one group per raw parameter,
-    each group tagged ``"name"``.
+def make_optimizer(gaussians: Gaussians, config: OptimConfig, extent: float) -> torch.optim.Adam:
+    """``torch.optim.Adam`` with one group per raw parameter, each group tagged ``"name"``.
 
     Makes the parameters leaf tensors that require grad (``gaussians.requires_grad_(True)``) when they
     are not already. ``extent`` scales the means' rate (see :func:`position_lr`).
@@ -123,84 +102,7 @@ def make_optimizer(gaussians: Gaussians, config: OptimConfig, extent: float) -> 
     for name in PARAM_NAMES:
         lr = position_lr(0, config, extent) if name == "means" else config.param_lr(name)
         groups.append({"params": [gaussians.params[name]], "lr": lr, "name": name})
-    if config.adam_kind(gaussians.device) == "warp":
-        return FlatAdam(groups, lr=0.0, betas=config.betas, eps=config.eps)
     return torch.optim.Adam(groups, lr=0.0, **config.adam_kwargs(gaussians.device))
-
-
-class FlatAdam(torch.optim.Optimizer):
-    """Adam (torch's formula, no weight decay) whose update of each parameter is one Warp kernel over its memory
-    (:func:`gof_warp.kernels.adam.adam_update`): parameter, gradient and both moments read once, parameter and moments
-    written once. Its state is torch's ``Adam``'s (``step`` a CPU tensor, ``exp_avg``, ``exp_avg_sq``), so
-    :func:`replace_params`, ``state_dict`` and checkpoints treat both alike, and either loads the other's state.
-
-    Parameters must be contiguous float32 tensors (the Gaussians' are); a parameter without ``.grad`` is skipped,
-    as in torch. On CUDA the kernels run on torch's current stream.
-    """
-
-    def __init__(self, params, lr: float = 1e-3, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8):
-        if not (lr >= 0.0 and math.isfinite(lr)):
-            raise GofError(f"FlatAdam: lr must be a finite number ≥ 0, got {lr}")
-        if not (eps >= 0.0 and math.isfinite(eps)):
-            raise GofError(f"FlatAdam: eps must be a finite number ≥ 0, got {eps}")
-        if len(betas) != 2 or not all(0.0 <= b < 1.0 for b in betas):
-            raise GofError(f"FlatAdam: betas must be two numbers in [0, 1), got {betas}")
-        super().__init__(params, {"lr": lr, "betas": tuple(betas), "eps": eps})
-        wp.init()  # idempotent; wp.from_torch needs Warp's runtime
-        self._streams: dict[tuple[int, int], object] = {}  # (device index, stream handle) -> Warp's wrapper
-
-    @torch.no_grad()
-    def step(self, closure=None):
-        """One Adam step of every parameter that has a gradient; ``closure`` (optional) re-evaluates the loss."""
-        loss = None
-        if closure is not None:
-            with torch.enable_grad():
-                loss = closure()
-        for group in self.param_groups:
-            beta1, beta2 = group["betas"]
-            for p in group["params"]:
-                if p.grad is None:
-                    continue
-                grad = p.grad
-                if p.dtype != torch.float32 or grad.dtype != torch.float32 or grad.is_sparse:
-                    raise GofError(f"FlatAdam takes dense float32 parameters and gradients, got {p.dtype} / {grad.dtype}")
-                if not (p.is_contiguous() and grad.is_contiguous()) or grad.shape != p.shape:
-                    raise GofError(f"FlatAdam: parameter {list(p.shape)} and its gradient {list(grad.shape)} must be "
-                                   "contiguous and of one shape")
-                state = self.state[p]
-                if not state:
-                    state["step"] = torch.tensor(0.0)
-                    state["exp_avg"] = torch.zeros_like(p)
-                    state["exp_avg_sq"] = torch.zeros_like(p)
-                if state["step"].device.type != "cpu":  # torch's fused Adam keeps it on the device: read once here
-                    state["step"] = state["step"].detach().to("cpu", torch.float32)
-                state["step"] += 1.0
-                t = float(state["step"])
-                step_size = group["lr"] / (1.0 - beta1**t)
-                sqrt_bc2 = math.sqrt(1.0 - beta2**t)
-                flat = [x.detach().view(-1) for x in (grad, p, state["exp_avg"], state["exp_avg_sq"])]
-                if not all(x.is_contiguous() for x in flat[2:]):
-                    raise GofError("FlatAdam: the Adam moments must be contiguous")
-                with self._stream_scope(p.device):
-                    wp.launch(adam_update, dim=p.numel(), device=self._warp_device(p.device),
-                              inputs=[wp.from_torch(flat[0], requires_grad=False, return_ctype=True), beta2, 1.0 - beta1, 1.0 - beta2,
-                                      step_size, sqrt_bc2, group["eps"]],
-                              outputs=[wp.from_torch(x, requires_grad=False, return_ctype=True) for x in flat[1:]])  # fmt: skip
-        return loss
-
-    @staticmethod
-    def _warp_device(device: torch.device) -> str:
-        return "cpu" if device.type == "cpu" else f"cuda:{device.index if device.index is not None else 0}"
-
-    def _stream_scope(self, device: torch.device):
-        """Launch on torch's current stream of ``device`` (CUDA), through one cached Warp wrapper per stream."""
-        if device.type != "cuda":
-            return contextlib.nullcontext()
-        stream = torch.cuda.current_stream(device)
-        key = (stream.device_index, stream.cuda_stream)
-        if key not in self._streams:
-            self._streams[key] = wp.stream_from_torch(stream)
-        return wp.ScopedStream(self._streams[key])
 
 
 def update_learning_rate(optimizer: torch.optim.Optimizer, iteration: int, config: OptimConfig, extent: float) -> float:

@@ -261,8 +261,7 @@ class Trainer:
         self.appearance = None
         self.appearance_optimizer = None
         if config.appearance:
-            self.appearance = AppearanceModel(len(scene.all_views),
-                                              channels_last=self.device.type == "cuda").to(self.device)
+            self.appearance = AppearanceModel(len(scene.all_views)).to(self.device)
             self.appearance_optimizer = torch.optim.Adam([
                 {"params": self.appearance.embedding.parameters(), "lr": config.optim.appearance_embedding_lr},
                 {"params": [p for n, p in self.appearance.named_parameters() if not n.startswith("embedding")],

@@ -286,38 +286,8 @@ def test_training_loss_with_appearance_compiled_equals_the_eager_correction():
     assert compiled.compiled_appearance is not None and compiled.fallback_reason is None
 
 
-def test_appearance_channels_last_is_the_same_function():
-    """``AppearanceModel(channels_last=True)`` (the trainer's choice on CUDA) keeps its convolution weights and
-    activations channel-last and computes the same gain and the same gradients as the NCHW model with the same
-    parameters (float64, CPU: equal to rounding); its state dict loads into either layout."""
-    from gof_warp.appearance import AppearanceModel
-
-    torch.manual_seed(0)
-    plain = AppearanceModel(2).double()
-    torch.nn.init.normal_(plain.embedding.weight, 0.0, 0.5)
-    nhwc = AppearanceModel(2, channels_last=True).double()
-    nhwc.load_state_dict(plain.state_dict())
-    assert nhwc.head.weight.is_contiguous(memory_format=torch.channels_last)
-    assert not plain.head.weight.is_contiguous(memory_format=torch.channels_last)
-    render = torch.rand(3, 70, 100, dtype=torch.float64)
-    target = torch.rand(3, 64, 96, dtype=torch.float64)
-    results = []
-    for model in (plain, nhwc):
-        r = render.clone().requires_grad_(True)
-        loss = ((model.apply(r, 1) - target) ** 2).sum()
-        loss.backward()
-        results.append((loss.detach(), r.grad, {n: p.grad for n, p in model.named_parameters()}))
-    (l0, r0, p0), (l1, r1, p1) = results
-    assert torch.allclose(l1, l0, rtol=1e-12, atol=0.0)
-    assert torch.allclose(r1, r0, rtol=1e-10, atol=1e-14)
-    assert set(p0) == set(p1) and all(torch.allclose(p1[k], p0[k], rtol=1e-10, atol=1e-14) for k in p0)
-    assert float(r0.abs().sum()) > 0 and float(p0["head.weight"].abs().sum()) > 0
-    plain.load_state_dict(nhwc.state_dict())  # back again
-
-
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA graphs need a GPU")
-@pytest.mark.parametrize("channels_last", [False, True])
-def test_training_loss_as_cuda_graphs_equals_the_eager_loss(channels_last):
+def test_training_loss_as_cuda_graphs_equals_the_eager_loss():
     """``cuda_graphs=True`` (inductor, ``mode="reduce-overhead"``): over a sequence of views and both graphs (with and
     without the regularisers), each call's loss, terms and gradients (renders and appearance network) equal the
     eager loss's, and the terms stay valid after later replays (they are copied out of the graph's memory)."""
@@ -328,7 +298,7 @@ def test_training_loss_as_cuda_graphs_equals_the_eager_loss(channels_last):
     h, w = 40, 70
     rng = np.random.default_rng(4)
     torch.manual_seed(0)
-    model = AppearanceModel(2, channels_last=channels_last).to(dev)
+    model = AppearanceModel(2).to(dev)
     cams = [Camera(R=np.eye(3), t=np.zeros(3), fx=60.0 + i, fy=58.0, cx=35.2, cy=19.7, width=w, height=h)
             for i in range(2)]
     eager = TrainingLoss(LossConfig(), cams, dev, mode="off", appearance=model)
