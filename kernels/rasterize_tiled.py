@@ -7,7 +7,9 @@ Gaussian ids are loaded with ``wp.tile_load`` and the per-Gaussian data gathered
 thread then reads the batch from shared memory. The per-entry math is the same ``@wp.func``s as the plain
 kernels (:func:`composite`, :func:`backward_step`), so both produce identical results. A block stops
 when all its pixels are done (a ``tile_sum`` of per-thread flags; it doubles as the barrier that keeps
-the next batch's loads from overwriting data still being read).
+the next batch's loads from overwriting data still being read). In the backward each thread also works out, for one
+entry of the batch, which of the block's eight warps (two pixel rows each) its silhouette can reach
+(:func:`warp_rows_mask`), and a warp that none of its rows can reach skips the entry as a whole.
 
 Only for ``tile_size == 16`` on CUDA; the plain kernels serve every other case (and the CPU).
 """
@@ -35,11 +37,50 @@ TILE_PIXELS = wp.constant(TILE_SIZE * TILE_SIZE)
 MAX_REGISTERS = 80
 
 
+#: Threads per CUDA warp; warp ``w`` of a tile's block holds its pixel rows ``2w`` and ``2w + 1`` (16 × 2 pixels).
+WARP_LANES = 32
+#: Slack on the row test of :func:`warp_rows_mask` (the silhouette's value 1): a row is skipped only if its smallest
+#: value exceeds ``1 + WARP_ROWS_SLACK``, far above float rounding and far inside the silhouette's own 1 % margin.
+WARP_ROWS_SLACK = wp.constant(1.0e-3)
+
+
 @wp.func
 def _block_pixel(tile: int, lane: int, settings: RasterSettings) -> wp.vec2i:
     ty = tile / settings.tiles_x
     tx = tile - ty * settings.tiles_x
     return wp.vec2i(tx * TILE_SIZE + lane % TILE_SIZE, ty * TILE_SIZE + lane / TILE_SIZE)
+
+
+@wp.func
+def warp_rows_mask(conic: wp.vec3, centre: wp.vec2, tile: int, cam: CameraParams, settings: RasterSettings) -> int:
+    """Which warps of ``tile``'s 16 × 16 block may meet a Gaussian (the backward's warp-wide skip): bit ``w`` (0–7) is set unless the silhouette conic
+    of :func:`~.rasterize.ray_outside` (``conic``, ``centre``: ``project.ray_conics``) leaves every pixel of rows
+    ``2w`` and ``2w + 1`` outside. Per row the conic's smallest value over the segment through the row's 16 pixel
+    centres (in normalised image coordinates ``u = (x + ½ − cx)/fx``, ``v = (y + ½ − cy)/fy``) is, in float64,
+    ``q(u*)`` with ``u* = clamp(−B Δv / A, u₀, u₁)`` (the conic is convex along a row when ``A > 0``); the row is
+    skipped if it exceeds ``1 + WARP_ROWS_SLACK``. No pixel of a skipped row passes :func:`ray_outside`, so skipping
+    the entry for the whole warp changes nothing. A zero conic (no silhouette: nothing rejected) sets every bit."""
+    a = wp.float64(conic[0])
+    b = wp.float64(conic[1])
+    c = wp.float64(conic[2])
+    if not (a > wp.float64(0.0)):
+        return 0xFF
+    ty = tile / settings.tiles_x
+    tx = tile - ty * settings.tiles_x
+    fx = wp.float64(cam.fx)
+    fy = wp.float64(cam.fy)
+    cu = wp.float64(centre[0])
+    cv = wp.float64(centre[1])
+    u0 = (wp.float64(tx * TILE_SIZE) + wp.float64(0.5) - wp.float64(cam.cx)) / fx - cu
+    u1 = (wp.float64(tx * TILE_SIZE + TILE_SIZE - 1) + wp.float64(0.5) - wp.float64(cam.cx)) / fx - cu
+    limit = wp.float64(1.0) + wp.float64(WARP_ROWS_SLACK)
+    mask = int(0)
+    for row in range(TILE_SIZE):
+        dv = (wp.float64(ty * TILE_SIZE + row) + wp.float64(0.5) - wp.float64(cam.cy)) / fy - cv
+        du = wp.clamp(-b * dv / a, u0, u1)
+        if a * du * du + wp.float64(2.0) * b * du * dv + c * dv * dv <= limit:
+            mask = mask | (1 << (row / 2))
+    return mask
 
 
 @wp.kernel(cuda_max_registers=MAX_REGISTERS)
@@ -107,6 +148,8 @@ def rasterize_backward_tiled(lists: TileLists, splats: Splats, cam: CameraParams
     sA = splats.opacity
     sK = splats.conic
     sM = splats.centre
+    warp_bit = 1 << (lane / WARP_LANES)
+    tW = wp.tile_zeros(shape=(TILE_PIXELS,), dtype=int, storage="shared")
     for batch_end in range(block_last, start, -TILE_PIXELS):
         batch = wp.max(start, batch_end - TILE_PIXELS)
         ids = wp.tile_load(values, shape=(TILE_PIXELS,), offset=(batch,), storage="shared")
@@ -116,8 +159,15 @@ def rasterize_backward_tiled(lists: TileLists, splats: Splats, cam: CameraParams
         tA = wp.tile_load_indexed(sA, indices=ids, shape=(TILE_PIXELS,), axis=0, storage="shared")
         tK = wp.tile_load_indexed(sK, indices=ids, shape=(TILE_PIXELS,), axis=0, storage="shared")
         tM = wp.tile_load_indexed(sM, indices=ids, shape=(TILE_PIXELS,), axis=0, storage="shared")
+        # thread `lane` works out entry batch + lane's warp mask once for the block (warp_rows_mask); the forward does
+        # not: measured slower there (benchmarks/train/README.md, session 34), where a skipped pair costs one test
+        wp.tile_assign(tW, wp.tile(wp.where(batch + lane < batch_end, warp_rows_mask(wp.tile_extract(tK, lane),
+                                                                                     wp.tile_extract(tM, lane), tile,
+                                                                                     cam, settings), 0)))  # fmt: skip
         for i in range(batch_end - batch - 1, -1, -1):
             e = batch + i
+            if (wp.tile_extract(tW, i) & warp_bit) == 0:  # no pixel of this warp meets it: the whole warp moves on
+                continue
             g = wp.tile_extract(ids, i)
             active = 0
             if e < my_last:

@@ -7,6 +7,8 @@ coordinates, lets a (ray, Gaussian) pair be skipped in a few operations instead 
   scene: discs, needles, some across the near plane): no pair the exact per-pixel test keeps is rejected, and every
   pair whose line of sight passes 2 % beyond the cutoff is (for the Gaussians that get a silhouette: all that lie
   beyond the near plane);
+- the warp mask of the CUDA tile kernels (``rasterize_tiled.warp_rows_mask``): golden circle; against float64 brute
+  force no warp with a kept pixel is skipped, and every warp 1 % outside the silhouette is;
 - renders and gradients with and without the reject are bitwise equal (the rejected pairs never changed a pixel); on
   CUDA the forward is, and the gradients agree within the spread of the float atomics' order.
 """
@@ -24,6 +26,7 @@ from gof_warp.camera import Camera, look_at
 from gof_warp.kernels import renderer
 from gof_warp.kernels.project import PIXEL_CONIC_K_MARGIN, preprocess_gaussians, ray_conics, screen_bounds
 from gof_warp.kernels.render_types import CameraParams, RasterSettings, camera_params_from, make_raster_settings
+from gof_warp.kernels.rasterize_tiled import warp_rows_mask
 from gof_warp.kernels.renderer import sh_parts
 from gof_warp.kernels.tile_overlap import empty_tile_ellipses
 from test_render_binning import _cull_scene, _rotations
@@ -113,6 +116,83 @@ def test_reject_never_drops_a_pair_the_exact_test_keeps_and_drops_the_rest():
     print(f"{kept_pairs} kept pairs, {far_pairs} far pairs, {with_silhouette} of {int((radii > 0).sum())} visible "
           f"Gaussians with a silhouette")
     assert kept_pairs > 2000 and far_pairs > 100_000 and with_silhouette >= in_front > 100
+
+
+@wp.kernel
+def _warp_masks(conic: wp.array(dtype=wp.vec3), centre: wp.array(dtype=wp.vec2), gauss: wp.array(dtype=int),
+                tiles: wp.array(dtype=int), cam: CameraParams, settings: RasterSettings, out: wp.array(dtype=int)):
+    i = wp.tid()
+    out[i] = warp_rows_mask(conic[gauss[i]], centre[gauss[i]], tiles[i], cam, settings)
+
+
+def _masks(conic, centre, pairs, cam, settings):
+    """``warp_rows_mask`` on the CPU for each ``(gaussian, tile)`` row of ``pairs``."""
+    pairs = np.asarray(pairs, np.int32).reshape(-1, 2)
+    out = wp.empty(len(pairs), dtype=int, device="cpu")
+    wp.launch(_warp_masks, len(pairs), inputs=[wp.array(conic.astype(np.float32), dtype=wp.vec3, device="cpu"),
+                                               wp.array(centre.astype(np.float32), dtype=wp.vec2, device="cpu"),
+                                               wp.array(pairs[:, 0], dtype=int, device="cpu"),
+                                               wp.array(pairs[:, 1], dtype=int, device="cpu"), camera_params_from(cam),
+                                               settings], outputs=[out], device="cpu")  # fmt: skip
+    return out.numpy()
+
+
+def test_warp_mask_golden_circle():
+    """A circle of radius 1.5 px around pixel (7, 5) of tile 0 meets rows 4–6: warps 2 and 3 (rows 4–5, 6–7); tile 1
+    (columns 16–31) meets none of it; a zero conic (no silhouette) lets every warp through."""
+    cam = Camera(np.eye(3), np.zeros(3), fx=100.0, fy=100.0, cx=0.0, cy=0.0, width=64, height=32)
+    rho = 1.5 / 100.0
+    conic = np.array([[1 / rho**2, 0.0, 1 / rho**2], [0.0, 0.0, 0.0]])
+    centre = np.array([[0.075, 0.055], [0.0, 0.0]])
+    masks = _masks(conic, centre, [(0, 0), (0, 1), (1, 0), (0, 4)], cam, make_raster_settings(64, 32))
+    assert masks.tolist() == [0b1100, 0, 0xFF, 0]  # tile 4 (rows 16-31) is below the circle
+
+
+def test_warp_mask_never_skips_a_kept_pixel():
+    """Against float64 brute force on the scene of discs, needles and near-plane Gaussians: a warp (16 × 2 pixels of
+    a 16 × 16 tile) is skipped only if no pixel of it is kept by the exact per-pixel test, and a warp whose rows pass
+    1 % beyond the silhouette everywhere along their pixel-centre segments (float64) is skipped."""
+    cam = look_at((0.3, -2.0, 0.5), (0.0, 0.0, 0.0), fx=120.0, fy=108.0, cx=71.3, cy=57.9, width=150, height=110)
+    means, quats, scales, opac = _cull_scene(cam, 400, seed=3)
+    conic, centre, radii = _silhouettes(cam, means, quats, scales, opac)
+    settings = make_raster_settings(cam.width, cam.height)
+    ts, tiles_x, tiles_y = 16, settings.tiles_x, settings.tiles_y
+    mu = (means @ cam.R.T + cam.t).astype(np.float32).astype(np.float64)
+    Rv = (cam.R.astype(np.float32) @ _rotations(quats.astype(np.float32))).astype(np.float64)
+    k = _cutoff(opac)
+    W, H = tiles_x * ts, tiles_y * ts  # whole tiles (pixels past the image are never kept: masked below)
+    px, py = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
+    d = np.stack([(px + 0.5 - cam.cx) / cam.fx, (py + 0.5 - cam.cy) / cam.fy, np.ones(px.shape)], -1)
+    inside = (px < cam.width) & (py < cam.height)
+    visible = np.nonzero(radii > 0)[0]
+    pairs = [(g, t) for g in visible for t in range(tiles_x * tiles_y)]
+    masks = _masks(conic, centre, pairs, cam, settings).reshape(len(visible), tiles_x * tiles_y)
+    skipped = far_warps = kept_warps = 0
+    for gi, g in enumerate(visible):
+        P = Rv[g].T / scales[g][:, None]
+        Pd, Pmu = d @ P.T, P @ mu[g]
+        t = (Pd @ Pmu) / (Pd**2).sum(-1)
+        d2 = (np.cross(Pmu, Pd) ** 2).sum(-1) / (Pd**2).sum(-1)
+        kept = (d2 <= k[g] ** 2) & (t > NEAR) & inside
+        # per warp (tile, w): any kept pixel; the float64 minimum of the conic over its two rows' segments
+        kept_w = kept.reshape(tiles_y, 8, 2, tiles_x, ts).any(axis=(2, 4)).transpose(0, 2, 1).reshape(-1, 8)
+        bits = (masks[gi][:, None] >> np.arange(8)) & 1
+        assert not (kept_w & (bits == 0)).any(), f"Gaussian {g}: a warp with a kept pixel is skipped"
+        kept_warps += int(kept_w.sum())
+        skipped += int((bits == 0).sum())
+        if conic[g].any():
+            a, b, c = conic[g]
+            u0 = (np.arange(tiles_x) * ts + 0.5 - cam.cx) / cam.fx - centre[g][0]
+            u1 = (np.arange(tiles_x) * ts + ts - 0.5 - cam.cx) / cam.fx - centre[g][0]
+            dv = (np.arange(H) + 0.5 - cam.cy) / cam.fy - centre[g][1]
+            du = np.clip(-b * dv[:, None] / a, u0[None, :], u1[None, :])
+            q = a * du**2 + 2 * b * du * dv[:, None] + c * dv[:, None] ** 2  # [rows, tiles_x]
+            row_min = q.reshape(tiles_y, 8, 2, tiles_x).min(axis=2).transpose(0, 2, 1).reshape(-1, 8)
+            far = row_min > 1.01
+            far_warps += int(far.sum())
+            assert (bits[far] == 0).all(), f"Gaussian {g}: a warp 1 % outside the silhouette is not skipped"
+    print(f"{kept_warps} warps with kept pixels, {skipped} of {masks.size * 8} (Gaussian, warp) pairs skipped")
+    assert kept_warps > 200 and far_warps > 0.5 * masks.size * 8 and skipped >= far_warps
 
 
 @wp.kernel
