@@ -40,9 +40,9 @@ def ray_outside(conic: wp.vec3, centre: wp.vec2, r: wp.vec3) -> bool:
     """The early reject: the camera-space ray ``r`` (``r.z = 1``) passes outside a Gaussian's silhouette
     (``project.ray_conics``), so the exact test would drop the pair; a few operations instead of
     :func:`~.gaussian_math.ray_gaussian`."""
-    da = r[0] - centre[0]
     db = r[1] - centre[1]
-    return conic[0] * da * da + 2.0 * conic[1] * da * db + conic[2] * db * db > 1.0
+    t = r[0] - centre[0] + conic[1] * db  # conic = (A, β, γ): A (da + β db)² + γ db² (tile_overlap.RayConic)
+    return conic[0] * t * t + conic[2] * db * db > 1.0
 
 
 @wp.func

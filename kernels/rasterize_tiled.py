@@ -53,16 +53,17 @@ def _block_pixel(tile: int, lane: int, settings: RasterSettings) -> wp.vec2i:
 
 @wp.func
 def warp_rows_mask(conic: wp.vec3, centre: wp.vec2, tile: int, cam: CameraParams, settings: RasterSettings) -> int:
-    """Which warps of ``tile``'s 16 × 16 block may meet a Gaussian (the backward's warp-wide skip): bit ``w`` (0–7) is set unless the silhouette conic
-    of :func:`~.rasterize.ray_outside` (``conic``, ``centre``: ``project.ray_conics``) leaves every pixel of rows
-    ``2w`` and ``2w + 1`` outside. Per row the conic's smallest value over the segment through the row's 16 pixel
-    centres (in normalised image coordinates ``u = (x + ½ − cx)/fx``, ``v = (y + ½ − cy)/fy``) is, in float64,
-    ``q(u*)`` with ``u* = clamp(−B Δv / A, u₀, u₁)`` (the conic is convex along a row when ``A > 0``); the row is
-    skipped if it exceeds ``1 + WARP_ROWS_SLACK``. No pixel of a skipped row passes :func:`ray_outside`, so skipping
-    the entry for the whole warp changes nothing. A zero conic (no silhouette: nothing rejected) sets every bit."""
+    """Which warps of ``tile``'s 16 × 16 block may meet a Gaussian (the backward's warp-wide skip): bit ``w`` (0–7) is
+    set unless the silhouette conic of :func:`~.rasterize.ray_outside` (``conic``, ``centre``: ``project.ray_conics``)
+    leaves every pixel of rows ``2w`` and ``2w + 1`` outside. Per row the conic's smallest value over the segment
+    through the row's 16 pixel centres (normalised image coordinates ``u = (x + ½ − cx)/fx``, ``v = (y + ½ − cy)/fy``)
+    is, in float64, ``q(u*)`` with ``u* = clamp(−β Δv, u₀, u₁)`` (``conic = (A, β, γ)``:
+    ``q = A (Δu + β Δv)² + γ Δv²``); the row is skipped if it exceeds ``1 + WARP_ROWS_SLACK``. No pixel of a skipped
+    row passes :func:`ray_outside`, so skipping the entry for the whole warp changes nothing. A zero conic (no
+    silhouette: nothing rejected) sets every bit."""
     a = wp.float64(conic[0])
-    b = wp.float64(conic[1])
-    c = wp.float64(conic[2])
+    beta = wp.float64(conic[1])
+    gamma = wp.float64(conic[2])
     if not (a > wp.float64(0.0)):
         return 0xFF
     ty = tile / settings.tiles_x
@@ -77,8 +78,8 @@ def warp_rows_mask(conic: wp.vec3, centre: wp.vec2, tile: int, cam: CameraParams
     mask = int(0)
     for row in range(TILE_SIZE):
         dv = (wp.float64(ty * TILE_SIZE + row) + wp.float64(0.5) - wp.float64(cam.cy)) / fy - cv
-        du = wp.clamp(-b * dv / a, u0, u1)
-        if a * du * du + wp.float64(2.0) * b * du * dv + c * dv * dv <= limit:
+        t = wp.clamp(-beta * dv, u0, u1) + beta * dv
+        if a * t * t + gamma * dv * dv <= limit:
             mask = mask | (1 << (row / 2))
     return mask
 

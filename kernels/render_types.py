@@ -125,7 +125,7 @@ class Splats:
     opacity: wp.array(dtype=float)
     mu_v: wp.array(dtype=wp.vec3)  # camera-space means (depth for the densification statistics)
     radius: wp.array(dtype=wp.int32)  # screen radius in pixels
-    conic: wp.array(dtype=wp.vec3)  # early reject: silhouette (A, B, C) in normalised coordinates (project.ray_conics)
+    conic: wp.array(dtype=wp.vec3)  # early reject: silhouette (A, β, γ) in normalised coordinates (project.ray_conics)
     centre: wp.array(dtype=wp.vec2)  # … and its centre (x/z, y/z); conic 0: nothing rejected
 
 

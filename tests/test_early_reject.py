@@ -26,6 +26,7 @@ from gof_warp.camera import Camera, look_at
 from gof_warp.kernels import renderer
 from gof_warp.kernels.project import PIXEL_CONIC_K_MARGIN, preprocess_gaussians, ray_conics, screen_bounds
 from gof_warp.kernels.render_types import CameraParams, RasterSettings, camera_params_from, make_raster_settings
+from gof_warp.kernels.rasterize import ray_outside
 from gof_warp.kernels.rasterize_tiled import warp_rows_mask
 from gof_warp.kernels.renderer import sh_parts
 from gof_warp.kernels.tile_overlap import empty_tile_ellipses
@@ -68,9 +69,10 @@ def _silhouettes(cam, means, quats, scales, opac, device="cpu"):
 
 
 def _power(conic, centre, a, b):
-    """``A da² + 2B da db + C db²`` (float64 of the stored float32 values) for rays ``(a, b, 1)``."""
+    """``A (da + β db)² + γ db²`` (= ``A da² + 2B da db + C db²``; float64 of the stored float32 ``(A, β, γ)``) for
+    rays ``(a, b, 1)``."""
     da, db = a - centre[0], b - centre[1]
-    return conic[0] * da * da + 2.0 * conic[1] * da * db + conic[2] * db * db
+    return conic[0] * (da + conic[1] * db) ** 2 + conic[2] * db * db
 
 
 def test_sphere_straight_ahead_has_the_circle_of_its_tangent_cone():
@@ -181,18 +183,61 @@ def test_warp_mask_never_skips_a_kept_pixel():
         kept_warps += int(kept_w.sum())
         skipped += int((bits == 0).sum())
         if conic[g].any():
-            a, b, c = conic[g]
-            u0 = (np.arange(tiles_x) * ts + 0.5 - cam.cx) / cam.fx - centre[g][0]
-            u1 = (np.arange(tiles_x) * ts + ts - 0.5 - cam.cx) / cam.fx - centre[g][0]
-            dv = (np.arange(H) + 0.5 - cam.cy) / cam.fy - centre[g][1]
-            du = np.clip(-b * dv[:, None] / a, u0[None, :], u1[None, :])
-            q = a * du**2 + 2 * b * du * dv[:, None] + c * dv[:, None] ** 2  # [rows, tiles_x]
+            u0 = (np.arange(tiles_x) * ts + 0.5 - cam.cx) / cam.fx
+            u1 = (np.arange(tiles_x) * ts + ts - 0.5 - cam.cx) / cam.fx
+            v = (np.arange(H) + 0.5 - cam.cy) / cam.fy
+            # the conic's minimum along each row segment, by dense sampling (1,000 points a segment) in float64
+            frac = np.linspace(0.0, 1.0, 1000)
+            u = u0[:, None] + (u1 - u0)[:, None] * frac[None, :]  # [tiles_x, 1000]
+            q = _power(conic[g], centre[g], u[None, :, :], v[:, None, None]).min(axis=2)  # [rows, tiles_x]
             row_min = q.reshape(tiles_y, 8, 2, tiles_x).min(axis=2).transpose(0, 2, 1).reshape(-1, 8)
             far = row_min > 1.01
             far_warps += int(far.sum())
             assert (bits[far] == 0).all(), f"Gaussian {g}: a warp 1 % outside the silhouette is not skipped"
     print(f"{kept_warps} warps with kept pixels, {skipped} of {masks.size * 8} (Gaussian, warp) pairs skipped")
     assert kept_warps > 200 and far_warps > 0.5 * masks.size * 8 and skipped >= far_warps
+
+
+@wp.kernel
+def _outside(conic: wp.array(dtype=wp.vec3), centre: wp.array(dtype=wp.vec2), rays: wp.array(dtype=wp.vec3),
+             out: wp.array(dtype=int)):
+    i = wp.tid()
+    out[i] = wp.where(ray_outside(conic[0], centre[0], rays[i]), 1, 0)
+
+
+@pytest.mark.parametrize("aspect", [100.0, 1000.0, 3000.0])
+def test_reject_is_stable_for_thin_needles(aspect):
+    """``ray_outside`` in float32 for needles of aspect up to 3000:1 at 45° (the worst angle for the expanded
+    ``A da² + 2B da db + C db²``, whose terms cancel to an error of ~0.7 at 3000:1): no ray well inside the silhouette
+    (float64 value ≤ 0.99) is rejected, and every ray well outside (≥ 1.01) is. The silhouette is built through
+    ``tile_overlap.ray_conic`` from the conic of a cone of rays, as ``ray_conics`` builds it."""
+    rng = np.random.default_rng(int(aspect))
+    s_major = 0.3
+    s_minor = s_major / aspect
+    c45 = math.sqrt(0.5)
+    R = np.array([[c45, -c45], [c45, c45]])
+    M = R @ np.diag([1 / s_major**2, 1 / s_minor**2]) @ R.T
+    A, B, C = M[0, 0], M[0, 1], M[1, 1]
+    conic = np.array([[A, B / A, C - B * B / A]], np.float32)
+    centre = np.array([[0.137, -0.211]], np.float32)
+    # rays near the needle's outline, most of them near its far tips where the expanded form fails
+    phi = rng.uniform(0.0, 2.0 * np.pi, 20000)
+    phi[:15000] = rng.normal(0.0, 0.05, 15000) + np.pi * rng.integers(0, 2, 15000)
+    radius = rng.uniform(0.9, 1.1, 20000)
+    local = np.stack([s_major * np.cos(phi), s_minor * np.sin(phi)], -1) * radius[:, None]
+    ab = centre.astype(np.float64) + local @ R.T
+    rays = np.concatenate([ab, np.ones((len(ab), 1))], 1).astype(np.float32)
+    d = rays[:, :2].astype(np.float64) - centre.astype(np.float64)
+    q64 = (d @ M * d).sum(1)  # the exact silhouette value of the float32 rays
+    out = wp.empty(len(rays), dtype=int, device="cpu")
+    wp.launch(_outside, len(rays), inputs=[wp.array(conic, dtype=wp.vec3, device="cpu"),
+                                           wp.array(centre, dtype=wp.vec2, device="cpu"),
+                                           wp.array(rays, dtype=wp.vec3, device="cpu")], outputs=[out], device="cpu")
+    rejected = out.numpy() == 1
+    inside, outside = q64 <= 0.99, q64 >= 1.01
+    assert inside.sum() > 1000 and outside.sum() > 1000
+    assert not rejected[inside].any(), f"{int(rejected[inside].sum())} rays inside the silhouette rejected"
+    assert rejected[outside].all(), f"{int((~rejected[outside]).sum())} rays outside the silhouette kept"
 
 
 @wp.kernel
