@@ -61,7 +61,8 @@ from .step_scalars import IterationScalars, PendingScalars
 log = logging.getLogger(__name__)
 
 SCALARS_FLUSH_EVERY = 50  # iterations between reads of the loss terms (a host-device synchronisation)
-_stage = torch.profiler.record_function  # names the step's parts in a torch.profiler trace; ~1 µs otherwise
+# names the step's parts in a torch.profiler trace; ~6 µs a stage otherwise (measured on the 2-core box: ~50 µs a step)
+_stage = torch.profiler.record_function
 
 
 class TrainingError(GofError):
