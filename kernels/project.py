@@ -202,6 +202,16 @@ def cutoff_k(op: float, settings: RasterSettings) -> float:
     return kk
 
 
+@wp.func
+def view_covariance(R_cam: wp.mat33, quat: wp.vec4, scale: wp.vec3):
+    """The Gaussian's axes in camera space ``R_v = R_cam R(q)``, its scales and its covariance
+    ``Σ = R_v diag(s²) R_vᵀ``, in float64 (the frame :func:`screen_bounds` and :func:`ray_conics` build the
+    silhouette from)."""
+    R_v = wp.mat33d(R_cam * quat_to_rotation(quat))
+    s = wp.vec3d(scale)
+    return R_v, s, R_v * wp.diag(wp.cw_mul(s, s)) * wp.transpose(R_v)
+
+
 @wp.kernel
 def screen_bounds(
     mu_v: wp.array(dtype=wp.vec3),
@@ -235,9 +245,7 @@ def screen_bounds(
         return
     k64 = wp.float64(kk) * (wp.float64(1.0) + wp.float64(BOUNDS_K_MARGIN))
     k2 = k64 * k64
-    R_v = wp.mat33d(cam.R * quat_to_rotation(quats[k]))
-    s = wp.vec3d(scales[k])
-    Sigma = R_v * wp.diag(wp.cw_mul(s, s)) * wp.transpose(R_v)
+    R_v, s, Sigma = view_covariance(cam.R, quats[k], scales[k])
     mx = wp.float64(mv[0])
     my = wp.float64(mv[1])
     mz = wp.float64(mv[2])
@@ -316,9 +324,7 @@ def ray_conics(
     if kk < 0.0:
         return
     k64 = wp.float64(kk) * (wp.float64(1.0) + wp.float64(PIXEL_CONIC_K_MARGIN))
-    R_v = wp.mat33d(cam.R * quat_to_rotation(quats[k]))
-    s = wp.vec3d(scales[k])
-    Sigma = R_v * wp.diag(wp.cw_mul(s, s)) * wp.transpose(R_v)
+    R_v, s, Sigma = view_covariance(cam.R, quats[k], scales[k])
     mz = wp.float64(mv[2])
     if not (mz - k64 * wp.sqrt(Sigma[2, 2]) > wp.float64(settings.near)):
         return

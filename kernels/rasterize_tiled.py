@@ -66,18 +66,17 @@ def warp_rows_mask(conic: wp.vec3, centre: wp.vec2, tile: int, cam: CameraParams
     gamma = wp.float64(conic[2])
     if not (a > wp.float64(0.0)):
         return 0xFF
-    ty = tile / settings.tiles_x
-    tx = tile - ty * settings.tiles_x
+    origin = _block_pixel(tile, 0, settings)  # the tile's first pixel
     fx = wp.float64(cam.fx)
     fy = wp.float64(cam.fy)
     cu = wp.float64(centre[0])
     cv = wp.float64(centre[1])
-    u0 = (wp.float64(tx * TILE_SIZE) + wp.float64(0.5) - wp.float64(cam.cx)) / fx - cu
-    u1 = (wp.float64(tx * TILE_SIZE + TILE_SIZE - 1) + wp.float64(0.5) - wp.float64(cam.cx)) / fx - cu
+    u0 = (wp.float64(origin[0]) + wp.float64(0.5) - wp.float64(cam.cx)) / fx - cu
+    u1 = (wp.float64(origin[0] + TILE_SIZE - 1) + wp.float64(0.5) - wp.float64(cam.cx)) / fx - cu
     limit = wp.float64(1.0) + wp.float64(WARP_ROWS_SLACK)
     mask = int(0)
     for row in range(TILE_SIZE):
-        dv = (wp.float64(ty * TILE_SIZE + row) + wp.float64(0.5) - wp.float64(cam.cy)) / fy - cv
+        dv = (wp.float64(origin[1] + row) + wp.float64(0.5) - wp.float64(cam.cy)) / fy - cv
         t = wp.clamp(-beta * dv, u0, u1) + beta * dv
         if a * t * t + gamma * dv * dv <= limit:
             mask = mask | (1 << (row / 2))
