@@ -56,6 +56,12 @@ def main() -> None:
     ap.add_argument("--parts", default="render,loss,appearance,adam")
     ap.add_argument("--cprofile", type=int, default=0, help="print the N functions of most host time in each part")
     ap.add_argument("--kernels", type=int, default=0, help="print the N CUDA kernels of most GPU time in each part")
+    ap.add_argument("--cudnn-benchmark", action="store_true",
+                    help="cuDNN times its algorithms (torch.backends.cudnn.benchmark), as a training run sets it")
+    ap.add_argument("--no-tf32", action="store_true",
+                    help="cuDNN's convolutions in float32 proper (torch.backends.cudnn.allow_tf32 = False)")
+    ap.add_argument("--loss-modes", default="off,on,graphs",
+                    help="the loss parts' modes: eager (off), compiled (on), compiled as CUDA graphs (graphs)")
     ap.add_argument("--autotune", action="store_true",
                     help="also the loss with the appearance compiled with mode='max-autotune' (Triton convolution "
                          "templates benchmarked against cuDNN, and CUDA graphs)")
@@ -72,6 +78,8 @@ def main() -> None:
     from gof_warp.render import render
 
     wp.config.quiet = True
+    torch.backends.cudnn.benchmark = args.cudnn_benchmark
+    torch.backends.cudnn.allow_tf32 = not args.no_tf32
     dev = torch.device("cuda")
     H, W = args.height, args.width
     cam = look_at((3.0, 0.0, 1.0), (0.0, 0.0, 0.0), fx=0.9 * W, width=W, height=H)
@@ -106,7 +114,7 @@ def main() -> None:
         gt = torch.rand(H, W, 3, generator=rng).to(dev)
         cfg = LossConfig(regularization_from_iter=0)
         for appearance in (None, AppearanceModel(1).to(dev)):
-            for mode in ("off", "on", "graphs"):
+            for mode in args.loss_modes.split(","):
                 loss = TrainingLoss(cfg, [cam], dev, "on" if mode == "graphs" else mode, cuda_graphs=mode == "graphs",
                                     appearance=appearance)
 
@@ -133,10 +141,12 @@ def main() -> None:
 
     if "appearance" in wanted:  # the network alone, eager
         rgb = torch.rand(3, H, W, generator=rng).to(dev).requires_grad_(True)
-        for variant in ("default", "channels_last"):
+        for variant in ("default", "channels_last", "tail_channels_last"):
             model = AppearanceModel(64).to(dev)
             if variant == "channels_last":
                 model = model.to(memory_format=torch.channels_last)
+            if variant == "tail_channels_last":  # the two full-resolution layers only
+                model = AppearanceModel(64, tail_channels_last=True).to(dev)
 
             def appearance_part(model=model):
                 model.apply(rgb, 3).sum().backward()
@@ -161,6 +171,7 @@ def main() -> None:
     end.synchronize()
     sleep_ms = start.elapsed_time(end)
     results = {"sleep_ms": round(sleep_ms, 1), "device": torch.cuda.get_device_name(), "torch": torch.__version__,
+               "cudnn_benchmark": args.cudnn_benchmark, "cudnn_tf32": not args.no_tf32,
                "warp": wp.config.version,
                "gaussians": args.gaussians, "image": [W, H], "calls": args.calls, "reps": args.reps, "parts": {}}
     for name, fn in parts.items():
