@@ -26,12 +26,9 @@ class AppearanceModel(nn.Module):
     Args:
         num_images: how many images get an embedding (index = the image's position in the scene).
         embedding_dim: length of each embedding (GOF: 64).
-        tail_channels_last: keep the two full-resolution layers' activations and weights channels-last (NHWC), the
-            layout cuDNN's tensor-core kernels work in, instead of converting them there and back at each layer. Same
-            arithmetic.
     """
 
-    def __init__(self, num_images: int, embedding_dim: int = 64, tail_channels_last: bool = False):
+    def __init__(self, num_images: int, embedding_dim: int = 64):
         super().__init__()
         self.embedding = nn.Embedding(num_images, embedding_dim)
         nn.init.normal_(self.embedding.weight, 0.0, 1e-4)
@@ -40,10 +37,6 @@ class AppearanceModel(nn.Module):
         self.ups = nn.ModuleList(nn.Conv2d(c // 4, c // 2, 3, padding=1) for c in chans[:-1])
         self.conv = nn.Conv2d(16, 16, 3, padding=1)
         self.out = nn.Conv2d(16, 3, 3, padding=1)
-        self.tail_channels_last = bool(tail_channels_last)
-        if self.tail_channels_last:
-            self.conv.to(memory_format=torch.channels_last)
-            self.out.to(memory_format=torch.channels_last)
 
     @staticmethod
     def crop(image: torch.Tensor) -> torch.Tensor:
@@ -73,8 +66,6 @@ class AppearanceModel(nn.Module):
         for conv in self.ups:
             x = F.relu(conv(F.pixel_shuffle(x, 2)))
         x = F.interpolate(x, size=(h, w), mode="bilinear", align_corners=True)
-        if self.tail_channels_last:
-            x = x.contiguous(memory_format=torch.channels_last)
         x = F.relu(self.conv(x))
         return torch.sigmoid(self.out(x))[0]
 

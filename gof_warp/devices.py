@@ -54,21 +54,15 @@ def resolve_device(device=None, like=None) -> str:
 
 
 @contextlib.contextmanager
-def cudnn_benchmark(on: bool = True, tf32: bool | None = None):
+def cudnn_benchmark(on: bool = True):
     """Within the block, cuDNN times its algorithms for each new convolution shape (``torch.backends.cudnn.benchmark``)
-    when ``on``, and with ``tf32`` set its convolutions may (True) or may not (False) round float32 inputs to TF32
-    (``torch.backends.cudnn.allow_tf32``; None leaves it as it is). The previous settings are restored after the block
-    (``on=False`` leaves the benchmark setting as it is)."""
+    when ``on``; the previous setting is restored after it (``on=False`` leaves the setting as it is)."""
     before = torch.backends.cudnn.benchmark
-    tf32_before = torch.backends.cudnn.allow_tf32
     torch.backends.cudnn.benchmark = before or bool(on)
-    if tf32 is not None:
-        torch.backends.cudnn.allow_tf32 = bool(tf32)
     try:
         yield
     finally:
         torch.backends.cudnn.benchmark = before
-        torch.backends.cudnn.allow_tf32 = tf32_before
 
 
 def warp_device(device) -> str:

@@ -132,11 +132,6 @@ class TrainConfig:
     # kernel for the two full-resolution layers' weight gradients: 0.53 ms of the 11.1 ms DTU step on an H100, 0.08 ms
     # with it, 0.24 ms less in all (benchmarks/train/README.md, session 25). The setting is restored when training ends
     cudnn_benchmark: bool = True
-    # cuDNN's convolutions (the appearance network's) in float32 proper (False) or with inputs rounded to TF32 (True,
-    # torch's default). Set around training as cudnn_benchmark is, and restored when training ends
-    cudnn_tf32: bool = True
-    # the appearance network's two full-resolution layers channels-last (AppearanceModel.tail_channels_last)
-    appearance_tail_channels_last: bool = False
     # render each training view on a random background colour (3DGS's --random_background) instead of the scene's:
     # a surface can then no longer stay partly transparent with brighter colours over the fixed background, which
     # the photometric loss cannot tell apart on opaque photos and which the opacity field turns into holes and
@@ -267,8 +262,7 @@ class Trainer:
         self.appearance = None
         self.appearance_optimizer = None
         if config.appearance:
-            self.appearance = AppearanceModel(len(scene.all_views),
-                                              tail_channels_last=config.appearance_tail_channels_last).to(self.device)
+            self.appearance = AppearanceModel(len(scene.all_views)).to(self.device)
             self.appearance_optimizer = torch.optim.Adam([
                 {"params": self.appearance.embedding.parameters(), "lr": config.optim.appearance_embedding_lr},
                 {"params": [p for n, p in self.appearance.named_parameters() if not n.startswith("embedding")],
@@ -527,8 +521,7 @@ class Trainer:
         cfg = self.config
         if self.ranks.is_main:
             self._write_static_files()
-        # the warm-up records the loss graphs: it chooses the algorithms
-        with cudnn_benchmark(cfg.cudnn_benchmark, tf32=cfg.cudnn_tf32):
+        with cudnn_benchmark(cfg.cudnn_benchmark):  # the warm-up records the loss graphs: it chooses the algorithms
             if self.iteration < cfg.iterations:
                 self._warm_up()
             with deferred_interrupt() as interrupted:

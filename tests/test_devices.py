@@ -78,24 +78,3 @@ def test_cudnn_benchmark_is_set_inside_and_restored_after():
         assert torch.backends.cudnn.benchmark is True
     finally:
         torch.backends.cudnn.benchmark = before
-
-
-def test_cudnn_tf32_is_set_inside_and_restored_after():
-    """``cudnn_benchmark(..., tf32=)`` sets cuDNN's TF32 switch for the block only (restored on errors too); the
-    default ``tf32=None`` leaves it as the caller had it."""
-    cudnn_benchmark = devices.cudnn_benchmark
-    before = torch.backends.cudnn.allow_tf32
-    try:
-        torch.backends.cudnn.allow_tf32 = True
-        with cudnn_benchmark(False, tf32=False):
-            assert torch.backends.cudnn.allow_tf32 is False
-        assert torch.backends.cudnn.allow_tf32 is True
-        with cudnn_benchmark(True):
-            assert torch.backends.cudnn.allow_tf32 is True
-        torch.backends.cudnn.allow_tf32 = False
-        with pytest.raises(RuntimeError), cudnn_benchmark(False, tf32=True):
-            assert torch.backends.cudnn.allow_tf32 is True
-            raise RuntimeError("restored on errors too")
-        assert torch.backends.cudnn.allow_tf32 is False
-    finally:
-        torch.backends.cudnn.allow_tf32 = before

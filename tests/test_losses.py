@@ -390,29 +390,3 @@ def test_auto_compiles_only_long_runs_on_cuda():
     assert compile_mode(TrainConfig(iterations=long_run, compile_loss="off")) == "off"
     # "auto" on the CPU: eager, nothing compiled
     assert TrainingLoss(LossConfig(), [_camera()], "cpu", mode=compile_mode(TrainConfig(iterations=long_run))).compiled is None
-
-
-def test_appearance_tail_channels_last_is_the_same_network():
-    """``AppearanceModel(tail_channels_last=True)`` keeps its two full-resolution layers channels-last and computes
-    the same gain and gradients (render, embedding, every weight) as the default layout, in float64."""
-    from gof_warp.appearance import AppearanceModel
-
-    torch.manual_seed(4)
-    ref = AppearanceModel(3).double()
-    torch.nn.init.normal_(ref.embedding.weight, 0.0, 0.5)
-    nhwc = AppearanceModel(3, tail_channels_last=True).double()
-    nhwc.load_state_dict(ref.state_dict())
-    assert nhwc.conv.weight.is_contiguous(memory_format=torch.channels_last)
-    assert not ref.conv.weight.is_contiguous(memory_format=torch.channels_last)
-    render = torch.rand(3, 70, 100, dtype=torch.float64)
-    results = []
-    for model in (ref, nhwc):
-        x = render.clone().requires_grad_(True)
-        gain = model.apply(x, 1)
-        (gain * torch.linspace(-1.0, 1.0, gain.numel(), dtype=torch.float64).reshape(gain.shape)).sum().backward()
-        results.append((gain.detach(), x.grad, {n: p.grad for n, p in model.named_parameters()}))
-    (g0, x0, p0), (g1, x1, p1) = results
-    assert torch.allclose(g1, g0, rtol=1e-12, atol=1e-14)
-    assert torch.allclose(x1, x0, rtol=1e-10, atol=1e-14)
-    for name, grad in p0.items():
-        assert torch.allclose(p1[name], grad, rtol=1e-10, atol=1e-14), name

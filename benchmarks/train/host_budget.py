@@ -141,12 +141,10 @@ def main() -> None:
 
     if "appearance" in wanted:  # the network alone, eager
         rgb = torch.rand(3, H, W, generator=rng).to(dev).requires_grad_(True)
-        for variant in ("default", "channels_last", "tail_channels_last"):
+        for variant in ("default", "channels_last"):
             model = AppearanceModel(64).to(dev)
             if variant == "channels_last":
                 model = model.to(memory_format=torch.channels_last)
-            if variant == "tail_channels_last":  # the two full-resolution layers only
-                model = AppearanceModel(64, tail_channels_last=True).to(dev)
 
             def appearance_part(model=model):
                 model.apply(rgb, 3).sum().backward()

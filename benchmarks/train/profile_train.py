@@ -71,8 +71,6 @@ def _cudnn_setting(cfg):
         from gof_warp.devices import cudnn_benchmark
     except ImportError:
         return contextlib.nullcontext()
-    if hasattr(cfg, "cudnn_tf32"):
-        return cudnn_benchmark(getattr(cfg, "cudnn_benchmark", False), tf32=cfg.cudnn_tf32)
     return cudnn_benchmark(getattr(cfg, "cudnn_benchmark", False))
 
 
