@@ -30,6 +30,8 @@ column is read and written when present.
 
 from __future__ import annotations
 
+import dataclasses
+import logging
 import math
 
 import numpy as np
@@ -37,6 +39,8 @@ import torch
 
 from .errors import ModelError, PlyError
 from .ply import read_ply_vertices, write_ply_vertices
+
+log = logging.getLogger(__name__)
 
 SH_C0 = 0.28209479177387814
 PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
@@ -65,6 +69,88 @@ def _default_device():
     from .devices import resolve_device
 
     return resolve_device()
+
+
+def activate_rotations(quats: torch.Tensor) -> torch.Tensor:
+    """``[N, 4]`` unit quaternions (wxyz) from the raw ``[N, 4]`` ones."""
+    return torch.nn.functional.normalize(quats, dim=1)
+
+
+def activate_scales(log_scales: torch.Tensor, filter_3d: torch.Tensor | None) -> torch.Tensor:
+    """``[N, 3]`` standard deviations ``exp(log_scales)``, filtered ``√(s² + φ²)`` when ``filter_3d`` ``[N]`` is set."""
+    s = torch.exp(log_scales)
+    if filter_3d is None:
+        return s
+    return torch.sqrt(s * s + filter_3d[:, None] ** 2)
+
+
+def activate_opacities(opacity_logits: torch.Tensor, log_scales: torch.Tensor,
+                       filter_3d: torch.Tensor | None) -> torch.Tensor:
+    """``[N]`` opacities ``sigmoid(opacity_logits)``, times the 3D filter's energy compensation
+    ``√(Π s² / Π (s² + φ²))`` when ``filter_3d`` ``[N]`` is set."""
+    o = torch.sigmoid(opacity_logits)
+    if filter_3d is None:
+        return o
+    s2 = torch.exp(log_scales) ** 2
+    f2 = s2 + filter_3d[:, None] ** 2
+    # products written out: torch.prod's backward reads a zero count back to the host (a GPU sync)
+    ratio = (s2[:, 0] * s2[:, 1] * s2[:, 2]) / (f2[:, 0] * f2[:, 1] * f2[:, 2])
+    return o * torch.sqrt(ratio)
+
+
+def activate(quats: torch.Tensor, log_scales: torch.Tensor, opacity_logits: torch.Tensor,
+             filter_3d: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(rotations [N, 4], scales [N, 3], opacities [N])`` from the raw parameters: what
+    :attr:`Gaussians.rotations`, :attr:`Gaussians.scales` and :attr:`Gaussians.opacities` compute, in that order
+    (eager, the same operations and so the same bits and gradients)."""
+    return (activate_rotations(quats), activate_scales(log_scales, filter_3d),
+            activate_opacities(opacity_logits, log_scales, filter_3d))
+
+
+@dataclasses.dataclass(frozen=True)
+class ActivatedGaussians:
+    """A model's activated parameters for one render (:meth:`Gaussians.activated`); the attributes
+    :func:`~gof_warp.render.render` reads."""
+
+    means: torch.Tensor  # [N, 3]
+    rotations: torch.Tensor  # [N, 4] unit wxyz
+    scales: torch.Tensor  # [N, 3]
+    opacities: torch.Tensor  # [N]
+    sh_dc: torch.Tensor  # [N, 3]
+    sh_rest: torch.Tensor  # [N, K-1, 3]
+    active_sh_degree: int
+
+
+class Activation:
+    """:func:`activate`, compiled with ``torch.compile`` when ``compiled`` (one fused kernel forward and one backward
+    instead of ~40 small elementwise ones over the Gaussians, with dynamic ``N``, so densification does not recompile),
+    else eager. Unless ``strict``, a compiler failure in the forward falls back to eager with a warning; one in the
+    backward is the caller's to catch (:meth:`give_up`). ``backend``: ``torch.compile``'s (tests use ``"aot_eager"``,
+    which needs no C++ or Triton compiler)."""
+
+    def __init__(self, compiled: bool, strict: bool = False, backend="inductor"):
+        self.compiled, self.strict = bool(compiled), bool(strict)
+        self.fn = (torch.compile(activate, dynamic=True, fullgraph=True, backend=backend) if self.compiled
+                   else activate)
+        self.fallback_reason: str | None = None
+
+    def __call__(self, quats, log_scales, opacity_logits, filter_3d):
+        if not self.compiled:
+            return activate(quats, log_scales, opacity_logits, filter_3d)
+        try:
+            return self.fn(quats, log_scales, opacity_logits, filter_3d)
+        except Exception as e:  # noqa: BLE001 - any compiler failure: the eager function computes the same
+            if self.strict:
+                raise
+            self.give_up(e)
+            return activate(quats, log_scales, opacity_logits, filter_3d)
+
+    def give_up(self, error: Exception) -> None:
+        """Eager from now on, keeping why (a warning)."""
+        if self.compiled:
+            self.fallback_reason = f"{type(error).__name__}: {' '.join(str(error).split())[:400]}"
+            log.warning("torch.compile of the activations failed (%s); using the eager ones", self.fallback_reason)
+        self.compiled, self.fn = False, activate
 
 
 class Gaussians:
@@ -171,7 +257,7 @@ class Gaussians:
     @property
     def rotations(self) -> torch.Tensor:
         """[N, 4] unit quaternions (wxyz)."""
-        return torch.nn.functional.normalize(self.quats, dim=1)
+        return activate_rotations(self.quats)
 
     @property
     def raw_scales(self) -> torch.Tensor:
@@ -186,22 +272,21 @@ class Gaussians:
     @property
     def scales(self) -> torch.Tensor:
         """[N, 3] standard deviations, with the 3D filter when one is set."""
-        s = self.raw_scales
-        if self.filter_3d is None:
-            return s
-        return torch.sqrt(s * s + self.filter_3d[:, None] ** 2)
+        return activate_scales(self.log_scales, self.filter_3d)
 
     @property
     def opacities(self) -> torch.Tensor:
         """[N] opacities, with the 3D filter's energy compensation when one is set."""
-        o = self.raw_opacities
-        if self.filter_3d is None:
-            return o
-        s2 = self.raw_scales ** 2
-        f2 = s2 + self.filter_3d[:, None] ** 2
-        # products written out: torch.prod's backward reads a zero count back to the host (a GPU sync)
-        ratio = (s2[:, 0] * s2[:, 1] * s2[:, 2]) / (f2[:, 0] * f2[:, 1] * f2[:, 2])
-        return o * torch.sqrt(ratio)
+        return activate_opacities(self.opacity_logits, self.log_scales, self.filter_3d)
+
+    def activated(self, fn=None) -> "ActivatedGaussians":
+        """The model as :func:`~gof_warp.render.render` reads it, its activations made by one call of ``fn``
+        (default :func:`activate`, the properties' arithmetic; the trainer passes an :class:`Activation`, compiled on
+        CUDA). Gradients reach the raw parameters as through the properties."""
+        rotations, scales, opacities = (fn or activate)(self.quats, self.log_scales, self.opacity_logits,
+                                                        self.filter_3d)
+        return ActivatedGaussians(self.means, rotations, scales, opacities, self.sh_dc, self.sh_rest,
+                                  self.active_sh_degree)
 
     @property
     def sh(self) -> torch.Tensor:

@@ -49,7 +49,7 @@ from .kernels.binning import TileListSizer
 from .loss_monitor import LossSpikeMonitor
 from .losses import COMPILE_MODES, LossConfig, TrainingLoss
 from .metrics import image_metrics, psnr
-from .model import Gaussians
+from .model import Activation, Gaussians
 from .multiview import MultiViewTerm
 from .near_camera import (in_front_of_cameras, near_camera_bounds, near_camera_census, near_ray_census,
                           stack_cameras)
@@ -119,8 +119,9 @@ class TrainConfig:
     # AUTO_COMPILE_MIN_ITERATIONS iterations and falls back to the eager loss if compiling fails; "on"; "off". With the
     # renderer's kernels faster the DTU step is host-bound, and the compiled loss (a few fused kernels instead of ~130
     # launches) took a 30k DTU run on an H100 from 505 to 426 s for ~15 s of compiling (benchmarks/train/README.md,
-    # session 21); short runs would spend more on compiling than they save. YAML reads a bare on/off as true/false:
-    # those are taken as "on"/"off"
+    # session 21); short runs would spend more on compiling than they save. Where the loss is compiled on CUDA, the
+    # Gaussians' activations are too (model.Activation: DTU 30k on an H100 331.2 → 315.8 s together with the SH colour
+    # backward's branch-free basis, session 35). YAML reads a bare on/off as true/false: those are taken as "on"/"off"
     compile_loss: str | bool = "auto"
     # a compiled loss on CUDA is replayed as CUDA graphs (torch.compile's "reduce-overhead": the loss and the appearance
     # network forward and backward, one launch each instead of ~100 kernels issued by the host). On a DTU model at
@@ -276,6 +277,10 @@ class Trainer:
                                         compile_backend="inductor" if self.loss.compiled is not None else None,
                                         views_per_step=self.views_per_step)
                           if config.loss.multiview.on else None)
+        # the Gaussians' activations (normalised quaternions, filtered scales and opacities: ~40 elementwise kernels
+        # over N forward and backward, eager) as one compiled kernel each way wherever the loss is compiled (CUDA)
+        self.activation = Activation(self.loss.compiled is not None and self.device.type == "cuda",
+                                     strict=self.loss.mode != "auto")
         if self.multiview is not None and self.ranks.active:
             log.warning("loss.multiview with %d processes: each tests occlusion against the depths of the views it "
                         "rendered, so the run is not the one-process run's up to summation order", self.ranks.world)
@@ -371,8 +376,8 @@ class Trainer:
         if self.config.random_background:
             render_config, gt = self._random_background(idx, loss_it, gt)
         with _stage("train.render"):
-            out = render(self.gaussians, cam, config=render_config, stats=stats, tile_lists=self.tile_lists,
-                         scratch=self.render_scratch)
+            out = render(self.gaussians.activated(self.activation), cam, config=render_config, stats=stats,
+                         tile_lists=self.tile_lists, scratch=self.render_scratch)
         with _stage("train.loss"):
             loss, terms = self.loss(out, gt, cam, idx, loss_it)
             if self.multiview is not None:
@@ -551,6 +556,8 @@ class Trainer:
             # calls, exact measurements, overflows (renders that dropped entries: see kernels.binning.TileListSizer)
             "tile_lists": None if self.tile_lists is None else self.tile_lists.stats(),
             "loss_compiled": self.loss.compiled is not None, "loss_compile_fallback": self.loss.fallback_reason,
+            "activations_compiled": self.activation.compiled,
+            "activations_compile_fallback": self.activation.fallback_reason,
             "init": self.init_info,
             "snapshots": self.snapshots,
             "history": self.history,
@@ -591,6 +598,7 @@ class Trainer:
                 if self.loss.compiled is None or self.loss.mode != "auto":
                     raise
                 self.loss.give_up(e)
+                self.activation.give_up(e)  # compiled with the loss: its backward, built here too, may be what failed
                 if self.multiview is not None:  # its backward, compiled at the same call, may be what failed
                     self.multiview.give_up(e)
                 self._clear_gradients()

@@ -97,7 +97,13 @@ def sh_to_color(sh_dc: wp.array(dtype=wp.vec3), sh_rest: wp.array2d(dtype=wp.vec
 @wp.func
 def sh_basis(j: int, d: wp.vec3) -> wp.vec4:
     """The real SH basis function ``j`` (0–15, 3DGS's order, constants and signs, as :func:`sh_to_color` applies them)
-    at the unit direction ``d = (x, y, z)``, with its gradient: ``(∂b/∂x, ∂b/∂y, ∂b/∂z, b)``."""
+    at the unit direction ``d = (x, y, z)``, with its gradient: ``(∂b/∂x, ∂b/∂y, ∂b/∂z, b)``.
+
+    Branch-free: all 16 closed forms are evaluated and ``j``'s is kept. The 16 CUDA lanes of a Gaussian in
+    :func:`~.project.sh_colour_backward` ask for 16 different ``j``; with a branch per function each warp would run
+    all 16 branches in turn, each with its divergence bookkeeping, whereas these selects run once for all lanes (the
+    compiler makes them predicated multiplies and shares the common products). Selecting adds no rounding: the result
+    is the closed form's float32 value."""
     x = d[0]
     y = d[1]
     z = d[2]
@@ -105,37 +111,26 @@ def sh_basis(j: int, d: wp.vec3) -> wp.vec4:
     yy = y * y
     zz = z * z
     r = wp.vec4(0.0, 0.0, 0.0, SH_C0)
-    if j == 1:
-        r = wp.vec4(0.0, -SH_C1, 0.0, -SH_C1 * y)
-    elif j == 2:
-        r = wp.vec4(0.0, 0.0, SH_C1, SH_C1 * z)
-    elif j == 3:
-        r = wp.vec4(-SH_C1, 0.0, 0.0, -SH_C1 * x)
-    elif j == 4:
-        r = SH_C2_0 * wp.vec4(y, x, 0.0, x * y)
-    elif j == 5:
-        r = SH_C2_1 * wp.vec4(0.0, z, y, y * z)
-    elif j == 6:
-        r = SH_C2_2 * wp.vec4(-2.0 * x, -2.0 * y, 4.0 * z, 2.0 * zz - xx - yy)
-    elif j == 7:
-        r = SH_C2_3 * wp.vec4(z, 0.0, x, x * z)
-    elif j == 8:
-        r = SH_C2_4 * wp.vec4(2.0 * x, -2.0 * y, 0.0, xx - yy)
-    elif j == 9:
-        r = SH_C3_0 * wp.vec4(6.0 * x * y, 3.0 * xx - 3.0 * yy, 0.0, y * (3.0 * xx - yy))
-    elif j == 10:
-        r = SH_C3_1 * wp.vec4(y * z, x * z, x * y, x * y * z)
-    elif j == 11:
-        r = SH_C3_2 * wp.vec4(-2.0 * x * y, 4.0 * zz - xx - 3.0 * yy, 8.0 * y * z, y * (4.0 * zz - xx - yy))
-    elif j == 12:
-        w = 2.0 * zz - 3.0 * xx - 3.0 * yy
-        r = SH_C3_3 * wp.vec4(-6.0 * x * z, -6.0 * y * z, w + 4.0 * zz, z * w)
-    elif j == 13:
-        r = SH_C3_4 * wp.vec4(4.0 * zz - 3.0 * xx - yy, -2.0 * x * y, 8.0 * x * z, x * (4.0 * zz - xx - yy))
-    elif j == 14:
-        r = SH_C3_5 * wp.vec4(2.0 * x * z, -2.0 * y * z, xx - yy, z * (xx - yy))
-    elif j == 15:
-        r = SH_C3_6 * wp.vec4(3.0 * xx - 3.0 * yy, -6.0 * x * y, 0.0, x * (xx - 3.0 * yy))
+    r = wp.where(j == 1, wp.vec4(0.0, -SH_C1, 0.0, -SH_C1 * y), r)
+    r = wp.where(j == 2, wp.vec4(0.0, 0.0, SH_C1, SH_C1 * z), r)
+    r = wp.where(j == 3, wp.vec4(-SH_C1, 0.0, 0.0, -SH_C1 * x), r)
+    r = wp.where(j == 4, SH_C2_0 * wp.vec4(y, x, 0.0, x * y), r)
+    r = wp.where(j == 5, SH_C2_1 * wp.vec4(0.0, z, y, y * z), r)
+    r = wp.where(j == 6, SH_C2_2 * wp.vec4(-2.0 * x, -2.0 * y, 4.0 * z, 2.0 * zz - xx - yy), r)
+    r = wp.where(j == 7, SH_C2_3 * wp.vec4(z, 0.0, x, x * z), r)
+    r = wp.where(j == 8, SH_C2_4 * wp.vec4(2.0 * x, -2.0 * y, 0.0, xx - yy), r)
+    r = wp.where(j == 9, SH_C3_0 * wp.vec4(6.0 * x * y, 3.0 * xx - 3.0 * yy, 0.0, y * (3.0 * xx - yy)), r)
+    r = wp.where(j == 10, SH_C3_1 * wp.vec4(y * z, x * z, x * y, x * y * z), r)
+    r = wp.where(
+        j == 11, SH_C3_2 * wp.vec4(-2.0 * x * y, 4.0 * zz - xx - 3.0 * yy, 8.0 * y * z, y * (4.0 * zz - xx - yy)), r
+    )
+    w = 2.0 * zz - 3.0 * xx - 3.0 * yy
+    r = wp.where(j == 12, SH_C3_3 * wp.vec4(-6.0 * x * z, -6.0 * y * z, w + 4.0 * zz, z * w), r)
+    r = wp.where(
+        j == 13, SH_C3_4 * wp.vec4(4.0 * zz - 3.0 * xx - yy, -2.0 * x * y, 8.0 * x * z, x * (4.0 * zz - xx - yy)), r
+    )
+    r = wp.where(j == 14, SH_C3_5 * wp.vec4(2.0 * x * z, -2.0 * y * z, xx - yy, z * (xx - yy)), r)
+    r = wp.where(j == 15, SH_C3_6 * wp.vec4(3.0 * xx - 3.0 * yy, -6.0 * x * y, 0.0, x * (xx - 3.0 * yy)), r)
     return r
 
 

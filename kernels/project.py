@@ -150,9 +150,16 @@ def sh_colour_backward(
     ``adj_colour = ∂L/∂colour`` on the channels whose forward ``colour`` is > 0 (the clamp at 0 passes no gradient, as
     the adjoint of ``wp.max``), and adds the view direction's share ``(I − d dᵀ)/‖μ − c‖ · Σ_j ∂SH_j/∂d (sh_j · g)``
     (``d = normalize(μ − c)``) into ``grad_means``. Warp's automatic adjoint of the whole kernel adds the same numbers
-    with one scattered atomic per coefficient and thread per Gaussian."""
+    with one scattered atomic per coefficient and thread per Gaussian.
+
+    On CUDA the 16 lanes of a Gaussian run the same instructions: :func:`~.gaussian_math.sh_basis` selects lane
+    ``j``'s function instead of branching to it (a branch per ``j`` would make every warp run all 16 branches in turn,
+    with their divergence bookkeeping)."""
     tid = wp.tid()
-    k = tid // SH_LANES
+    # tid // 16 in unsigned arithmetic (a launch has fewer than 2³¹ threads): a shift, and k is then known to be
+    # non-negative, which spares the sign fix-ups of a signed floor division and the negative-index wrap of every
+    # array access below (Warp indexes arrays Python-style)
+    k = int(wp.uint32(tid) // wp.uint32(SH_LANES))
     j = tid - k * SH_LANES
     v = means[k] - cam_centre
     length = wp.length(v)

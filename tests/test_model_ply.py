@@ -202,3 +202,83 @@ def test_mesh_ply_written_by_us_reads_back_exactly_in_trimesh_and_refuses_bad_me
         with pytest.raises(PlyError, match=match):
             write_ply_mesh(path, bad_v, bad_f)
     assert path.read_bytes() == before, "a refused mesh leaves the file already there as it was"
+
+
+def _activation_grads(model, fn):
+    """Activated parameters of ``model`` through ``model.activated(fn)`` and the raw parameters' gradients of a fixed
+    weighted sum of them."""
+    for p in model.params.values():
+        p.grad = None
+        p.requires_grad_(True)
+    a = model.activated(fn)
+    weights = [torch.linspace(-1.0, 2.0, t.numel()).reshape(t.shape) for t in (a.rotations, a.scales, a.opacities)]
+    sum(((t * w).sum() for t, w in zip((a.rotations, a.scales, a.opacities), weights))).backward()
+    return (a.rotations.detach(), a.scales.detach(), a.opacities.detach()), {
+        k: p.grad.clone() for k, p in model.params.items() if p.grad is not None}
+
+
+@pytest.mark.parametrize("with_filter", [False, True])
+def test_activated_is_the_properties_bit_for_bit(with_filter):
+    """``Gaussians.activated()`` (the trainer's render input) gives the properties' values, and gradients to the raw
+    parameters equal to reading ``rotations``, ``scales`` and ``opacities`` one by one, bit for bit (same operations in
+    the same order); it passes ``means``, the SH coefficients and the active degree through."""
+    g = _random_gaussians(filter_3d=with_filter)
+    a = g.activated()
+    assert a.means is g.means and a.sh_dc is g.sh_dc and a.sh_rest is g.sh_rest
+    assert a.active_sh_degree == g.active_sh_degree
+    values, grads = _activation_grads(g, None)
+    for p in g.params.values():
+        p.grad = None
+    props = (g.rotations, g.scales, g.opacities)
+    weights = [torch.linspace(-1.0, 2.0, t.numel()).reshape(t.shape) for t in props]
+    sum(((t * w).sum() for t, w in zip(props, weights))).backward()
+    for got, want in zip(values, props):
+        assert torch.equal(got, want.detach())
+    assert set(grads) == {"quats", "log_scales", "opacity_logits"}
+    for k, grad in grads.items():
+        assert torch.equal(grad, g.params[k].grad), k
+
+
+def test_compiled_activation_follows_the_gaussian_count_without_recompiling():
+    """``Activation(compiled=True)`` (``torch.compile`` with dynamic N; backend ``aot_eager`` here) gives the eager
+    activations and gradients for models of different sizes, with and without the 3D filter, compiling one graph for
+    each filter state and none more when densification changes N."""
+    from gof_warp.model import Activation
+
+    torch._dynamo.reset()
+    torch._dynamo.utils.counters.clear()
+    act = Activation(True, strict=True, backend="aot_eager")
+    for n in (40, 57, 91):
+        for with_filter in (True, False):
+            g = _random_gaussians(n=n, seed=n, filter_3d=with_filter)
+            got = _activation_grads(g, act)
+            want = _activation_grads(g, None)
+            for a, b in zip(got[0], want[0]):
+                torch.testing.assert_close(a, b, rtol=1e-6, atol=1e-7)
+            assert set(got[1]) == set(want[1])
+            for k in want[1]:
+                torch.testing.assert_close(got[1][k], want[1][k], rtol=1e-5, atol=1e-7)
+    assert act.compiled and act.fallback_reason is None
+    assert torch._dynamo.utils.counters["stats"]["unique_graphs"] == 2  # filter set / not set; N is symbolic
+
+
+def test_activation_falls_back_to_eager_unless_strict(caplog):
+    """A compiler failure: the non-strict activation warns, says why and computes the eager activations from then on;
+    the strict one raises."""
+    from gof_warp.model import Activation
+
+    def broken(graph, example_inputs):
+        raise RuntimeError("no compiler here")
+
+    torch._dynamo.reset()
+    g = _random_gaussians(filter_3d=True)
+    with pytest.raises(Exception, match="no compiler here"):
+        Activation(True, strict=True, backend=broken)(g.quats, g.log_scales, g.opacity_logits, g.filter_3d)
+    torch._dynamo.reset()
+    act = Activation(True, backend=broken)
+    with caplog.at_level("WARNING"):
+        values, _ = _activation_grads(g, act)
+    assert not act.compiled and "no compiler here" in act.fallback_reason
+    assert "torch.compile of the activations failed" in caplog.text
+    for got, want in zip(values, (g.rotations, g.scales, g.opacities)):
+        assert torch.equal(got, want.detach())

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import warp as wp
 
+from gof_warp.kernels.gaussian_math import sh_basis
 from gof_warp.kernels.project import SH_LANES, preprocess_gaussians, project_frames, sh_colour_backward
 
 N, K = 65, 16  # odd: on CUDA the last warp holds one Gaussian's 16 lanes only
@@ -89,22 +90,54 @@ def test_split_backward_equals_the_automatic_adjoint(degree, device):
     assert np.isfinite(split[0]).all()
 
 
-def _colour64(means, sh, degree, c):
-    """float64 colour of every Gaussian (3DGS's SH basis), as sh_to_color."""
+def _basis64(d):
+    """3DGS's 16 SH basis functions (float64 closed forms, as ``sh_to_color`` applies them) at the rows of ``d [n, 3]``
+    (not normalised here: the gradient tests differentiate them as polynomials); a list of 16 ``[n]`` arrays."""
     from gof_warp.kernels import gaussian_math as gm
 
-    d = means - c
-    d = d / np.linalg.norm(d, axis=1, keepdims=True)
-    x, y, z = d[:, 0:1], d[:, 1:2], d[:, 2:3]
+    x, y, z = d[:, 0], d[:, 1], d[:, 2]
     xx, yy, zz = x * x, y * y, z * z
     C = {n: float(getattr(gm, n)) for n in dir(gm) if n.startswith("SH_C")}
-    basis = [np.full_like(x, C["SH_C0"]), -C["SH_C1"] * y, C["SH_C1"] * z, -C["SH_C1"] * x,
-             C["SH_C2_0"] * x * y, C["SH_C2_1"] * y * z, C["SH_C2_2"] * (2 * zz - xx - yy), C["SH_C2_3"] * x * z,
-             C["SH_C2_4"] * (xx - yy), C["SH_C3_0"] * y * (3 * xx - yy), C["SH_C3_1"] * x * y * z,
-             C["SH_C3_2"] * y * (4 * zz - xx - yy), C["SH_C3_3"] * z * (2 * zz - 3 * xx - 3 * yy),
-             C["SH_C3_4"] * x * (4 * zz - xx - yy), C["SH_C3_5"] * z * (xx - yy), C["SH_C3_6"] * x * (xx - 3 * yy)]
-    col = sum(basis[j] * sh[:, j] for j in range((degree + 1) ** 2)) + 0.5
+    return [np.full_like(x, C["SH_C0"]), -C["SH_C1"] * y, C["SH_C1"] * z, -C["SH_C1"] * x,
+            C["SH_C2_0"] * x * y, C["SH_C2_1"] * y * z, C["SH_C2_2"] * (2 * zz - xx - yy), C["SH_C2_3"] * x * z,
+            C["SH_C2_4"] * (xx - yy), C["SH_C3_0"] * y * (3 * xx - yy), C["SH_C3_1"] * x * y * z,
+            C["SH_C3_2"] * y * (4 * zz - xx - yy), C["SH_C3_3"] * z * (2 * zz - 3 * xx - 3 * yy),
+            C["SH_C3_4"] * x * (4 * zz - xx - yy), C["SH_C3_5"] * z * (xx - yy), C["SH_C3_6"] * x * (xx - 3 * yy)]
+
+
+def _colour64(means, sh, degree, c):
+    """float64 colour of every Gaussian (3DGS's SH basis), as sh_to_color."""
+    d = means - c
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    basis = _basis64(d)
+    col = sum(basis[j][:, None] * sh[:, j] for j in range((degree + 1) ** 2)) + 0.5
     return np.maximum(col, 0.0)
+
+
+@wp.kernel
+def _sh_basis_at(dirs: wp.array(dtype=wp.vec3), out: wp.array2d(dtype=wp.vec4)):
+    """``out[i, j] = sh_basis(j, dirs[i])``; launch ``(n, 16)``."""
+    i, j = wp.tid()
+    out[i, j] = sh_basis(j, dirs[i])
+
+
+def test_sh_basis_against_float64_closed_forms(device):
+    """``sh_basis`` (branch-free: it computes every function and selects ``j``'s) gives each of the 16 functions and
+    its gradient, against the float64 closed forms and their central differences, at random unit directions."""
+    rng = np.random.default_rng(5)
+    d = rng.normal(size=(257, 3))
+    d = (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)
+    out = wp.zeros((len(d), 16), dtype=wp.vec4, device=device)
+    wp.launch(_sh_basis_at, out.shape, inputs=[wp.array(d, dtype=wp.vec3, device=device)], outputs=[out],
+              device=device)
+    got = out.numpy()  # [n, 16, 4]: (∂b/∂x, ∂b/∂y, ∂b/∂z, b)
+    d64, h = d.astype(np.float64), 1e-5
+    value = np.stack(_basis64(d64), axis=1)
+    grad = np.stack([(np.stack(_basis64(d64 + h * e), axis=1) - np.stack(_basis64(d64 - h * e), axis=1)) / (2 * h)
+                     for e in np.eye(3)], axis=-1)  # [n, 16, 3]; exact to ~1e-10 for these cubics
+    # float32 rounding of terms no larger than ~4 stays under 1e-6 (2e-7 seen); a wrong term or sign is off by > 1e-3
+    np.testing.assert_allclose(got[..., 3], value, rtol=0, atol=2e-6)
+    np.testing.assert_allclose(got[..., :3], grad, rtol=0, atol=2e-6)
 
 
 def test_colour_gradient_against_float64_central_differences():
