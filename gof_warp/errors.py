@@ -23,3 +23,9 @@ class PlyError(GofError):
 
 class ModelError(GofError):
     """Gaussian parameters that are not usable (NaN/inf, non-positive scales, wrong shapes)."""
+
+
+def error_summary(error: BaseException, limit: int = 400) -> str:
+    """``"TypeName: message"`` on one line (whitespace runs folded), the message cut to ``limit`` characters: why an
+    optional compiled path fell back, for logs and ``metrics.json``."""
+    return f"{type(error).__name__}: {' '.join(str(error).split())[:limit]}"

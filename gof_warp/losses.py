@@ -32,7 +32,7 @@ import torch
 
 from .appearance import DOWNSAMPLE
 from .camera import Camera
-from .errors import GofError
+from .errors import GofError, error_summary
 from .metrics import ssim
 from .multiview import MultiViewConfig
 
@@ -333,7 +333,7 @@ class TrainingLoss:
 
     def give_up(self, error: Exception) -> None:
         """Use the eager loss from now on (``mode="auto"`` after ``error`` from the compiler), with a warning."""
-        self.fallback_reason = f"{type(error).__name__}: {' '.join(str(error).split())[:400]}"
+        self.fallback_reason = error_summary(error)
         log.warning("torch.compile of the loss failed (%s); using the eager loss", self.fallback_reason)
         self.compiled = self.compiled_appearance = None
         self.cuda_graphs = False

@@ -37,7 +37,7 @@ import math
 import numpy as np
 import torch
 
-from .errors import ModelError, PlyError
+from .errors import ModelError, PlyError, error_summary
 from .ply import read_ply_vertices, write_ply_vertices
 
 log = logging.getLogger(__name__)
@@ -129,16 +129,21 @@ class Activation:
     which needs no C++ or Triton compiler)."""
 
     def __init__(self, compiled: bool, strict: bool = False, backend="inductor"):
-        self.compiled, self.strict = bool(compiled), bool(strict)
-        self.fn = (torch.compile(activate, dynamic=True, fullgraph=True, backend=backend) if self.compiled
-                   else activate)
+        self.strict = bool(strict)
+        self._compiled_fn = (torch.compile(activate, dynamic=True, fullgraph=True, backend=backend) if compiled
+                             else None)
         self.fallback_reason: str | None = None
 
+    @property
+    def compiled(self) -> bool:
+        """Whether calls go through the compiled function (False from the start, or after :meth:`give_up`)."""
+        return self._compiled_fn is not None
+
     def __call__(self, quats, log_scales, opacity_logits, filter_3d):
-        if not self.compiled:
+        if self._compiled_fn is None:
             return activate(quats, log_scales, opacity_logits, filter_3d)
         try:
-            return self.fn(quats, log_scales, opacity_logits, filter_3d)
+            return self._compiled_fn(quats, log_scales, opacity_logits, filter_3d)
         except Exception as e:  # noqa: BLE001 - any compiler failure: the eager function computes the same
             if self.strict:
                 raise
@@ -148,9 +153,9 @@ class Activation:
     def give_up(self, error: Exception) -> None:
         """Eager from now on, keeping why (a warning)."""
         if self.compiled:
-            self.fallback_reason = f"{type(error).__name__}: {' '.join(str(error).split())[:400]}"
+            self.fallback_reason = error_summary(error)
             log.warning("torch.compile of the activations failed (%s); using the eager ones", self.fallback_reason)
-        self.compiled, self.fn = False, activate
+        self._compiled_fn = None
 
 
 class Gaussians:

@@ -46,7 +46,7 @@ import numpy as np
 import torch
 
 from .camera import Camera
-from .errors import GofError
+from .errors import GofError, error_summary
 
 log = logging.getLogger(__name__)
 
@@ -398,8 +398,7 @@ class MultiViewTerm:
         failure is caught here; the backward is compiled at the first ``backward()``, so the trainer's warm-up calls
         this when that fails."""
         if self._core is not _loss:
-            log.warning("torch.compile of the multi-view term failed (%s: %s); using it eager", type(error).__name__,
-                        " ".join(str(error).split())[:300])
+            log.warning("torch.compile of the multi-view term failed (%s); using it eager", error_summary(error, 300))
             self._core = _loss
 
     def prime(self) -> None:
