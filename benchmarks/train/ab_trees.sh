@@ -8,7 +8,8 @@
 #   STEP=render  bench_render.py --one N SIZE for each of POINTS ("N:SIZE ...") and each tree of RENDER_TREES
 #   STEP=model   trains the DTU model the profiles use: MODEL_ITERS iterations of the dtu preset (working tree) → $EX/dtu.ply
 #   STEP=profile profile_train.py at each of STARTS on $EX/dtu.ply for each of VARIANTS
-#                ("label:tree[:reduce_min_lanes[:override,override...]]", e.g. "cl:.::compile_loss=on"), REPS times alternating
+#                ("label:tree[:reduce_min_lanes[:override,override...]]", e.g. "cl:.::compile_loss=on"), REPS times alternating;
+#                densification is paused (densify.interval=100000) unless a variant's overrides say otherwise
 #   STEP=model with /tmp/dtugeo/*.part0.npz present (pack_model.py parts of a trained run) unpacks that model instead
 # Writes everything under $OUT/ab/.
 set -u
@@ -51,7 +52,7 @@ print(d['tree'], r['n'], r['size'], 'fwd', round(r['fwd_ms'],2), 'fwd+bwd train'
       [ -n "$overrides" ] && extra+=(${overrides//,/ })
       d=$EX/prof_${label}_${start}_$rep
       run_tree $tree python3 benchmarks/train/profile_train.py $PWD/$DTU --config dtu --ply $EX/dtu.ply --start $start \
-        --iterations 300 --trace 20 --out $d --label $label "${extra[@]}" model.init=random densify.interval=100000 > $d.log 2>&1
+        --iterations 300 --trace 20 --out $d --label $label model.init=random densify.interval=100000 "${extra[@]}" > $d.log 2>&1
       echo "$label start $start rep $rep rc $?: $(grep -E 'wall_ms|busy' $d.log | tr '\n' ' ') bwd $(grep -o '"rasterize_backward[^}]*' $d/profile.json | grep -o 'ms_per_it": [0-9.]*')"
       cp $d/profile.json "$OUT/ab/profile_${label}_${start}_$rep.json" 2>/dev/null || tail -n 20 $d.log
     done; done; done ;;
