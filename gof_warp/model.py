@@ -107,6 +107,19 @@ def activate(quats: torch.Tensor, log_scales: torch.Tensor, opacity_logits: torc
             activate_opacities(opacity_logits, log_scales, filter_3d))
 
 
+def activate_pointwise(quats: torch.Tensor, log_scales: torch.Tensor, opacity_logits: torch.Tensor,
+                       filter_3d: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`activate` with the quaternion's norm written as the root of its four squares and each component divided
+    on its own, for the compiler: without a reduction op in the forward or the backward (``F.normalize``'s norm, and
+    the gradient of a row-broadcast division, are reductions over the 4 components) inductor fuses everything into one
+    pointwise kernel each way instead of a row-reduction kernel (0.24 ms each way for 781k Gaussians on an H100,
+    ``benchmarks/train/README.md``, session 35). Within one float32 rounding of :func:`activate`'s rotations."""
+    q0, q1, q2, q3 = quats.unbind(1)
+    norm = torch.sqrt(q0 * q0 + q1 * q1 + q2 * q2 + q3 * q3).clamp_min(1e-12)  # F.normalize's eps
+    rotations = torch.stack([q0 / norm, q1 / norm, q2 / norm, q3 / norm], dim=1)
+    return rotations, activate_scales(log_scales, filter_3d), activate_opacities(opacity_logits, log_scales, filter_3d)
+
+
 @dataclasses.dataclass(frozen=True)
 class ActivatedGaussians:
     """A model's activated parameters for one render (:meth:`Gaussians.activated`); the attributes
@@ -122,16 +135,16 @@ class ActivatedGaussians:
 
 
 class Activation:
-    """:func:`activate`, compiled with ``torch.compile`` when ``compiled`` (one fused kernel forward and one backward
-    instead of ~40 small elementwise ones over the Gaussians, with dynamic ``N``, so densification does not recompile),
-    else eager. Unless ``strict``, a compiler failure in the forward falls back to eager with a warning; one in the
-    backward is the caller's to catch (:meth:`give_up`). ``backend``: ``torch.compile``'s (tests use ``"aot_eager"``,
-    which needs no C++ or Triton compiler)."""
+    """:func:`activate`, compiled with ``torch.compile`` when ``compiled`` (as :func:`activate_pointwise`: one fused
+    kernel forward and one backward instead of ~40 small elementwise ones over the Gaussians, with dynamic ``N``, so
+    densification does not recompile), else eager. Unless ``strict``, a compiler failure in the forward falls back to
+    eager with a warning; one in the backward is the caller's to catch (:meth:`give_up`). ``backend``:
+    ``torch.compile``'s (tests use ``"aot_eager"``, which needs no C++ or Triton compiler)."""
 
     def __init__(self, compiled: bool, strict: bool = False, backend="inductor"):
         self.strict = bool(strict)
-        self._compiled_fn = (torch.compile(activate, dynamic=True, fullgraph=True, backend=backend) if compiled
-                             else None)
+        self._compiled_fn = (torch.compile(activate_pointwise, dynamic=True, fullgraph=True, backend=backend)
+                             if compiled else None)
         self.fallback_reason: str | None = None
 
     @property

@@ -282,3 +282,36 @@ def test_activation_falls_back_to_eager_unless_strict(caplog):
     assert "torch.compile of the activations failed" in caplog.text
     for got, want in zip(values, (g.rotations, g.scales, g.opacities)):
         assert torch.equal(got, want.detach())
+
+
+def test_pointwise_activation_has_no_reduction_for_the_compiler():
+    """``activate_pointwise`` (what ``Activation`` compiles) traces to forward and backward graphs without a reduction
+    op, so inductor can fuse each into one pointwise kernel (``activate``'s ``F.normalize`` traces to a row reduction:
+    the check below finds it there, so it can fail), and it gives ``activate``'s values to one float32 rounding."""
+    from functorch.compile import make_boxed_func
+    from torch._functorch.aot_autograd import aot_function
+
+    from gof_warp.model import activate, activate_pointwise
+
+    def ops_of(fn, g):
+        seen = []
+
+        def record(gm, _):
+            seen.extend(str(n.target) for n in gm.graph.nodes if n.op == "call_function")
+            return make_boxed_func(gm)
+
+        out = aot_function(fn, fw_compiler=record, bw_compiler=record)(g.quats, g.log_scales, g.opacity_logits,
+                                                                        g.filter_3d)
+        sum(t.sum() for t in out).backward()
+        return seen
+
+    reductions = ("sum", "norm", "amax", "mean", "prod")
+    g = _random_gaussians(filter_3d=True)
+    for p in g.params.values():
+        p.requires_grad_(True)
+    assert any(r in op for op in ops_of(activate, g) for r in reductions)
+    ops = ops_of(activate_pointwise, g)
+    assert ops and not [op for op in ops if any(r in op for r in reductions)]
+    for got, want in zip(activate_pointwise(g.quats, g.log_scales, g.opacity_logits, g.filter_3d),
+                         activate(g.quats, g.log_scales, g.opacity_logits, g.filter_3d)):
+        torch.testing.assert_close(got, want, rtol=3e-7, atol=1e-7)
