@@ -19,10 +19,11 @@ cp /tmp/dc/densify_cost.json $R/ 2>/dev/null
 echo "densify cost at $(( $(date +%s) - t0 )) s:"; tail -n 9 $R/densify_cost.txt; pack
 mkdir -p /tmp/ex1
 timeout 120 python3 -m gof_warp.train .s34data/dtu_scan24 --config dtu --iterations 1000 --out /tmp/ex1/run \
-  --no-pictures --quiet compile_loss=on > $R/model1k.txt 2>&1
+  --no-pictures --quiet > $R/model1k.txt 2>&1
 cp /tmp/ex1/run/point_cloud.ply /tmp/ex1/dtu.ply
 echo "1k model at $(( $(date +%s) - t0 )) s: $(tail -n 1 $R/model1k.txt)"
 EX=/tmp/ex1 STEP=profile STARTS="1000 20000" DTU=.s34data/dtu_scan24 VARIANTS="small:." timeout 150 \
   bash benchmarks/train/ab_trees.sh > $R/profile_small.txt 2>&1
+cp /tmp/ex1/prof_small_1000_1/trace.json.gz $R/trace_small_1000.json.gz 2>/dev/null
 echo "profiles at $(( $(date +%s) - t0 )) s"; grep start $R/profile_small.txt; pack
 rm -rf $OUT/s36b $OUT/ab
