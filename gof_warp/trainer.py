@@ -53,7 +53,7 @@ from .model import Activation, Gaussians
 from .multiview import MultiViewTerm
 from .near_camera import (in_front_of_cameras, near_camera_bounds, near_camera_census, near_ray_census,
                           stack_cameras)
-from .optim import OptimConfig, make_optimizer, update_learning_rate
+from .optim import LeanAdam, OptimConfig, make_optimizer, update_learning_rate
 from .render import DensifyStats, RenderConfig, RenderScratch, render
 from .scene import Scene
 from .step_scalars import IterationScalars, PendingScalars
@@ -264,7 +264,7 @@ class Trainer:
         self.appearance_optimizer = None
         if config.appearance:
             self.appearance = AppearanceModel(len(scene.all_views)).to(self.device)
-            self.appearance_optimizer = torch.optim.Adam([
+            self.appearance_optimizer = LeanAdam([
                 {"params": self.appearance.embedding.parameters(), "lr": config.optim.appearance_embedding_lr},
                 {"params": [p for n, p in self.appearance.named_parameters() if not n.startswith("embedding")],
                  "lr": config.optim.appearance_network_lr},
@@ -311,8 +311,9 @@ class Trainer:
             for k, v in self._render_view(it, idx).items():  # this rank's mean over its views
                 terms[k] = v if k not in terms else terms[k] + v
         terms = terms if len(mine) == 1 else {k: v / len(mine) for k, v in terms.items()}
-        with _stage("train.all_reduce"):
-            self.ranks.sum_gradients(self._trained_params())
+        if self.ranks.active:  # one process: nothing to sum (and no parameter list to build)
+            with _stage("train.all_reduce"):
+                self.ranks.sum_gradients(self._trained_params())
         cam = self.cameras[mine[0]]  # the view the spike monitor files the loss under
         if self.render_scratch is not None and self.densifier.count_may_change(it, hidden=self._hidden is not None):
             self.render_scratch.clear()  # its spares are for this count: freed before the densifier allocates
