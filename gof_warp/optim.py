@@ -35,6 +35,7 @@ from .errors import GofError
 from .model import PARAM_NAMES, Gaussians
 
 ADAM_MOMENTS = ("exp_avg", "exp_avg_sq")
+ADAM_KINDS = ("torch", "warp")
 
 
 @dataclass
@@ -56,6 +57,13 @@ class OptimConfig:
     eps: float = 1e-15
     betas: tuple[float, float] = (0.9, 0.999)
     fused: bool | None = None  # torch's one-kernel Adam; None: on CUDA yes, on the CPU no (the loop version)
+    # the Gaussians' Adam: "torch" (torch's, fused as above) or "warp" (WarpAdam: one Warp kernel a parameter, four
+    # floats a thread; the same formula up to float32 rounding); the appearance network's is always torch's
+    adam: str = "torch"
+
+    def __post_init__(self):
+        if self.adam not in ADAM_KINDS:
+            raise GofError(f"optim.adam must be one of {ADAM_KINDS}, got {self.adam!r}")
 
     def adam_kwargs(self, device) -> dict:
         """``torch.optim.Adam`` keyword arguments for parameters on ``device`` (eps, betas, fused)."""
@@ -128,8 +136,130 @@ class LeanAdam(torch.optim.Adam):
         return None
 
 
+class WarpAdam(torch.optim.Adam):
+    """Adam (torch's formula, no weight decay) whose update of each parameter is one Warp kernel over its memory, four
+    floats a thread (:func:`gof_warp.kernels.adam.adam_step`): parameter, gradient and both moments read once,
+    parameter and moments written once, in 16-byte loads and stores. Its state is torch's unfused ``Adam``'s (``step``
+    a CPU tensor, ``exp_avg``, ``exp_avg_sq``), so :func:`replace_params`, ``state_dict`` and checkpoints treat it and
+    torch's alike and either loads the other's state. Each parameter's launch is recorded once and replayed (only the
+    gradient's address and the two bias corrections change between steps), so a step costs the host one replay per
+    parameter; a new launch is recorded when the parameter or its moments are new tensors (densification).
+
+    Parameters must be contiguous float32 tensors (the Gaussians' are); a parameter without ``.grad`` is skipped, as in
+    torch. On CUDA the kernels run on torch's current stream. Options other than ``lr``, ``betas`` and ``eps`` are
+    torch's defaults and not accepted."""
+
+    def __init__(self, params, lr: float = 1e-3, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8):
+        if not (lr >= 0.0 and math.isfinite(lr)):
+            raise GofError(f"WarpAdam: lr must be a finite number >= 0, got {lr}")
+        if not (eps >= 0.0 and math.isfinite(eps)):
+            raise GofError(f"WarpAdam: eps must be a finite number >= 0, got {eps}")
+        if len(betas) != 2 or not all(0.0 <= b < 1.0 for b in betas):
+            raise GofError(f"WarpAdam: betas must be two numbers in [0, 1), got {betas}")
+        super().__init__(params, lr=lr, betas=tuple(betas), eps=eps, foreach=False, fused=False)
+        import warp as wp
+
+        wp.init()  # idempotent; the arrays below need Warp's runtime
+        self._launches: dict[tuple[int, int], dict] = {}  # (group, position) -> the recorded launch and its arrays
+        self._streams: dict[tuple[int, int], object] = {}  # (device index, stream handle) -> Warp's wrapper
+
+    @torch.no_grad()
+    def step(self, closure=None):
+        """One Adam step of every parameter that has a gradient; ``closure`` (optional) re-evaluates the loss."""
+        loss = None
+        if closure is not None:
+            with torch.enable_grad():
+                loss = closure()
+        for gi, group in enumerate(self.param_groups):
+            beta1, beta2 = group["betas"]
+            for pi, p in enumerate(group["params"]):
+                if p.grad is None:
+                    continue
+                state = self._state_of(p)
+                state["step"] += 1.0
+                t = float(state["step"])
+                cmd = self._launch(gi, pi, p, state, group)
+                cmd.set_param_at_index(6, group["lr"] / (1.0 - beta1**t))  # step_size
+                cmd.set_param_at_index(7, math.sqrt(1.0 - beta2**t))  # sqrt_bc2
+                cmd.launch(self._stream(p.device))
+        return loss
+
+    def _state_of(self, p: torch.Tensor) -> dict:
+        grad = p.grad
+        if p.dtype != torch.float32 or grad.dtype != torch.float32 or grad.is_sparse:
+            raise GofError(f"WarpAdam takes dense float32 parameters and gradients, got {p.dtype} / {grad.dtype}")
+        if not (p.is_contiguous() and grad.is_contiguous()) or grad.shape != p.shape:
+            raise GofError(f"WarpAdam: parameter {list(p.shape)} and its gradient {list(grad.shape)} must be "
+                           "contiguous and of one shape")
+        state = self.state[p]
+        if not state:
+            state["step"] = torch.tensor(0.0)
+            state["exp_avg"] = torch.zeros_like(p, memory_format=torch.contiguous_format)
+            state["exp_avg_sq"] = torch.zeros_like(p, memory_format=torch.contiguous_format)
+        if state["step"].device.type != "cpu":  # torch's fused Adam keeps it on the device: read once here
+            state["step"] = state["step"].detach().to("cpu", torch.float32)
+        if not (state["exp_avg"].is_contiguous() and state["exp_avg_sq"].is_contiguous()):
+            raise GofError("WarpAdam: the Adam moments must be contiguous")
+        return state
+
+    def _launch(self, gi: int, pi: int, p: torch.Tensor, state: dict, group: dict):
+        """The recorded launch of parameter ``pi`` of group ``gi`` with its gradient's address set: recorded anew when
+        the parameter's or its moments' addresses, its size or the group's betas and eps changed. The launch holds
+        addresses, not tensors: the caller's tensors keep the memory alive while it runs."""
+        import warp as wp
+
+        from .kernels.adam import adam_step
+
+        grad = p.grad
+        moments = (state["exp_avg"], state["exp_avg_sq"])
+        n = p.numel()
+        key = (p.data_ptr(), *(t.data_ptr() for t in moments), n, tuple(group["betas"]), group["eps"])
+        entry = self._launches.get((gi, pi))
+        if entry is None or entry["key"] != key:
+            device = "cpu" if p.device.type == "cpu" else f"cuda:{p.device.index or 0}"
+            n4 = n // 4 if all(t.data_ptr() % 16 == 0 for t in (grad, p, *moments)) else 0  # vec4: 16-byte aligned
+            views = [self._views(t, n4, device) for t in (grad, p, *moments)]
+            beta1, beta2 = group["betas"]
+            cmd = wp.launch(adam_step, dim=n4 + (n - 4 * n4), device=device, record_cmd=True,
+                            inputs=[*views[0], n4, float(beta2), 1.0 - beta1, 1.0 - beta2, 0.0, 1.0,
+                                    float(group["eps"])],
+                            outputs=[views[1][0], views[2][0], views[3][0], views[1][1], views[2][1], views[3][1]])
+            entry = self._launches[(gi, pi)] = {"key": key, "cmd": cmd, "n4": n4, "device": device,
+                                                "grad": grad.data_ptr()}
+        elif entry["grad"] != grad.data_ptr():  # a new gradient tensor: only its address changes
+            g4, g1 = self._views(grad, entry["n4"], entry["device"])
+            entry["cmd"].set_param_at_index(0, g4)
+            entry["cmd"].set_param_at_index(1, g1)
+            entry["grad"] = grad.data_ptr()
+        if entry["n4"] and grad.data_ptr() % 16:  # torch allocates gradients aligned; a view of another tensor may not be
+            raise GofError("WarpAdam: a gradient whose memory is not 16-byte aligned (a view into another tensor?)")
+        return entry["cmd"]
+
+    @staticmethod
+    def _views(t: torch.Tensor, n4: int, device: str) -> tuple:
+        """``(vec4 view of the first 4·n4 floats, flat float view)`` of ``t``'s memory (no reference to ``t`` kept)."""
+        import warp as wp
+
+        vec4 = (wp.array(ptr=t.data_ptr(), dtype=wp.vec4, shape=(n4,), device=device) if n4
+                else wp.empty(0, dtype=wp.vec4, device=device))
+        return vec4, wp.array(ptr=t.data_ptr(), dtype=wp.float32, shape=(t.numel(),), device=device)
+
+    def _stream(self, device: torch.device):
+        """Warp's wrapper of torch's current stream on ``device`` (None on the CPU), cached per stream."""
+        if device.type != "cuda":
+            return None
+        import warp as wp
+
+        stream = torch.cuda.current_stream(device)
+        key = (stream.device_index, stream.cuda_stream)
+        if key not in self._streams:
+            self._streams[key] = wp.stream_from_torch(stream)
+        return self._streams[key]
+
+
 def make_optimizer(gaussians: Gaussians, config: OptimConfig, extent: float) -> torch.optim.Adam:
-    """Adam (:class:`LeanAdam`) with one group per raw parameter, each group tagged ``"name"``.
+    """Adam (:class:`LeanAdam`, or :class:`WarpAdam` for ``config.adam = "warp"``) with one group per raw parameter,
+    each group tagged ``"name"``.
 
     Makes the parameters leaf tensors that require grad (``gaussians.requires_grad_(True)``) when they
     are not already. ``extent`` scales the means' rate (see :func:`position_lr`).
@@ -142,6 +272,8 @@ def make_optimizer(gaussians: Gaussians, config: OptimConfig, extent: float) -> 
     for name in PARAM_NAMES:
         lr = position_lr(0, config, extent) if name == "means" else config.param_lr(name)
         groups.append({"params": [gaussians.params[name]], "lr": lr, "name": name})
+    if config.adam == "warp":
+        return WarpAdam(groups, lr=0.0, betas=tuple(config.betas), eps=config.eps)
     return LeanAdam(groups, lr=0.0, **config.adam_kwargs(gaussians.device))
 
 

@@ -4,20 +4,27 @@ The trainer's optimiser is ``torch.optim.Adam(fused=True)`` with one group per p
 traffic per float is at least 28 bytes (read parameter, gradient, both moments; write parameter and both moments).
 This times, for DTU scan 24's final model size by default (776,149 Gaussians, SH degree 3: 59 floats each):
 
-* ``fused``: the trainer's optimiser step (six groups, the means' rate changed every step as the schedule does);
+* ``fused``: torch's fused Adam (six groups, the means' rate changed every step as the schedule does);
+* ``lean``: ``gof_warp.optim.LeanAdam``, the same kernel with less host work (the trainer's default);
+* ``warp``: ``gof_warp.optim.WarpAdam`` (``optim.adam=warp``), one Warp kernel a parameter, four floats a thread;
 * ``foreach``: torch's multi-tensor Adam, for comparison;
 * ``copy``: 12 B a float copied and 4 B more read (28 B of traffic a float, as Adam's), the practical roofline;
 * ``zero_grad``: clearing the gradients (``set_to_none=False``, what a step after it reads).
 
-Usage: ``python benchmarks/train/adam_roofline.py [--gaussians N] [--iters K] [--out FILE.json]``.
+Each optimiser's GPU time per step (CUDA events) and its host time per step (wall time of the calls while the GPU is
+kept busy, the host's own cost). Usage: ``python benchmarks/train/adam_roofline.py [--gaussians N] [--iters K]
+[--out FILE.json]``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import time
 
 import torch
+
+from gof_warp.optim import LeanAdam, WarpAdam
 
 SHAPES = {"means": (3,), "sh_dc": (1, 3), "sh_rest": (15, 3), "opacity_logits": (1,), "log_scales": (3,),
           "quats": (4,)}
@@ -38,6 +45,21 @@ def timed(fn, iters: int) -> float:
     return start.elapsed_time(end) / iters
 
 
+def host_ms(fn, iters: int) -> float:
+    """Mean milliseconds of the host's own time in ``fn``: the calls are timed on the wall clock while a long kernel
+    queued first keeps the GPU busy (so that no call waits for the device)."""
+    big = torch.empty(1 << 28, device="cuda")
+    torch.cuda.synchronize()
+    for _ in range(300):
+        big.mul_(1.0)  # ~0.2 s of queued work ahead of the calls on an H100 (300 of the ~1,000 launches CUDA queues)
+    t = time.perf_counter()
+    for _ in range(iters):
+        fn()
+    host = (time.perf_counter() - t) / iters * 1e3
+    torch.cuda.synchronize()
+    return host
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--gaussians", type=int, default=776_149)
@@ -49,13 +71,17 @@ def main() -> None:
     result = {"gaussians": a.gaussians, "device": torch.cuda.get_device_name(dev), "torch": torch.__version__}
     floats = a.gaussians * sum(torch.Size(s).numel() for s in SHAPES.values())
     result["floats"] = floats
-    for mode in ("fused", "foreach"):
+    for mode in ("fused", "lean", "warp", "foreach"):
         params = [torch.nn.Parameter(torch.randn((a.gaussians, *s), device=dev, generator=gen))
                   for s in SHAPES.values()]
         for p in params:
             p.grad = torch.randn(p.shape, device=dev, generator=gen) * 1e-3
         groups = [{"params": [p], "lr": LR[n], "name": n} for p, n in zip(params, SHAPES)]
-        opt = torch.optim.Adam(groups, eps=1e-15, betas=(0.9, 0.999), **{mode: True})
+        if mode == "warp":
+            opt = WarpAdam(groups, eps=1e-15, betas=(0.9, 0.999))
+        else:
+            cls = LeanAdam if mode == "lean" else torch.optim.Adam
+            opt = cls(groups, eps=1e-15, betas=(0.9, 0.999), **{"fused" if mode == "lean" else mode: True})
         step = [0]
 
         def adam_step():
@@ -64,6 +90,7 @@ def main() -> None:
             opt.step()
 
         result[f"{mode}_ms"] = timed(adam_step, a.iters)
+        result[f"{mode}_host_ms"] = host_ms(adam_step, 50)  # 50 steps: their launches fit CUDA's queue
         if mode == "fused":
             result["zero_grad_ms"] = timed(lambda: opt.zero_grad(set_to_none=False), a.iters)
     src = torch.empty(floats * 4, device=dev, dtype=torch.float32)  # 16 B a float read
@@ -75,7 +102,8 @@ def main() -> None:
 
     result["copy_ms"] = timed(copy, a.iters)
     result["bytes_per_step"] = floats * 28
-    result["fused_GBps"] = result["bytes_per_step"] / result["fused_ms"] / 1e6
+    for mode in ("fused", "lean", "warp"):
+        result[f"{mode}_GBps"] = result["bytes_per_step"] / result[f"{mode}_ms"] / 1e6
     result["copy_GBps"] = result["bytes_per_step"] / result["copy_ms"] / 1e6
     print(json.dumps(result, indent=1))
     if a.out:
