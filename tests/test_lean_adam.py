@@ -3,8 +3,9 @@
 import pytest
 import torch
 
-from gof_warp.model import PARAM_NAMES, Gaussians
-from gof_warp.optim import LeanAdam, OptimConfig, make_optimizer, replace_params
+from _optim_cases import small_gaussians, steps_with_surgery
+from gof_warp.model import PARAM_NAMES
+from gof_warp.optim import LeanAdam, OptimConfig, make_optimizer
 
 
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
@@ -82,35 +83,24 @@ def test_unfused_and_unusual_options_are_torch_adam():
 def test_densification_surgery_and_state_dict_round_trip():
     """Through replace_params (rows removed and appended) and a state-dict round trip the lean optimizer stays
     torch's fused Adam bit for bit."""
-    def model():
-        g = torch.Generator().manual_seed(3)
-        n = 11
-        return Gaussians(means=torch.randn(n, 3, generator=g), quats=torch.randn(n, 4, generator=g),
-                         log_scales=torch.randn(n, 3, generator=g), opacity_logits=torch.randn(n, generator=g),
-                         sh_dc=torch.randn(n, 3, generator=g), sh_rest=torch.randn(n, 15, 3, generator=g))
-
     cfg = OptimConfig(fused=True)
     runs = []
     for lean in (False, True):
-        g = model()
+        g = small_gaussians()
         opt = make_optimizer(g, cfg, extent=2.0)
         if not lean:  # the same groups in torch's own Adam
             opt = torch.optim.Adam(opt.param_groups, lr=0.0, **cfg.adam_kwargs("cpu"))
         assert isinstance(opt, LeanAdam) == lean
-        gen = torch.Generator().manual_seed(5)
-        for i in range(6):
-            for k in PARAM_NAMES:
-                g.params[k].grad = torch.randn(g.params[k].shape, generator=gen)
-            opt.step()
-            if i == 2:
-                keep = torch.ones(len(g), dtype=torch.bool)
-                keep[[1, 4]] = False
-                append = {k: torch.randn((2, *g.params[k].shape[1:]), generator=gen) for k in PARAM_NAMES}
-                replace_params(g, opt, keep=keep, append=append)
+
+        def swap(i, opt, cls=LeanAdam if lean else torch.optim.Adam):
             if i == 4:
                 state = opt.state_dict()
-                opt = (LeanAdam if lean else torch.optim.Adam)(opt.param_groups, lr=0.0, **cfg.adam_kwargs("cpu"))
+                opt = cls(opt.param_groups, lr=0.0, **cfg.adam_kwargs("cpu"))
                 opt.load_state_dict(state)
+                return opt
+            return None
+
+        steps_with_surgery(g, opt, 6, appended=2, swap=swap)
         runs.append(g)
     for k in PARAM_NAMES:
         assert torch.equal(runs[0].params[k], runs[1].params[k]), k

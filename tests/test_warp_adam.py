@@ -5,9 +5,10 @@ import pytest
 import torch
 import warp as wp
 
+from _optim_cases import small_gaussians, steps_with_surgery
 from gof_warp.errors import GofError
-from gof_warp.model import PARAM_NAMES, Gaussians
-from gof_warp.optim import OptimConfig, WarpAdam, make_optimizer, replace_params
+from gof_warp.model import PARAM_NAMES
+from gof_warp.optim import OptimConfig, WarpAdam, make_optimizer
 
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 
@@ -82,32 +83,21 @@ def test_warp_adam_is_torch_adam(device):
 def test_densification_surgery_and_state_dicts_between_warp_and_torch_adam():
     """Through replace_params (rows removed and appended: new tensors, new launches) and state dicts passed from
     WarpAdam to torch's Adam and back, the Gaussians follow torch's Adam within float32 rounding."""
-    def model():
-        g = torch.Generator().manual_seed(3)
-        n = 11
-        return Gaussians(means=torch.randn(n, 3, generator=g), quats=torch.randn(n, 4, generator=g),
-                         log_scales=torch.randn(n, 3, generator=g), opacity_logits=torch.randn(n, generator=g),
-                         sh_dc=torch.randn(n, 3, generator=g), sh_rest=torch.randn(n, 15, 3, generator=g))
-
     runs = []
     for kind in ("torch", "warp"):
-        g = model()
+        g = small_gaussians()
         opt = make_optimizer(g, OptimConfig(adam=kind), extent=2.0)
         assert isinstance(opt, WarpAdam) == (kind == "warp")
-        gen = torch.Generator().manual_seed(5)
-        for i in range(7):
-            for k in PARAM_NAMES:
-                g.params[k].grad = torch.randn(g.params[k].shape, generator=gen)
-            opt.step()
-            if i == 2:
-                keep = torch.ones(len(g), dtype=torch.bool)
-                keep[[1, 4]] = False
-                append = {k: torch.randn((3, *g.params[k].shape[1:]), generator=gen) for k in PARAM_NAMES}
-                replace_params(g, opt, keep=keep, append=append)
-            if i in (3, 5) and kind == "warp":  # to torch's Adam and back to WarpAdam through state dicts
+
+        def swap(i, opt, warp=kind == "warp"):
+            if warp and i in (3, 5):  # to torch's Adam and back to WarpAdam through state dicts
                 state = opt.state_dict()
                 opt = (torch.optim.Adam if i == 3 else WarpAdam)(opt.param_groups, lr=0.0, eps=1e-15)
                 opt.load_state_dict(state)
+                return opt
+            return None
+
+        steps_with_surgery(g, opt, 7, appended=3, swap=swap)
         runs.append(g)
     for k in PARAM_NAMES:
         torch.testing.assert_close(runs[1].params[k], runs[0].params[k], rtol=1e-5, atol=1e-6)
