@@ -8,15 +8,18 @@
 #               the working tree's LeanAdam against optim.adam=warp;
 #   STAGE=runs: DTU scan 24, dtu preset, 30k iterations, start on GPU 0 and the working tree (with $NEW_OVERRIDES)
 #               on GPU 1 at the same time (the same host, the same contention for both).
+#   STAGE=adampair (for the next lease; needs no trees): warp_adam_check.py at DTU's size on GPU 0, then the working
+#               tree's DTU 30k with optim.adam=torch on GPU 0 and optim.adam=warp on GPU 1 at the same time; run it
+#               twice for the two pairs that decide whether optim.adam=warp can be the default.
 # Needs Warp staged, benchmarks/device_setup.sh sourced, /tmp/gofdata/dtu_scan24 (and /tmp/gofdata/s32 for the
 # profile at 20,000). Writes $OUT/s36c_$STAGE.tgz.
 set -u
 R=$OUT/s36c_$STAGE; mkdir -p $R /tmp/hp .s36
 mkdir -p .s34data && ln -sfn /tmp/gofdata/dtu_scan24 .s34data/dtu_scan24
-for t in start pwonly; do ln -sfn /tmp/trees/$t .s36/$t; ln -sfn ../kernels .s36/$t/gof_warp/kernels; \
+for t in start pwonly; do [ -d /tmp/trees/$t ] || continue; ln -sfn /tmp/trees/$t .s36/$t; ln -sfn ../kernels .s36/$t/gof_warp/kernels; \
   ln -sfn ../configs .s36/$t/gof_warp/configs; done
 t0=$(date +%s)
-pack() { cp $R/../ab/*.json $R/ 2>/dev/null; for r in start new; do
+pack() { cp $R/../ab/*.json $R/ 2>/dev/null; for r in start new torch warp; do
            cp /tmp/hp/run_$r/metrics.json $R/dtu_30k_${r}_metrics.json 2>/dev/null; done
          (cd $OUT && tar czf s36c_$STAGE.tgz s36c_$STAGE 2>/dev/null); }
 if [ "$STAGE" = host ]; then
@@ -39,6 +42,16 @@ if [ "$STAGE" = host ]; then
   EX=/tmp/ex0 STEP="model profile" STARTS="20000" DTU=.s34data/dtu_scan24 VARIANTS="lean:. warp:.::optim.adam=warp" \
     timeout 150 bash benchmarks/train/ab_trees.sh > $R/profile_adam.txt 2>&1
   echo "adam profiles at $(( $(date +%s) - t0 )) s"; grep start $R/profile_adam.txt; pack
+elif [ "$STAGE" = adampair ]; then
+  CUDA_VISIBLE_DEVICES=0 timeout 120 python3 benchmarks/train/warp_adam_check.py > $R/warp_adam_check.txt 2>&1
+  echo "check at $(( $(date +%s) - t0 )) s: $(grep worst $R/warp_adam_check.txt)"
+  for a in torch warp; do
+    gpu=0; [ $a = warp ] && gpu=1
+    (CUDA_VISIBLE_DEVICES=$gpu timeout -s INT -k 20 ${TRAIN_S:-480} python3 -m gof_warp.train /tmp/gofdata/dtu_scan24 \
+      --out /tmp/hp/run_$a --quiet optim.adam=$a > $R/dtu_train_$a.log 2>&1; echo "train rc $?" >> $R/dtu_train_$a.log) &
+  done
+  wait
+  for a in torch warp; do grep -E "done|rc" $R/dtu_train_$a.log; done; pack
 else
   (cd .s36/start && CUDA_VISIBLE_DEVICES=0 PYTHONPATH="$PWD:/tmp/site" timeout -s INT -k 20 ${TRAIN_S:-500} \
     python3 -m gof_warp.train /tmp/gofdata/dtu_scan24 --out /tmp/hp/run_start --quiet > $R/dtu_train_start.log 2>&1; \
