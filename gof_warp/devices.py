@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import contextlib
 import resource
+import threading
 
 import torch
 
@@ -69,6 +70,31 @@ def warp_device(device) -> str:
     """Warp's name for a torch device (``"cuda:0"`` / ``"cpu"``)."""
     dev = torch.device(resolve_device(device))
     return "cpu" if dev.type == "cpu" else f"cuda:{dev.index}"
+
+
+class StreamWrappers:
+    """Warp's wrappers of torch's CUDA streams, one per (device, stream handle), made on first use and kept: Warp work
+    launched through :meth:`current` runs on torch's current stream, ordered with torch's own work. One wrapper per
+    handle because a second would unregister the stream when it dies (Warp 1.19 does not count registrations); safe to
+    share between threads (torch runs a CUDA backward on a thread of its own)."""
+
+    def __init__(self):
+        self._streams: dict[tuple[int, int], object] = {}  # (device ordinal, stream handle) -> Warp's wrapper
+        self._lock = threading.Lock()
+
+    def current(self, device: torch.device):
+        """The Warp stream wrapping torch's current stream on the CUDA ``device``."""
+        stream = torch.cuda.current_stream(device)
+        key = (stream.device_index, stream.cuda_stream)
+        wrapper = self._streams.get(key)
+        if wrapper is None:
+            with self._lock:
+                wrapper = self._streams.get(key)
+                if wrapper is None:
+                    import warp as wp
+
+                    wrapper = self._streams[key] = wp.stream_from_torch(stream)
+        return wrapper
 
 
 def is_cuda(device) -> bool:

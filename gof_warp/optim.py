@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import torch
 
+from .devices import StreamWrappers, warp_device
 from .errors import GofError
 from .model import PARAM_NAMES, Gaussians
 
@@ -161,7 +162,7 @@ class WarpAdam(torch.optim.Adam):
 
         wp.init()  # idempotent; the arrays below need Warp's runtime
         self._launches: dict[tuple[int, int], dict] = {}  # (group, position) -> the recorded launch and its arrays
-        self._streams: dict[tuple[int, int], object] = {}  # (device index, stream handle) -> Warp's wrapper
+        self._streams = StreamWrappers()
 
     @torch.no_grad()
     def step(self, closure=None):
@@ -181,7 +182,7 @@ class WarpAdam(torch.optim.Adam):
                 cmd = self._launch(gi, pi, p, state, group)
                 cmd.set_param_at_index(6, group["lr"] / (1.0 - beta1**t))  # step_size
                 cmd.set_param_at_index(7, math.sqrt(1.0 - beta2**t))  # sqrt_bc2
-                cmd.launch(self._stream(p.device))
+                cmd.launch(self._streams.current(p.device) if p.device.type == "cuda" else None)
         return loss
 
     def _state_of(self, p: torch.Tensor) -> dict:
@@ -216,7 +217,7 @@ class WarpAdam(torch.optim.Adam):
         key = (p.data_ptr(), *(t.data_ptr() for t in moments), n, tuple(group["betas"]), group["eps"])
         entry = self._launches.get((gi, pi))
         if entry is None or entry["key"] != key:
-            device = "cpu" if p.device.type == "cpu" else f"cuda:{p.device.index or 0}"
+            device = warp_device(p.device)
             n4 = n // 4 if all(t.data_ptr() % 16 == 0 for t in (grad, p, *moments)) else 0  # vec4: 16-byte aligned
             views = [self._views(t, n4, device) for t in (grad, p, *moments)]
             beta1, beta2 = group["betas"]
@@ -243,18 +244,6 @@ class WarpAdam(torch.optim.Adam):
         vec4 = (wp.array(ptr=t.data_ptr(), dtype=wp.vec4, shape=(n4,), device=device) if n4
                 else wp.empty(0, dtype=wp.vec4, device=device))
         return vec4, wp.array(ptr=t.data_ptr(), dtype=wp.float32, shape=(t.numel(),), device=device)
-
-    def _stream(self, device: torch.device):
-        """Warp's wrapper of torch's current stream on ``device`` (None on the CPU), cached per stream."""
-        if device.type != "cuda":
-            return None
-        import warp as wp
-
-        stream = torch.cuda.current_stream(device)
-        key = (stream.device_index, stream.cuda_stream)
-        if key not in self._streams:
-            self._streams[key] = wp.stream_from_torch(stream)
-        return self._streams[key]
 
 
 def make_optimizer(gaussians: Gaussians, config: OptimConfig, extent: float) -> torch.optim.Adam:

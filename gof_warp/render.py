@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import functools
 import math
-import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -18,6 +17,7 @@ import torch
 import warp as wp
 
 from .camera import Camera
+from .devices import StreamWrappers
 from .kernels.render_types import camera_params_from, make_camera_params, make_raster_settings
 from .kernels.binning import TileListSizer
 from .kernels.renderer import RenderOutputs, ScratchPool, render_backward, render_forward
@@ -230,8 +230,7 @@ class RenderScratch:
         self.max_views = int(max_views)
         self._camera_params = functools.lru_cache(maxsize=self.max_views)(_camera_params_from_bytes)
         self._raster_settings = functools.lru_cache(maxsize=self.max_views)(_make_raster_settings)
-        self._streams: dict[tuple[int, int], wp.Stream] = {}  # (device ordinal, stream handle) -> Warp's wrapper
-        self._lock = threading.Lock()
+        self._streams = StreamWrappers()
 
     def view_structs(self, camera: Camera, config: RenderConfig) -> tuple:
         """``(camera_params_from(camera), raster_settings_for(camera, config))``, shared with the earlier renders of
@@ -242,15 +241,7 @@ class RenderScratch:
 
     def stream_scope(self, device: torch.device):
         """A scope that launches on torch's current stream of ``device`` (CUDA) through a cached Warp wrapper."""
-        stream = torch.cuda.current_stream(device)
-        key = (stream.device_index, stream.cuda_stream)
-        wp_stream = self._streams.get(key)
-        if wp_stream is None:
-            with self._lock:  # one wrapper per handle: a second would unregister the stream when it dies
-                wp_stream = self._streams.get(key)
-                if wp_stream is None:
-                    wp_stream = self._streams[key] = wp.stream_from_torch(stream)
-        return wp.ScopedStream(wp_stream)
+        return wp.ScopedStream(self._streams.current(device))
 
     def nbytes(self) -> int:
         """Bytes of the spare arrays held now."""
