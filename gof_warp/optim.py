@@ -26,6 +26,7 @@ in 3DGS/GOF.
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
@@ -37,6 +38,8 @@ from .model import PARAM_NAMES, Gaussians
 
 ADAM_MOMENTS = ("exp_avg", "exp_avg_sq")
 ADAM_KINDS = ("torch", "warp")
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -59,7 +62,9 @@ class OptimConfig:
     betas: tuple[float, float] = (0.9, 0.999)
     fused: bool | None = None  # torch's one-kernel Adam; None: on CUDA yes, on the CPU no (the loop version)
     # the Gaussians' Adam: "torch" (torch's, fused as above) or "warp" (WarpAdam: one Warp kernel a parameter, four
-    # floats a thread; the same formula up to float32 rounding); the appearance network's is always torch's
+    # floats a thread; the same formula up to float32 rounding); the appearance network's is always torch's.
+    # Experimental: on a GPU, three 30k DTU runs with "warp" each ended below the "torch" run beside them (0.19–0.78
+    # dB; benchmarks/train/README.md, sessions 36–37), a cause not found; the CPU shows no such difference
     adam: str = "torch"
 
     def __post_init__(self):
@@ -262,6 +267,9 @@ def make_optimizer(gaussians: Gaussians, config: OptimConfig, extent: float) -> 
         lr = position_lr(0, config, extent) if name == "means" else config.param_lr(name)
         groups.append({"params": [gaussians.params[name]], "lr": lr, "name": name})
     if config.adam == "warp":
+        if gaussians.device.type == "cuda":
+            log.warning("optim.adam=warp is experimental: in three 30k DTU runs on a GPU it ended 0.19-0.78 dB below "
+                        "torch's Adam run beside it (benchmarks/train/README.md, session 37)")
         return WarpAdam(groups, lr=0.0, betas=tuple(config.betas), eps=config.eps)
     return LeanAdam(groups, lr=0.0, **config.adam_kwargs(gaussians.device))
 
