@@ -62,9 +62,10 @@ class OptimConfig:
     betas: tuple[float, float] = (0.9, 0.999)
     fused: bool | None = None  # torch's one-kernel Adam; None: on CUDA yes, on the CPU no (the loop version)
     # the Gaussians' Adam: "torch" (torch's, fused as above) or "warp" (WarpAdam: one Warp kernel a parameter, four
-    # floats a thread; the same formula up to float32 rounding); the appearance network's is always torch's.
-    # Experimental: on a GPU, three 30k DTU runs with "warp" each ended below the "torch" run beside them (0.19–0.78
-    # dB; benchmarks/train/README.md, sessions 36–37), a cause not found; the CPU shows no such difference
+    # floats a thread, doing torch's fused CUDA arithmetic float for float); the appearance network's is always
+    # torch's. Experimental: on a GPU, three 30k DTU runs with the kernel before session 37's (its 1 − β₂ rounded on
+    # its own) each ended below the "torch" run beside them (0.19–0.78 dB; benchmarks/train/README.md, sessions 36–37);
+    # the kernel of now has not run on a GPU yet
     adam: str = "torch"
 
     def __post_init__(self):
@@ -143,13 +144,15 @@ class LeanAdam(torch.optim.Adam):
 
 
 class WarpAdam(torch.optim.Adam):
-    """Adam (torch's formula, no weight decay) whose update of each parameter is one Warp kernel over its memory, four
-    floats a thread (:func:`gof_warp.kernels.adam.adam_step`): parameter, gradient and both moments read once,
-    parameter and moments written once, in 16-byte loads and stores. Its state is torch's unfused ``Adam``'s (``step``
-    a CPU tensor, ``exp_avg``, ``exp_avg_sq``), so :func:`replace_params`, ``state_dict`` and checkpoints treat it and
-    torch's alike and either loads the other's state. Each parameter's launch is recorded once and replayed (only the
-    gradient's address and the two bias corrections change between steps), so a step costs the host one replay per
-    parameter; a new launch is recorded when the parameter or its moments are new tensors (densification).
+    """Adam (no weight decay) whose update of each parameter is one Warp kernel over its memory, four floats a thread
+    (:func:`gof_warp.kernels.adam.adam_step`): parameter, gradient and both moments read once, parameter and moments
+    written once, in 16-byte loads and stores. The kernel's arithmetic is that of torch's fused CUDA Adam, float for
+    float (on a GPU the two give the same bits; torch's CPU Adam rounds differently). Its state is torch's unfused
+    ``Adam``'s (``step`` a CPU tensor, ``exp_avg``, ``exp_avg_sq``), so :func:`replace_params`, ``state_dict`` and
+    checkpoints treat it and torch's alike and either loads the other's state. Each parameter's launch is recorded once
+    and replayed (only the gradient's address, the rate and the step count change between steps), so a step costs the
+    host one replay per parameter; a new launch is recorded when the parameter or its moments are new tensors
+    (densification).
 
     Parameters must be contiguous float32 tensors (the Gaussians' are); a parameter without ``.grad`` is skipped, as in
     torch. On CUDA the kernels run on torch's current stream. Options other than ``lr``, ``betas`` and ``eps`` are
@@ -177,16 +180,14 @@ class WarpAdam(torch.optim.Adam):
             with torch.enable_grad():
                 loss = closure()
         for gi, group in enumerate(self.param_groups):
-            beta1, beta2 = group["betas"]
             for pi, p in enumerate(group["params"]):
                 if p.grad is None:
                     continue
                 state = self._state_of(p)
                 state["step"] += 1.0
-                t = float(state["step"])
                 cmd = self._launch(gi, pi, p, state, group)
-                cmd.set_param_at_index(6, group["lr"] / (1.0 - beta1**t))  # step_size
-                cmd.set_param_at_index(7, math.sqrt(1.0 - beta2**t))  # sqrt_bc2
+                cmd.set_param_at_index(3, float(group["lr"]))  # rounded to float32, as torch's fused kernel does
+                cmd.set_param_at_index(7, float(state["step"]))
                 cmd.launch(self._streams.current(p.device) if p.device.type == "cuda" else None)
         return loss
 
@@ -227,8 +228,7 @@ class WarpAdam(torch.optim.Adam):
             views = [self._views(t, n4, device) for t in (grad, p, *moments)]
             beta1, beta2 = group["betas"]
             cmd = wp.launch(adam_step, dim=n4 + (n - 4 * n4), device=device, record_cmd=True,
-                            inputs=[*views[0], n4, float(beta2), 1.0 - beta1, 1.0 - beta2, 0.0, 1.0,
-                                    float(group["eps"])],
+                            inputs=[*views[0], n4, 0.0, float(beta1), float(beta2), float(group["eps"]), 1.0],
                             outputs=[views[1][0], views[2][0], views[3][0], views[1][1], views[2][1], views[3][1]])
             entry = self._launches[(gi, pi)] = {"key": key, "cmd": cmd, "n4": n4, "device": device,
                                                 "grad": grad.data_ptr()}
@@ -268,8 +268,9 @@ def make_optimizer(gaussians: Gaussians, config: OptimConfig, extent: float) -> 
         groups.append({"params": [gaussians.params[name]], "lr": lr, "name": name})
     if config.adam == "warp":
         if gaussians.device.type == "cuda":
-            log.warning("optim.adam=warp is experimental: in three 30k DTU runs on a GPU it ended 0.19-0.78 dB below "
-                        "torch's Adam run beside it (benchmarks/train/README.md, session 37)")
+            log.warning("optim.adam=warp is experimental: in three 30k DTU runs on a GPU its earlier kernel ended "
+                        "0.19-0.78 dB below torch's Adam run beside it; the kernel of now, torch's fused arithmetic "
+                        "float for float, is not yet measured there (benchmarks/train/README.md, session 37)")
         return WarpAdam(groups, lr=0.0, betas=tuple(config.betas), eps=config.eps)
     return LeanAdam(groups, lr=0.0, **config.adam_kwargs(gaussians.device))
 

@@ -42,7 +42,8 @@ Stable names (module, kind):
   ``wp.Bvh``), ``points_in_boxes`` (kernel: which points lie in some oriented box) and the func ``in_oriented_box``.
 * visibility of a mesh: ``faces_seen`` (kernel: which faces some camera sees, by rays to each face's centroid and,
   for large faces, towards its corners).
-* optimisation: ``adam_step`` (kernel: Adam's update of one flat float32 parameter, four floats a thread).
+* optimisation: ``adam_step`` (kernel: Adam's update of one flat float32 parameter, four floats a thread, in torch's
+  fused CUDA arithmetic).
 * TSDF: ``integrate_tsdf``, ``sample_grid_trilinear``; ray casting of meshes: ``cast_pinhole_rays``,
   ``shade_hits``, ``resolve_pixels``; lenses: ``distort_opencv``, ``undistort_remap``.
 """
