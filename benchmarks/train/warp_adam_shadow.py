@@ -7,8 +7,9 @@ before each step it copies every parameter, gradient and moment, after it recomp
 torch's unfused formula) from the copies and records the largest difference from what the kernel wrote, relative to
 the size of the step (since session 37 the kernel does torch's fused CUDA arithmetic, whose 1 − β₂ is 1 − fl(0.999):
 expect ~1e-5 of the step against this formula, or one float32 ulp of the parameter where the steps are small); a
-parameter without a gradient must come back unchanged, and every step counter must have moved by one. Densification (new tensors, new launches), opacity resets and the gradients' changing addresses are all in
-the run. Prints the worst case every 100 steps and at the end; exits with 3 (a parameter without a gradient moved) or 4
+parameter without a gradient must come back unchanged, and every step counter must have moved by one.
+Densification (new tensors, new launches), opacity resets and the gradients' changing addresses are all in the run.
+Prints the worst case every 100 steps and at the end; exits with 3 (a parameter without a gradient moved) or 4
 (a step counter is wrong).
 """
 
