@@ -33,3 +33,12 @@ def steps_with_surgery(g: Gaussians, opt, steps: int, appended: int, swap=None):
         if swap is not None:
             opt = swap(i, opt) or opt
     return opt
+
+
+def through_state_dict(opt, cls, **kwargs):
+    """A new ``cls(opt.param_groups, **kwargs)`` holding ``opt``'s state, passed through ``state_dict`` /
+    ``load_state_dict`` as a checkpoint would pass it."""
+    state = opt.state_dict()
+    new = cls(opt.param_groups, **kwargs)
+    new.load_state_dict(state)
+    return new

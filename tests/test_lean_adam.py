@@ -3,7 +3,7 @@
 import pytest
 import torch
 
-from _optim_cases import small_gaussians, steps_with_surgery
+from _optim_cases import small_gaussians, steps_with_surgery, through_state_dict
 from gof_warp.model import PARAM_NAMES
 from gof_warp.optim import LeanAdam, OptimConfig, make_optimizer
 
@@ -93,12 +93,7 @@ def test_densification_surgery_and_state_dict_round_trip():
         assert isinstance(opt, LeanAdam) == lean
 
         def swap(i, opt, cls=LeanAdam if lean else torch.optim.Adam):
-            if i == 4:
-                state = opt.state_dict()
-                opt = cls(opt.param_groups, lr=0.0, **cfg.adam_kwargs("cpu"))
-                opt.load_state_dict(state)
-                return opt
-            return None
+            return through_state_dict(opt, cls, lr=0.0, **cfg.adam_kwargs("cpu")) if i == 4 else None
 
         steps_with_surgery(g, opt, 6, appended=2, swap=swap)
         runs.append(g)

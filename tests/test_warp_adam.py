@@ -7,7 +7,7 @@ import pytest
 import torch
 import warp as wp
 
-from _optim_cases import small_gaussians, steps_with_surgery
+from _optim_cases import small_gaussians, steps_with_surgery, through_state_dict
 from gof_warp.errors import GofError
 from gof_warp.model import PARAM_NAMES
 from gof_warp.optim import OptimConfig, WarpAdam, make_optimizer
@@ -162,10 +162,7 @@ def test_densification_surgery_and_state_dicts_between_warp_and_torch_adam():
 
         def swap(i, opt, warp=kind == "warp"):
             if warp and i in (3, 5):  # to torch's Adam and back to WarpAdam through state dicts
-                state = opt.state_dict()
-                opt = (torch.optim.Adam if i == 3 else WarpAdam)(opt.param_groups, lr=0.0, eps=1e-15)
-                opt.load_state_dict(state)
-                return opt
+                return through_state_dict(opt, torch.optim.Adam if i == 3 else WarpAdam, lr=0.0, eps=1e-15)
             return None
 
         steps_with_surgery(g, opt, 7, appended=3, swap=swap)
