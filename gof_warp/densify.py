@@ -65,6 +65,7 @@ from dataclasses import asdict, dataclass, field
 
 import torch
 
+from .devices import StreamWrappers, warp_device
 from .errors import GofError
 from .model import Gaussians, quat_to_rotmat
 from .optim import replace_params
@@ -258,6 +259,44 @@ class _Stats:
         return cls(z(torch.float32), z(torch.float32), z(torch.int32), z(torch.int32))
 
 
+class ViewStatsKernel:
+    """Adds one view's statistics into the running sums in place, for the Gaussians it saw (``radii > 0``): the norms
+    of their view-space gradients ``grad`` ``[N]`` and ``grad_abs`` ``[N]`` into the sums, one more view counted, the
+    largest radius kept. One Warp kernel (:func:`gof_warp.kernels.densify_stats.accumulate_view_stats`) on torch's
+    current stream instead of ten elementwise operators, with the same bits (it only adds and takes a maximum). The
+    launch is recorded once per set of running sums (they change only when the Gaussians do) and replayed with each
+    view's arrays, so a view costs the host three array descriptors and one replay."""
+
+    def __init__(self):
+        self._streams = StreamWrappers()
+        self._key: tuple | None = None
+        self._cmd = None
+
+    def __call__(self, stats: _Stats, grad: torch.Tensor, grad_abs: torch.Tensor, radii: torch.Tensor) -> None:
+        import warp as wp
+
+        from .kernels.densify_stats import accumulate_view_stats
+
+        # the view's terms as float32 / int32 and contiguous (themselves when they are: the renderer's are), kept
+        # alive here while the launch reads them through descriptors that hold only their addresses
+        view = [t.to(dtype).contiguous() for t, dtype in ((grad, torch.float32), (grad_abs, torch.float32),
+                                                            (radii, torch.int32))]
+        arrays = [wp.from_torch(t, requires_grad=False, return_ctype=True) for t in view]
+        sums = (stats.grad, stats.grad_abs, stats.count, stats.max_radii)
+        device = radii.device
+        key = (device, radii.shape[0], *(t.data_ptr() for t in sums))
+        if key != self._key:
+            wp.init()  # idempotent
+            self._cmd = wp.launch(accumulate_view_stats, dim=radii.shape[0], device=warp_device(device),
+                                  inputs=[*arrays, *(wp.from_torch(t, requires_grad=False) for t in sums)],
+                                  record_cmd=True)
+            self._key = key
+        else:
+            for i, a in enumerate(arrays):
+                self._cmd.set_param_at_index(i, a)
+        self._cmd.launch(self._streams.current(device) if device.type == "cuda" else None)
+
+
 class Densifier:
     """GOF's densification policy (see the module docstring). State: statistics, sampler, history.
 
@@ -274,6 +313,7 @@ class Densifier:
         # Gaussians the late prunes removed, by reason (each counted once, in this order)
         self.late_pruned = {"transparent": 0, "too_large": 0, "near_camera": 0}
         self.hidden_pruned = 0  # Gaussians the hidden prunes removed
+        self._view_stats: ViewStatsKernel | None = None  # made at the first statistics (it needs Warp's runtime)
 
     # ------------------------------------------------------------------ hooks
     def update_sh_degree(self, iteration: int, gaussians: Gaussians) -> int:
@@ -299,15 +339,12 @@ class Densifier:
         elif self.stats.count.shape[0] != n:
             raise GofError(f"after_backward: {n} Gaussians but statistics for {self.stats.count.shape[0]}; "
                            "the model changed outside Densifier.step (call reset_stats)")
-        vis = radii > 0  # masked adds instead of boolean indexing: no host sync on GPU
-        s = self.stats
         grad, grad_abs = stats.grad2d.norm(dim=-1), stats.grad2d_abs
         if scale != 1.0:
             grad, grad_abs = grad * scale, grad_abs * scale
-        s.grad += torch.where(vis, grad, 0.0).float()
-        s.grad_abs += torch.where(vis, grad_abs, 0.0).float()
-        s.count += vis.to(torch.int32)
-        s.max_radii = torch.maximum(s.max_radii, radii.to(torch.int32))  # invisible: radius 0
+        if self._view_stats is None:
+            self._view_stats = ViewStatsKernel()
+        self._view_stats(self.stats, grad, grad_abs, radii)
 
     def densify_due(self, iteration: int) -> bool:
         """Whether :meth:`step` densifies and prunes at ``iteration`` (it reads the statistics then)."""

@@ -42,6 +42,8 @@ Stable names (module, kind):
   ``wp.Bvh``), ``points_in_boxes`` (kernel: which points lie in some oriented box) and the func ``in_oriented_box``.
 * visibility of a mesh: ``faces_seen`` (kernel: which faces some camera sees, by rays to each face's centroid and,
   for large faces, towards its corners).
+* densification: ``accumulate_view_stats`` (kernel: one view's screen-space gradient statistics added into the
+  running sums).
 * optimisation: ``adam_step`` (kernel: Adam's update of one flat float32 parameter, four floats a thread, in torch's
   fused CUDA arithmetic).
 * TSDF: ``integrate_tsdf``, ``sample_grid_trilinear``; ray casting of meshes: ``cast_pinhole_rays``,
@@ -75,6 +77,7 @@ _MODULES = {
     "undistort": ("distort_opencv", "undistort_remap"),
     "volume": ("store_voxels", "sample_volume_world", "lookup_stored_voxels"),
     "adam": ("adam_step",),
+    "densify_stats": ("accumulate_view_stats",),
 }
 _WHERE = {name: module for module, names in _MODULES.items() for name in names}
 

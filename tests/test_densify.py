@@ -196,6 +196,66 @@ def test_step_clones_splits_prunes_and_moves_state():
     assert dens.stats.count.shape == (11,) and dens.stats.count.sum() == 0
 
 
+def _stats_with_torch_ops(s, stats, scale):
+    """What ``Densifier.after_backward`` computed with torch's elementwise operators before session 37: the reference
+    its kernel must give bit for bit."""
+    radii = stats.radii
+    vis = radii > 0
+    grad, grad_abs = stats.grad2d.norm(dim=-1), stats.grad2d_abs
+    if scale != 1.0:
+        grad, grad_abs = grad * scale, grad_abs * scale
+    s.grad += torch.where(vis, grad, 0.0).float()
+    s.grad_abs += torch.where(vis, grad_abs, 0.0).float()
+    s.count += vis.to(torch.int32)
+    s.max_radii = torch.maximum(s.max_radii, radii.to(torch.int32))
+
+
+DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+
+
+@pytest.mark.parametrize("device", DEVICES)
+@pytest.mark.parametrize("scale", [1.0, 3.0])
+def test_after_backward_kernel_gives_the_torch_operators_bits(device, scale):
+    """Eight views of random statistics (a third of the Gaussians unseen in each, one with NaN gradients where it is
+    unseen, radii up to 40 px) accumulated by the densifier's kernel: sums, counts and largest radii equal, bit for
+    bit, what torch's elementwise operators give (``_stats_with_torch_ops``)."""
+    n = 1001
+    gen = torch.Generator().manual_seed(int(scale))
+    dens, ref = Densifier(DensifyConfig(metric="standard")), None
+    for view in range(8):
+        radii = torch.randint(0, 41, (n,), generator=gen, dtype=torch.int32)
+        radii[torch.rand(n, generator=gen) < 0.33] = 0
+        grad2d = torch.randn(n, 2, generator=gen) * 10.0 ** torch.randint(-9, -2, (n, 1), generator=gen)
+        grad_abs = torch.rand(n, generator=gen) * 1e-3
+        if view == 5:
+            grad2d[radii == 0] = float("nan")
+        stats = SimpleNamespace(grad2d=grad2d.to(device), grad2d_abs=grad_abs.to(device), radii=radii.to(device))
+        dens.after_backward(stats, 599, scale=scale)
+        if ref is None:
+            from gof_warp.densify import _Stats
+
+            ref = _Stats.zeros(n, device)
+        _stats_with_torch_ops(ref, stats, scale)
+    for name in ("grad", "grad_abs", "count", "max_radii"):
+        got, want = getattr(dens.stats, name), getattr(ref, name)
+        assert got.dtype == want.dtype and torch.equal(got, want), name
+    assert 0 < int(ref.count.min()) and int(ref.count.max()) <= 8 and torch.isfinite(ref.grad).all()
+
+
+def test_after_backward_golden_case():
+    """Four Gaussians by hand: seen twice, once, never (with a NaN gradient) and once with a larger radius later."""
+    dens = Densifier(DensifyConfig(metric="standard"))
+    views = [([3.0, 4.0], [0.5, 0.0], [1.0, 1.0], [0.0, 0.0], [2, 3, 0, 1]),
+             ([0.0, 1.0], [float("nan"), 1.0], [0.25, 0.0], [1.0, 0.0], [4, 0, 0, 7])]
+    for g0, g1, g2, g3, radii in views:
+        grad2d = torch.tensor([g0, g1, g2, g3])
+        dens.after_backward(SimpleNamespace(grad2d=grad2d, grad2d_abs=torch.tensor([1.0, 2.0, 3.0, 4.0]),
+                                            radii=torch.tensor(radii, dtype=torch.int32)), 599)
+    s = dens.stats
+    assert s.grad.tolist() == [5.0 + 1.0, 0.5, 0.0, 1.0] and s.grad_abs.tolist() == [2.0, 2.0, 0.0, 8.0]
+    assert s.count.tolist() == [2, 1, 0, 2] and s.max_radii.tolist() == [4, 3, 0, 7]
+
+
 def test_step_is_reproducible_with_seed():
     means = []
     for _ in range(2):
