@@ -26,7 +26,6 @@ in 3DGS/GOF.
 
 from __future__ import annotations
 
-import logging
 import math
 from dataclasses import dataclass
 
@@ -37,9 +36,7 @@ from .errors import GofError
 from .model import PARAM_NAMES, Gaussians
 
 ADAM_MOMENTS = ("exp_avg", "exp_avg_sq")
-ADAM_KINDS = ("torch", "warp")
-
-log = logging.getLogger(__name__)
+ADAM_KINDS = ("auto", "torch", "warp")
 
 
 @dataclass
@@ -61,16 +58,22 @@ class OptimConfig:
     eps: float = 1e-15
     betas: tuple[float, float] = (0.9, 0.999)
     fused: bool | None = None  # torch's one-kernel Adam; None: on CUDA yes, on the CPU no (the loop version)
-    # the Gaussians' Adam: "torch" (torch's, fused as above) or "warp" (WarpAdam: one Warp kernel a parameter, four
-    # floats a thread, doing torch's fused CUDA arithmetic float for float); the appearance network's is always
-    # torch's. Experimental: on a GPU, three 30k DTU runs with the kernel before session 37's (its 1 − β₂ rounded on
-    # its own) each ended below the "torch" run beside them (0.19–0.78 dB; benchmarks/train/README.md, sessions 36–37);
-    # the kernel of now has not run on a GPU yet
-    adam: str = "torch"
+    # the Gaussians' Adam: "torch" (torch's, fused as above), "warp" (WarpAdam: one Warp kernel a parameter, four floats
+    # a thread, doing torch's fused CUDA arithmetic float for float: on a GPU the same bits as "torch", 0.3 ms less GPU
+    # time a DTU step on an H200) or "auto" (the default): "warp" on CUDA, "torch" on the CPU (where torch's Adam is
+    # its loop version, whose arithmetic WarpAdam does not copy). The appearance network's Adam is always torch's.
+    # Measured in benchmarks/train/README.md, sessions 36-38
+    adam: str = "auto"
 
     def __post_init__(self):
         if self.adam not in ADAM_KINDS:
             raise GofError(f"optim.adam must be one of {ADAM_KINDS}, got {self.adam!r}")
+
+    def adam_for(self, device) -> str:
+        """The Gaussians' Adam on ``device``: ``"torch"`` or ``"warp"`` (``adam="auto"``: warp on CUDA)."""
+        if self.adam != "auto":
+            return self.adam
+        return "warp" if torch.device(device).type == "cuda" else "torch"
 
     def adam_kwargs(self, device) -> dict:
         """``torch.optim.Adam`` keyword arguments for parameters on ``device`` (eps, betas, fused)."""
@@ -252,8 +255,8 @@ class WarpAdam(torch.optim.Adam):
 
 
 def make_optimizer(gaussians: Gaussians, config: OptimConfig, extent: float) -> torch.optim.Adam:
-    """Adam (:class:`LeanAdam`, or :class:`WarpAdam` for ``config.adam = "warp"``) with one group per raw parameter,
-    each group tagged ``"name"``.
+    """Adam (:class:`WarpAdam` where ``config.adam_for`` the Gaussians' device says ``"warp"``, by default on CUDA;
+    else :class:`LeanAdam`) with one group per raw parameter, each group tagged ``"name"``.
 
     Makes the parameters leaf tensors that require grad (``gaussians.requires_grad_(True)``) when they
     are not already. ``extent`` scales the means' rate (see :func:`position_lr`).
@@ -266,11 +269,7 @@ def make_optimizer(gaussians: Gaussians, config: OptimConfig, extent: float) -> 
     for name in PARAM_NAMES:
         lr = position_lr(0, config, extent) if name == "means" else config.param_lr(name)
         groups.append({"params": [gaussians.params[name]], "lr": lr, "name": name})
-    if config.adam == "warp":
-        if gaussians.device.type == "cuda":
-            log.warning("optim.adam=warp is experimental: in three 30k DTU runs on a GPU its earlier kernel ended "
-                        "0.19-0.78 dB below torch's Adam run beside it; the kernel of now, torch's fused arithmetic "
-                        "float for float, is not yet measured there (benchmarks/train/README.md, session 37)")
+    if config.adam_for(gaussians.device) == "warp":
         return WarpAdam(groups, lr=0.0, betas=tuple(config.betas), eps=config.eps)
     return LeanAdam(groups, lr=0.0, **config.adam_kwargs(gaussians.device))
 

@@ -10,7 +10,7 @@ import warp as wp
 from _optim_cases import small_gaussians, steps_with_surgery, through_state_dict
 from gof_warp.errors import GofError
 from gof_warp.model import PARAM_NAMES
-from gof_warp.optim import OptimConfig, WarpAdam, make_optimizer
+from gof_warp.optim import LeanAdam, OptimConfig, WarpAdam, make_optimizer
 
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 
@@ -98,7 +98,7 @@ def test_adam_step_against_float64(n, vector, device):
 
 @pytest.mark.parametrize("vector", [True, False])
 @pytest.mark.parametrize("t", [1, 2, 7, 3000])
-def test_adam_step_is_torch_fused_cuda_arithmetic_bit_for_bit(vector, t):
+def test_adam_step_is_torch_fused_gpu_arithmetic_bit_for_bit(vector, t):
     """On the CPU, the kernel's results are the bits of torch's fused CUDA formula worked out exactly
     (:func:`_fused_cuda_reference`): the moments through fused multiply-adds (a plain ``β·m + (1 − β)·g`` differs in
     the last bit for a good share of these floats), every other operation rounded once."""
@@ -182,14 +182,19 @@ def test_bad_parameters_are_named():
         OptimConfig(adam="sgd")
 
 
-@pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
-    not torch.cuda.is_available(), reason="the warning is for GPU runs"))])
-def test_warp_adam_on_a_gpu_is_announced_as_experimental(device, caplog):
-    """``optim.adam=warp`` on CUDA logs that it is experimental (its GPU runs ended lower than torch's); on the CPU,
-    where no difference was measured, and with torch's Adam, nothing is logged."""
-    for kind in ("torch", "warp"):
-        caplog.clear()
-        with caplog.at_level("WARNING", logger="gof_warp.optim"):
-            make_optimizer(small_gaussians().to(device), OptimConfig(adam=kind), extent=2.0)
-        warned = any("experimental" in r.getMessage() for r in caplog.records)
-        assert warned == (kind == "warp" and device == "cuda")
+def test_auto_adam_is_warp_on_cuda_and_torch_on_the_cpu():
+    """``optim.adam=auto`` (the default) picks WarpAdam for CUDA parameters and torch's Adam for CPU ones (whose loop
+    arithmetic WarpAdam does not copy); an explicit kind is kept on either device."""
+    assert OptimConfig().adam == "auto"
+    for device, auto in (("cpu", "torch"), ("cuda", "warp"), ("cuda:1", "warp"), (torch.device("cpu"), "torch")):
+        assert OptimConfig().adam_for(device) == auto
+        for kind in ("torch", "warp"):
+            assert OptimConfig(adam=kind).adam_for(device) == kind
+
+
+@pytest.mark.parametrize("device", DEVICES)
+def test_make_optimizer_by_default(device):
+    """The default config gives LeanAdam on the CPU and WarpAdam on CUDA."""
+    opt = make_optimizer(small_gaussians().to(device), OptimConfig(), extent=2.0)
+    assert isinstance(opt, WarpAdam) == (device == "cuda")
+    assert isinstance(opt, LeanAdam) == (device == "cpu")

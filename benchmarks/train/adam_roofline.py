@@ -5,8 +5,9 @@ traffic per float is at least 28 bytes (read parameter, gradient, both moments; 
 This times, for DTU scan 24's final model size by default (776,149 Gaussians, SH degree 3: 59 floats each):
 
 * ``fused``: torch's fused Adam (six groups, the means' rate changed every step as the schedule does);
-* ``lean``: ``gof_warp.optim.LeanAdam``, the same kernel with less host work (the trainer's default);
-* ``warp``: ``gof_warp.optim.WarpAdam`` (``optim.adam=warp``), one Warp kernel a parameter, four floats a thread;
+* ``lean``: ``gof_warp.optim.LeanAdam``, the same kernel with less host work (``optim.adam=torch``);
+* ``warp``: ``gof_warp.optim.WarpAdam`` (``optim.adam=warp``, the default on CUDA since session 38), one Warp
+  kernel a parameter, four floats a thread;
 * ``foreach``: torch's multi-tensor Adam, for comparison;
 * ``copy``: 12 B a float copied and 4 B more read (28 B of traffic a float, as Adam's), the practical roofline;
 * ``zero_grad``: clearing the gradients (``set_to_none=False``, what a step after it reads).
