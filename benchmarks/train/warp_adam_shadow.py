@@ -1,6 +1,6 @@
 """WarpAdam inside a real training run, checked at every step against Adam written out in torch (session 36).
 
-    python benchmarks/train/warp_adam_shadow.py [--iterations 1200] [train options / overrides ...]
+    python benchmarks/train/warp_adam_shadow.py [--iterations 1200] [--against-fused] [train options / overrides ...]
 
 Trains with ``optim.adam=warp`` (the README job's built-in scene unless a scene is given) and wraps ``WarpAdam.step``:
 before each step it copies every parameter, gradient and moment, after it recomputes the step in torch (float32,
@@ -24,6 +24,10 @@ from gof_warp.optim import WarpAdam
 from gof_warp.train import main as train_main
 
 worst = {"relative_to_step": 0.0, "step": None, "group": None}
+#: ``--against-fused`` (a CUDA run): the reference is torch's own fused CUDA Adam (``torch._fused_adam_``, what
+#: ``LeanAdam`` and ``Adam(fused=True)`` call) on the copies, and every float of the parameter and both moments must
+#: equal it bit for bit: ``differing`` counts those that do not (expect 0).
+AGAINST_FUSED = [False]
 _original = WarpAdam.step
 _calls = [0]
 
@@ -49,6 +53,18 @@ def _checked_step(self, closure=None):
             if float(self.state[p]["step"]) != t:
                 print(f"step {_calls[0]}: group {g.get('name')} step counter {float(self.state[p]['step'])}, not {t}")
                 sys.exit(4)
+            if AGAINST_FUSED[0]:
+                p1, m1, v1 = p0.clone(), st["exp_avg"].clone(), st["exp_avg_sq"].clone()
+                steps = [torch.tensor(t, dtype=torch.float32, device=p1.device)]
+                torch._fused_adam_([p1], [grad], [m1], [v1], [], steps, lr=g["lr"], beta1=beta1, beta2=beta2,
+                                   weight_decay=0.0, eps=g["eps"], amsgrad=False, maximize=False)
+                state = self.state[p]
+                bad = sum(int((a != b).sum()) for a, b in ((p1, p.detach()), (m1, state["exp_avg"]),
+                                                          (v1, state["exp_avg_sq"])))
+                worst["differing"] = worst.get("differing", 0) + bad
+                if bad and worst.get("first_differing") is None:
+                    worst["first_differing"] = (_calls[0], g.get("name"), bad)
+                continue
             m = st["exp_avg"].lerp(grad, 1 - beta1)
             v = st["exp_avg_sq"] * beta2 + (1 - beta2) * grad * grad
             ref = p0 - (g["lr"] / (1 - beta1**t)) * (m / (v.sqrt() / math.sqrt(1 - beta2**t) + g["eps"]))
@@ -68,6 +84,9 @@ def main() -> None:
         i = args.index("--iterations")
         iterations = args[i + 1]
         del args[i : i + 2]
+    if "--against-fused" in args:
+        args.remove("--against-fused")
+        AGAINST_FUSED[0] = True
     WarpAdam.step = _checked_step
     sys.argv = ["train", "--quiet", "--no-pictures", "--iterations", iterations, *args, "optim.adam=warp"]
     if "--out" not in args:
