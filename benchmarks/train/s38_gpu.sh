@@ -16,7 +16,9 @@ R=$OUT/s38_$STAGE; mkdir -p $R /tmp/hp
 mkdir -p .s34data && ln -sfn /tmp/gofdata/dtu_scan24 .s34data/dtu_scan24
 export CUDA_VISIBLE_DEVICES=0
 t0=$(date +%s)
-pack() { cp $OUT/ab/*.json $R/ 2>/dev/null; (cd $OUT && tar czf s38_$STAGE.tgz s38_$STAGE 2>/dev/null); rm -rf $R $OUT/ab; }
+pack() {
+  cp $OUT/ab/*.json $R/ 2>/dev/null; (cd $OUT && tar czf s38_$STAGE.tgz s38_$STAGE 2>/dev/null); rm -rf $R $OUT/ab
+}
 case $STAGE in
 checks)
   { lscpu | grep -E "Model name|^CPU\(s\)|MHz"; nvidia-smi --query-gpu=name,memory.total,driver_version,clocks.max.sm \
@@ -26,7 +28,8 @@ checks)
   timeout 90 python3 -m pytest -q -p no:cacheprovider -k cuda tests/test_warp_adam.py > $R/cuda_tests_adam.txt 2>&1
   echo "tests at $(( $(date +%s) - t0 )) s: $(tail -n 1 $R/cuda_tests_adam.txt)"
   timeout 120 python3 benchmarks/train/warp_adam_check.py > $R/warp_adam_check.txt 2>&1
-  echo "check at $(( $(date +%s) - t0 )) s: $(grep -E 'differing|worst' $R/warp_adam_check.txt | tail -n 4 | tr '\n' ' ')"
+  echo "check at $(( $(date +%s) - t0 )) s: \
+    $(grep -E 'differing|worst' $R/warp_adam_check.txt | tail -n 4 | tr '\n' ' ')"
   timeout 90 python3 benchmarks/train/adam_roofline.py --gaussians 848237 --out $R/adam_roofline.json \
     > $R/adam_roofline.txt 2>&1
   echo "roofline at $(( $(date +%s) - t0 )) s:"; tail -n 8 $R/adam_roofline.txt
@@ -36,7 +39,8 @@ checks)
   EX=/tmp/ex1 STEP=model MODEL_ITERS=1000 DTU=.s34data/dtu_scan24 timeout 150 bash benchmarks/train/ab_trees.sh \
     > $R/model_small.txt 2>&1
   mv /tmp/dtugeo_s32 /tmp/dtugeo
-  echo "models at $(( $(date +%s) - t0 )) s: $(ls -la /tmp/ex0/dtu.ply /tmp/ex1/dtu.ply 2>&1 | awk '{print $5, $9}' | tr '\n' ' ')"
+  echo "models at $(( $(date +%s) - t0 )) s: \
+    $(ls -la /tmp/ex0/dtu.ply /tmp/ex1/dtu.ply 2>&1 | awk '{print $5, $9}' | tr '\n' ' ')"
   pack ;;
 profile)
   for start in 1000 20000; do
@@ -47,7 +51,8 @@ profile)
   done
   echo "profiles at $(( $(date +%s) - t0 )) s"; pack ;;
 train)
-  tree=${TREE:-.}; [ "$tree" != . ] && ln -sfn ../kernels $tree/gof_warp/kernels && ln -sfn ../configs $tree/gof_warp/configs
+  tree=${TREE:-.}
+  [ "$tree" != . ] && ln -sfn ../kernels $tree/gof_warp/kernels && ln -sfn ../configs $tree/gof_warp/configs
   (cd $tree && PYTHONPATH="$PWD:/tmp/site" timeout -s INT -k 20 ${TRAIN_S:-560} python3 -m gof_warp.train \
     /tmp/gofdata/dtu_scan24 --out /tmp/hp/run_$NAME --quiet ${OVERRIDES:-} > $R/run_$NAME.log 2>&1)
   echo "train rc $? overrides: ${OVERRIDES:-}" >> $R/run_$NAME.log
