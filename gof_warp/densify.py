@@ -294,7 +294,7 @@ class ViewStatsKernel:
         else:
             for i, a in enumerate(arrays):
                 self._cmd.set_param_at_index(i, a)
-        self._cmd.launch(self._streams.current(device) if device.type == "cuda" else None)
+        self._cmd.launch(self._streams.launch_stream(device))
 
 
 class Densifier:
@@ -313,7 +313,7 @@ class Densifier:
         # Gaussians the late prunes removed, by reason (each counted once, in this order)
         self.late_pruned = {"transparent": 0, "too_large": 0, "near_camera": 0}
         self.hidden_pruned = 0  # Gaussians the hidden prunes removed
-        self._view_stats: ViewStatsKernel | None = None  # made at the first statistics (it needs Warp's runtime)
+        self._view_stats = ViewStatsKernel()  # adds each view's statistics into self.stats
 
     # ------------------------------------------------------------------ hooks
     def update_sh_degree(self, iteration: int, gaussians: Gaussians) -> int:
@@ -342,8 +342,6 @@ class Densifier:
         grad, grad_abs = stats.grad2d.norm(dim=-1), stats.grad2d_abs
         if scale != 1.0:
             grad, grad_abs = grad * scale, grad_abs * scale
-        if self._view_stats is None:
-            self._view_stats = ViewStatsKernel()
         self._view_stats(self.stats, grad, grad_abs, radii)
 
     def densify_due(self, iteration: int) -> bool:

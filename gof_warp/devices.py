@@ -96,6 +96,11 @@ class StreamWrappers:
                     wrapper = self._streams[key] = wp.stream_from_torch(stream)
         return wrapper
 
+    def launch_stream(self, device: torch.device):
+        """The ``stream`` to give a recorded Warp launch for tensors on ``device``: :meth:`current` on CUDA, ``None``
+        (none needed) on the CPU."""
+        return self.current(device) if device.type == "cuda" else None
+
 
 def is_cuda(device) -> bool:
     return torch.device(str(device)).type == "cuda"

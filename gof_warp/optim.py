@@ -191,7 +191,7 @@ class WarpAdam(torch.optim.Adam):
                 cmd = self._launch(gi, pi, p, state, group)
                 cmd.set_param_at_index(3, float(group["lr"]))  # rounded to float32, as torch's fused kernel does
                 cmd.set_param_at_index(7, float(state["step"]))
-                cmd.launch(self._streams.current(p.device) if p.device.type == "cuda" else None)
+                cmd.launch(self._streams.launch_stream(p.device))
         return loss
 
     def _state_of(self, p: torch.Tensor) -> dict:

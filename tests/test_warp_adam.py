@@ -12,7 +12,6 @@ from gof_warp.errors import GofError
 from gof_warp.model import PARAM_NAMES
 from gof_warp.optim import LeanAdam, OptimConfig, WarpAdam, make_optimizer
 
-DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 
 
 def _reference(g, m, v, p, beta1, beta2, lr, eps, t):
@@ -79,7 +78,6 @@ def _step_inputs(n: int, seed: int):
     return [x.astype(np.float32) for x in (g, p, m, v)]
 
 
-@pytest.mark.parametrize("device", DEVICES)
 @pytest.mark.parametrize("n, vector", [(1, True), (3, True), (4, True), (5, True), (30, True), (30, False)])
 def test_adam_step_against_float64(n, vector, device):
     """Every float of the vec4 body and of the tail gets the float64 step (within float32 rounding) for the float32
@@ -122,7 +120,6 @@ def _groups(seed: int, device):
             {"params": [params[3]], "lr": 5e-4}], params, g
 
 
-@pytest.mark.parametrize("device", DEVICES)
 def test_warp_adam_is_torch_adam(device):
     """12 steps with some gradients missing (those parameters skip the step, as in torch) and the first group's rate
     changing every step. On CUDA: torch's fused Adam's parameters, moments and step counts bit for bit. On the CPU,
@@ -192,7 +189,6 @@ def test_auto_adam_is_warp_on_cuda_and_torch_on_the_cpu():
             assert OptimConfig(adam=kind).adam_for(device) == kind
 
 
-@pytest.mark.parametrize("device", DEVICES)
 def test_make_optimizer_by_default(device):
     """The default config gives LeanAdam on the CPU and WarpAdam on CUDA."""
     opt = make_optimizer(small_gaussians().to(device), OptimConfig(), extent=2.0)
