@@ -248,7 +248,7 @@ def _views_split_rank(rank, init_dir, result):
     set of interpreter start-ups for both cases)."""
     import torch.distributed as dist
 
-    from gof_warp.distributed import Ranks
+    from gof_warp.distributed import Ranks, join_process_group
 
     means, quats, scales, opac = _scene(seed=8)
     g = Gaussians.from_activated(means, quats, scales, opac, device="cpu")
@@ -256,7 +256,8 @@ def _views_split_rank(rank, init_dir, result):
     for world, cams_n in RANK_CASES:
         if rank >= world:
             continue
-        dist.init_process_group("gloo", init_method=f"file://{init_dir}/init_{world}", rank=rank, world_size=world)
+        # joined as the commands join theirs: a group that outlives its destroy call can abort the process at exit
+        join_process_group(backend="gloo", init_method=f"file://{init_dir}/init_{world}", rank=rank, world_size=world)
         try:
             field, seen = opacity_field(g, _cameras(cams_n), points, config=OpacityFieldConfig(cpu_processes=1),
                                         return_seen=True, ranks=Ranks(rank=rank, world=world))
