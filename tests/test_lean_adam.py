@@ -8,8 +8,6 @@ from gof_warp.model import PARAM_NAMES
 from gof_warp.optim import LeanAdam, OptimConfig, make_optimizer
 
 
-
-
 def _groups(seed: int, device="cpu"):
     g = torch.Generator().manual_seed(seed)
     shapes = [(7, 3), (7, 4), (5,), (3, 15, 3)]

@@ -13,7 +13,6 @@ from gof_warp.model import PARAM_NAMES
 from gof_warp.optim import LeanAdam, OptimConfig, WarpAdam, make_optimizer
 
 
-
 def _reference(g, m, v, p, beta1, beta2, lr, eps, t):
     """One Adam step in float64 (Kingma & Ba, torch's form)."""
     g, m, v, p = (np.asarray(x, np.float64) for x in (g, m, v, p))
