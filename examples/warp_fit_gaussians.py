@@ -29,7 +29,7 @@ import numpy as np
 import warp as wp
 from warp.optim import Adam
 
-from gof_warp.camera import look_at
+from gof_warp.core.camera import look_at
 from gof_warp.kernels import make_camera_params, make_raster_settings, render_forward, render_gaussians
 
 SH_C0 = 0.28209479177387814  # degree-0 SH constant: colour = SH_C0 · sh + 0.5

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from gof_warp.marching import marching_tetrahedra
+from gof_warp.mesh.marching import marching_tetrahedra
 
 
 @wp.struct

@@ -1,7 +1,7 @@
 """Query a baked GOF opacity volume (NanoVDB ``.nvdb``) at arbitrary points inside your own Warp kernel.
 
 Bake one from a trained run with ``python -m gof_warp.extract RUN --volume`` (or
-``gof_warp.volume.bake_run``); this program needs only Warp and numpy (no torch, no gof_warp):
+``gof_warp.mesh.volume.bake_run``); this program needs only Warp and numpy (no torch, no gof_warp):
 
     python examples/warp_query_volume.py --nvdb RUN/opacity_volume.nvdb --points 1000000
 

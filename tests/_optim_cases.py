@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import torch
 
-from gof_warp.model import PARAM_NAMES, Gaussians
-from gof_warp.optim import replace_params
+from gof_warp.core.model import PARAM_NAMES, Gaussians
+from gof_warp.training.optim import replace_params
 
 
 def small_gaussians(n: int = 11, seed: int = 3) -> Gaussians:

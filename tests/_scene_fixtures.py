@@ -13,7 +13,7 @@ import numpy as np
 from PIL import Image
 from scipy.spatial.transform import Rotation
 
-from gof_warp.camera import Camera, look_at
+from gof_warp.core.camera import Camera, look_at
 from gof_warp.data.undistort import LensCamera, distort_normalized
 
 W, H = 48, 36  # tiny images: the readers' logic, not decoding speed, is under test

@@ -127,7 +127,7 @@ def sh_to_color(sh: torch.Tensor, dirs: torch.Tensor, degree: int) -> torch.Tens
 
 
 class RefCamera:
-    """Float64 torch view of a ``gof_warp.camera.Camera`` (or any object with its attributes)."""
+    """Float64 torch view of a ``gof_warp.core.camera.Camera`` (or any object with its attributes)."""
 
     def __init__(self, camera):
         self.R = f64(camera.R)
@@ -237,7 +237,7 @@ def reference_render(means, quats, scales, opacities, sh, camera, sh_degree=None
     Args:
         means, quats, scales, opacities, sh: see module docstring (any dtype; used in float64 — pass
             float64 leaf tensors with ``requires_grad`` to get gradients).
-        camera: ``gof_warp.camera.Camera``.
+        camera: ``gof_warp.core.camera.Camera``.
         sh_degree: active SH degree (default: the maximum the coefficients hold).
         config: an object with ``near, alpha_min, alpha_max, transmittance_min, k_max, background``
             (default :class:`RefConfig`).
@@ -364,7 +364,7 @@ def reference_screen_boxes(means, quats, scales, opacities, camera, config=None)
 
 def make_camera(width=37, height=29, fx=41.0, fy=35.0, cx=None, cy=None, eye=(0.4, -2.6, 0.9), target=(0.1, 0.2, 0.3)):
     """A test camera with an off-centre principal point and non-square pixels by default."""
-    from gof_warp.camera import look_at
+    from gof_warp.core.camera import look_at
 
     cx = 0.43 * width if cx is None else cx
     cy = 0.58 * height if cy is None else cy

@@ -9,12 +9,14 @@ import torch
 import trimesh
 
 from _scene_fixtures import make_blender_scene, make_colmap_scene, make_dtu_scene, make_ingp_scene
-from gof_warp import extract, inspect, train
-from gof_warp.config import ConfigError
+from gof_warp.cli import extract
+from gof_warp.cli import inspect_scene as inspect
+from gof_warp.cli import train
+from gof_warp.core.config import ConfigError
 from gof_warp.data import DataConfig, load_scene
-from gof_warp.model import Gaussians
-from gof_warp.stability import _blob
-from gof_warp.trainer import TrainConfig
+from gof_warp.core.model import Gaussians
+from gof_warp.benchmarking.stability import _blob
+from gof_warp.training.trainer import TrainConfig
 
 HUGE_LOG_SCALE = 50.0  # e^50: its square overflows float32 (a diverged model)
 

@@ -7,8 +7,8 @@ import math
 
 import pytest
 
-from gof_warp import bench
-from gof_warp.bench import (
+from gof_warp.cli import bench
+from gof_warp.cli.bench import (
     EXIT_RUNS_LEFT,
     Run,
     Sizing,
@@ -18,8 +18,8 @@ from gof_warp.bench import (
     suite,
     tetra,
 )
-from gof_warp.bench_report import load_rows, row_key
-from gof_warp.errors import GofError
+from gof_warp.benchmarking.report import load_rows, row_key
+from gof_warp.core.errors import GofError
 
 NUMERIC = ("chamfer", "accuracy", "completeness", "fscore", "precision", "recall", "tau", "test_psnr", "test_ssim",
            "train_time_s", "extract_time_s", "total_time_s", "num_gaussians", "faces", "vertices", "components")
@@ -99,7 +99,7 @@ def test_resume_skips_done_rows_and_reuses_the_trained_model_and_snapshot(tiny, 
     saved = json.loads((out / "results.json").read_text())
     saved["rows"] = [r for r in saved["rows"] if row_key(r) not in dropped]
     (out / "results.json").write_text(json.dumps(saved))
-    from gof_warp.trainer import Trainer
+    from gof_warp.training.trainer import Trainer
 
     monkeypatch.setattr(Trainer, "run", no_training)  # the model and snapshot in models/<run> are reused
     again = run_suite("tiny", out, device="cpu", runs_dir=out / "models")
@@ -158,8 +158,8 @@ def test_full_suite_fits_the_gpu_calls():
 
 
 def test_gof_schedule_is_the_identity_at_30k_and_compresses_below():
-    from gof_warp.config import merge
-    from gof_warp.trainer import TrainConfig
+    from gof_warp.core.config import merge
+    from gof_warp.training.trainer import TrainConfig
 
     base = TrainConfig()
     full = merge(base, bench.gof_schedule(30_000))
@@ -203,8 +203,8 @@ def test_snapshots_outside_the_run_are_an_error_naming_the_run():
 
 
 def test_every_built_in_suite_and_stability_run_is_a_checked_config():
-    from gof_warp.bench_runs import check_overrides
-    from gof_warp.stability import TRAINED_PRESETS, trained_run
+    from gof_warp.benchmarking.runs import check_overrides
+    from gof_warp.benchmarking.stability import TRAINED_PRESETS, trained_run
 
     runs = [r for name in ("tiny", "quick", "full") for r in suite(name)] + [trained_run(p) for p in TRAINED_PRESETS]
     for r in runs:  # Run checks on construction; checked again here so the test fails if that check goes away

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from gof_warp.camera import Camera, camera_extent, look_at
-from gof_warp.errors import SceneError
+from gof_warp.core.camera import Camera, camera_extent, look_at
+from gof_warp.core.errors import SceneError
 
 
 def test_look_at_projects_target_to_principal_point_with_z_depth():
@@ -81,7 +81,7 @@ def test_dict_round_trip_and_incomplete_record():
 def test_intrinsics_are_declared_once_for_pinhole_and_lens_cameras():
     import dataclasses
 
-    from gof_warp.camera import Intrinsics
+    from gof_warp.core.camera import Intrinsics
     from gof_warp.data.undistort import LensCamera
 
     names = ["fx", "fy", "cx", "cy", "width", "height"]

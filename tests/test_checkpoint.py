@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 import torch
 
-from gof_warp.checkpoint import CheckpointError, CheckpointWriter, load_checkpoint, list_checkpoints, save_checkpoint
+from gof_warp.training.checkpoint import CheckpointError, CheckpointWriter, load_checkpoint, list_checkpoints, save_checkpoint
 from gof_warp.data import load_scene
-from gof_warp.errors import GofError
-from gof_warp.loss_monitor import LossSpikeMonitor
+from gof_warp.core.errors import GofError
+from gof_warp.training.loss_monitor import LossSpikeMonitor
 from gof_warp.synthetic import make_scene
-from gof_warp.trainer import Trainer, TrainingInterrupted
+from gof_warp.training.trainer import Trainer, TrainingInterrupted
 from test_train import _config
 
 
@@ -152,7 +152,7 @@ def test_resume_falls_back_past_a_truncated_checkpoint(tiny_scene, tmp_path, cap
     truncated = newest.read_bytes()[: newest.stat().st_size // 2]
     newest.write_bytes(truncated)
     second = Trainer(tiny_scene, cfg, tmp_path / "r", "cpu")
-    with caplog.at_level(logging.WARNING, logger="gof_warp.checkpoint"):
+    with caplog.at_level(logging.WARNING, logger="gof_warp.training.checkpoint"):
         assert second.resume() == 8
     assert second.resumed_from == found[1][1]
     warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
@@ -250,12 +250,12 @@ def test_cli_ctrl_c_exits_130_keeps_the_checkpoint_and_resumes(tiny_scene, tmp_p
 
     # the command the message gives continues from that checkpoint (a few more iterations to keep this short); its
     # arguments run in this process (the real process, its Ctrl-C and exit code are the part above)
-    from gof_warp.train import main
+    from gof_warp.cli.train import main
 
     words = shlex.split(last.split("continue with: ")[1])
     assert words[:3] == ["python", "-m", "gof_warp.train"] and words[-1] == "--resume"
     monkeypatch.chdir(tmp_path)
-    with caplog.at_level(logging.INFO, logger="gof_warp.train"):
+    with caplog.at_level(logging.INFO, logger="gof_warp.cli.train"):
         rc, err = cli_in_process(main, *words[3:], "--iterations", str(reached + 3))
     assert rc == 0, err
     assert any(f"resuming from iteration {reached} (" in r.getMessage() for r in caplog.records), caplog.text

@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from _scene_fixtures import make_colmap_scene
 from gof_warp.data.colmap_model import quaternion_to_rotation, read_model
-from gof_warp.errors import SceneError
+from gof_warp.core.errors import SceneError
 
 EXACT = 1e-12
 

@@ -4,7 +4,7 @@ from dataclasses import dataclass, field
 
 import pytest
 
-from gof_warp.config import ConfigError, dump_yaml, from_dict, load_yaml, merge, parse_override, to_dict
+from gof_warp.core.config import ConfigError, dump_yaml, from_dict, load_yaml, merge, parse_override, to_dict
 
 
 @dataclass
@@ -69,8 +69,8 @@ def test_yaml_is_never_evaluated(tmp_path):
 
 def test_exponent_notation_without_a_dot_is_a_number():
     """YAML 1.1 reads ``1e-6`` as text; a float field takes it as the number, and real text is still refused."""
-    from gof_warp.config import ConfigError, merge, parse_override
-    from gof_warp.trainer import TrainConfig
+    from gof_warp.core.config import ConfigError, merge, parse_override
+    from gof_warp.training.trainer import TrainConfig
 
     assert merge(TrainConfig(), parse_override("densify.grad_threshold=1e-6")).densify.grad_threshold == 1e-6
     assert merge(TrainConfig(), parse_override("loss.lambda_normal=5E+1")).loss.lambda_normal == 50.0
@@ -81,8 +81,8 @@ def test_exponent_notation_without_a_dot_is_a_number():
 def test_overrides_checked_against_each_other_apply_in_either_order():
     """The trainer's overrides are merged together, then checked: the unbounded preset's near-camera prune needs the
     late prune, and turning both off works whichever comes first (one at a time, the first one was refused)."""
-    from gof_warp.errors import GofError
-    from gof_warp.preset_choice import resolve_config
+    from gof_warp.core.errors import GofError
+    from gof_warp.training.presets import resolve_config
 
     both = ["densify.near_camera_fraction=0", "densify.late_prune_interval=0"]
     for overrides in (both, both[::-1]):

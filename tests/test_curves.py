@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from gof_warp.curves import (
+from gof_warp.viz.curves import (
     BACKGROUND,
     PANEL_H,
     PANEL_W,
@@ -21,7 +21,7 @@ from gof_warp.curves import (
     panel_axes,
     write_curves,
 )
-from gof_warp.errors import GofError
+from gof_warp.core.errors import GofError
 
 
 def _history(n=12, psnr=True):
@@ -118,7 +118,7 @@ def test_write_curves_from_metrics_json(tmp_path, caplog):
 
 def test_train_writes_the_curves_and_prints_progress_unless_quiet(tiny_train_scene, tiny_train_overrides, tmp_path,
                                                                   capsys):
-    from gof_warp import train
+    from gof_warp.cli import train
 
     run = tmp_path / "run"
     assert train.main([str(tiny_train_scene), "--out", str(run), "--config", "quick", "--iterations", "6",

@@ -33,8 +33,8 @@ from gof_warp.data.undistort import (
     undistort_pixels,
     undistorted_intrinsics,
 )
-from gof_warp.errors import GofError, SceneError
-from gof_warp.inspect import main as inspect_main
+from gof_warp.core.errors import GofError, SceneError
+from gof_warp.cli.inspect_scene import main as inspect_main
 
 POSE_ATOL = 1e-9  # poses go through text files with 17 significant digits
 REPROJ_ATOL_PX = 1e-6  # float64 Newton inversion converges to ~1e-12 normalised units

@@ -13,7 +13,7 @@ import pytest
 
 from gof_warp.data import DataConfig, load_scene, read_plan
 from gof_warp.data.undistort import undistort_pixels
-from gof_warp.inspect import main as inspect_main
+from gof_warp.cli.inspect_scene import main as inspect_main
 
 pytestmark = pytest.mark.realdata
 

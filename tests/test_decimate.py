@@ -1,4 +1,4 @@
-"""Quadric decimation (gof_warp.decimate): budget, error, closedness, borders, bad inputs."""
+"""Quadric decimation (gof_warp.mesh.decimate): budget, error, closedness, borders, bad inputs."""
 
 import numpy as np
 import pytest
@@ -6,9 +6,9 @@ import trimesh
 
 pytest.importorskip("fast_simplification")
 
-from gof_warp.decimate import _clean, decimate, is_closed  # noqa: E402
-from gof_warp.errors import GofError  # noqa: E402
-from gof_warp.geometry_metrics import point_mesh_distance  # noqa: E402
+from gof_warp.mesh.decimate import _clean, decimate, is_closed  # noqa: E402
+from gof_warp.core.errors import GofError  # noqa: E402
+from gof_warp.eval.geometry_metrics import point_mesh_distance  # noqa: E402
 
 
 def _sphere(subdivisions=4):
@@ -178,7 +178,7 @@ def test_budget_alone_can_skip_the_error_measurement():
 def test_row_groups_equal_numpy_unique_on_rows(shape, high):
     """The packed-key grouping (and its lexsort fallback when the key would overflow: high = 2**40, three
     columns) gives numpy's row-wise unique: same group order, inverse and counts."""
-    from gof_warp.decimate import _edge_counts, _row_groups
+    from gof_warp.mesh.decimate import _edge_counts, _row_groups
 
     rows = np.random.default_rng(shape[0]).integers(0, high, size=shape)
     rows[1::7] = rows[::7][: len(rows[1::7])]  # repeated rows

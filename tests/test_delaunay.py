@@ -1,4 +1,4 @@
-"""Delaunay backends: one Qhull call vs Qhull in parallel chunks (gof_warp.delaunay)."""
+"""Delaunay backends: one Qhull call vs Qhull in parallel chunks (gof_warp.mesh.delaunay)."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import pytest
 import torch
 from scipy.spatial import cKDTree
 
-from gof_warp.delaunay import JITTER_REL, SPHERE_RTOL, delaunay, jittered, kd_boxes, tet_geometry
-from gof_warp.errors import GofError
-from gof_warp.tetra import tetra_points
+from gof_warp.mesh.delaunay import JITTER_REL, SPHERE_RTOL, delaunay, jittered, kd_boxes, tet_geometry
+from gof_warp.core.errors import GofError
+from gof_warp.mesh.tetra import tetra_points
 
 SPHERE_SLACK = SPHERE_RTOL  # relative: a point nearer the centre than R (1 - this) is inside
 
@@ -92,7 +92,7 @@ def test_chunked_fills_the_large_tets_no_chunk_sees():
 def test_a_large_fill_is_chunked_itself_and_stays_exact(monkeypatch, kind):
     """The merge's fill (the points along the chunk borders) is triangulated in chunks too once it has
     ``FILL_SPLIT_POINTS``; lowered here so that small scenes take that path: the result is still one call's."""
-    import gof_warp.delaunay as D
+    import gof_warp.mesh.delaunay as D
 
     calls = []
     monkeypatch.setattr(D, "FILL_SPLIT_POINTS", 500)
@@ -179,7 +179,7 @@ def test_kd_boxes_partition_the_points():
 def test_halo_steps_from_nearby_cells_equal_the_full_scans(seed, n, k):
     """The chunk halos are found from the points of the cells near each box (`_CellIndex`): the same widths and
     the same ascending halo points as scanning every point, on clustered points, with ties on cut planes."""
-    from gof_warp.delaunay import HALO_FRACTION, _CellIndex, _halo_width, _halo_width_near, _in_box, _kd_cells
+    from gof_warp.mesh.delaunay import HALO_FRACTION, _CellIndex, _halo_width, _halo_width_near, _in_box, _kd_cells
 
     rng = np.random.default_rng(seed)
     c = rng.normal(size=(n // 9, 3)) * 2

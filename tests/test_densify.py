@@ -8,12 +8,12 @@ import pytest
 import torch
 from scipy.stats import chi2
 
-from gof_warp.model import quat_to_rotmat
-from gof_warp.densify import (Densifier, DensifyConfig, _Stats, densify_candidates, prune_mask, quantile,
+from gof_warp.core.model import quat_to_rotmat
+from gof_warp.training.densify import (Densifier, DensifyConfig, _Stats, densify_candidates, prune_mask, quantile,
                               reset_opacity, sample_children, sh_degree_at)
-from gof_warp.errors import GofError
-from gof_warp.model import PARAM_NAMES, Gaussians
-from gof_warp.optim import (OptimConfig, check_optimizer_state, make_optimizer, position_lr, replace_params,
+from gof_warp.core.errors import GofError
+from gof_warp.core.model import PARAM_NAMES, Gaussians
+from gof_warp.training.optim import (OptimConfig, check_optimizer_state, make_optimizer, position_lr, replace_params,
                             update_learning_rate)
 
 EXTENT = 2.0

@@ -1,4 +1,4 @@
-"""One device rule (gof_warp.devices): explicit > the inputs' device > CUDA only when torch and Warp agree."""
+"""One device rule (gof_warp.core.devices): explicit > the inputs' device > CUDA only when torch and Warp agree."""
 
 import re
 from pathlib import Path
@@ -6,8 +6,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from gof_warp import devices
-from gof_warp.errors import GofError
+from gof_warp.core import devices
+from gof_warp.core.errors import GofError
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -58,7 +58,7 @@ def test_no_other_module_decides_the_default_device():
         for n, line in enumerate(path.read_text().splitlines(), 1):
             if pattern.search(line) and "rng_state" not in line and "cuda_rng" not in line:
                 offenders.append(f"{path.relative_to(ROOT)}:{n}: {line.strip()}")
-    assert not offenders, "device decided outside gof_warp.devices:\n" + "\n".join(offenders)
+    assert not offenders, "device decided outside gof_warp.core.devices:\n" + "\n".join(offenders)
 
 
 def test_cudnn_benchmark_is_set_inside_and_restored_after():

@@ -16,12 +16,12 @@ import pytest
 import torch
 import torch.multiprocessing as mp
 
-from gof_warp.distributed import Ranks, join_process_group
-from gof_warp.errors import GofError
-from gof_warp.extract import main as extract_main
-from gof_warp.model import Gaussians
+from gof_warp.training.distributed import Ranks, join_process_group
+from gof_warp.core.errors import GofError
+from gof_warp.cli.extract import main as extract_main
+from gof_warp.core.model import Gaussians
 from gof_warp.synthetic import make_scene
-from gof_warp.train import main as train_main
+from gof_warp.cli.train import main as train_main
 
 ARGS = ["--config", "quick", "--iterations", "40", "--device", "cpu", "--no-pictures", "--quiet", "views_per_step=2",
         "log_every=10", "checksum_every=10", "checkpoint_every=20", "model.random_init_points=400",
@@ -141,7 +141,7 @@ def _extract_common(run: Path, grid: str) -> list[str]:
 def _extract_delaunay(run, out, ranks, result):
     """The extract command's work on the Delaunay grid by two ranks of the spawned group (the octree grid goes
     through torchrun and the CLI's own process-group set-up in the test below)."""
-    from gof_warp.extract import extract_run, parse_args
+    from gof_warp.cli.extract import extract_run, parse_args
 
     extract_run(parse_args([*_extract_common(run, "delaunay"), "--out", out]), ranks, "cpu")
     result["mesh"] = out
@@ -168,9 +168,9 @@ def test_the_checksum_stops_ranks_that_drifted_apart(two_ranks):
 
 def test_views_are_shared_out_and_bad_splits_refused(scene, tmp_path):
     assert Ranks(rank=1, world=2).my_views([5, 3, 8, 1]) == [3, 1] and Ranks().my_views([5, 3]) == [5, 3]
-    from gof_warp.config import merge
+    from gof_warp.core.config import merge
     from gof_warp.data import load_scene
-    from gof_warp.trainer import TrainConfig, Trainer
+    from gof_warp.training.trainer import TrainConfig, Trainer
 
     cfg = merge(TrainConfig(), {"views_per_step": 3, "model": {"init": "random", "random_init_points": 50}})
     with pytest.raises(GofError, match="does not divide among 2 processes"):
@@ -237,9 +237,9 @@ LATE_S = 6.0  # the ranks' set-up times differ by up to ~2 s on a loaded 2-core 
 
 def _late_rank_one(scene_dir, ranks, result):
     """Rank 1 starts training LATE_S after rank 0; rank 0 reports its warm-up and training times."""
-    from gof_warp.config import merge
+    from gof_warp.core.config import merge
     from gof_warp.data import load_scene
-    from gof_warp.trainer import TrainConfig, Trainer
+    from gof_warp.training.trainer import TrainConfig, Trainer
 
     cfg = merge(TrainConfig(), {"iterations": 4, "views_per_step": 2, "checkpoint_every": 0,
                                 "model": {"init": "random", "random_init_points": 100}})

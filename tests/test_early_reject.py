@@ -22,7 +22,7 @@ import pytest
 import torch
 import warp as wp
 
-from gof_warp.camera import Camera, look_at
+from gof_warp.core.camera import Camera, look_at
 from gof_warp.kernels import renderer
 from gof_warp.kernels.project import PIXEL_CONIC_K_MARGIN, preprocess_gaussians, ray_conics, screen_bounds
 from gof_warp.kernels.render_types import CameraParams, RasterSettings, camera_params_from, make_raster_settings
@@ -253,7 +253,7 @@ def _no_reject(mu_v: wp.array(dtype=wp.vec3), quats: wp.array(dtype=wp.vec4), sc
 def test_renders_and_gradients_are_the_same_without_the_reject(tile_size, device, monkeypatch):
     from reference_render import make_camera, random_scene
 
-    from gof_warp.render import RenderConfig, rasterize
+    from gof_warp.rendering.render import RenderConfig, rasterize
 
     cam = make_camera(width=97, height=71, fx=90.0, fy=80.0)
     scene = random_scene(cam, 300, 2, seed=11, n_behind=3, n_near=8, spread=1.5)
@@ -293,9 +293,9 @@ def test_opacity_field_is_bitwise_the_same_without_the_reject(monkeypatch):
     field without it, on a scene of flat and needle Gaussians seen from seven views at points near and between them."""
     from test_opacity_field import _cameras, _scene
 
-    from gof_warp.model import Gaussians
-    from gof_warp.opacity_field import OpacityFieldConfig, opacity_field
-    from gof_warp.render import RenderConfig
+    from gof_warp.core.model import Gaussians
+    from gof_warp.rendering.opacity_field import OpacityFieldConfig, opacity_field
+    from gof_warp.rendering.render import RenderConfig
 
     means, quats, scales, opac = _scene(n=60, seed=7)
     scales[::3, 2] *= 0.02  # discs

@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import trimesh
 
-from gof_warp.camera import look_at
-from gof_warp.extract import MeshConfig, StageTimer, extract_mesh, save_mesh
-from gof_warp.model import Gaussians
-from gof_warp.octree_tets import OctreeConfig
-from gof_warp.render import RenderConfig
-from gof_warp.tetra import TetraConfig
+from gof_warp.core.camera import look_at
+from gof_warp.cli.extract import MeshConfig, StageTimer, extract_mesh, save_mesh
+from gof_warp.core.model import Gaussians
+from gof_warp.mesh.octree_tets import OctreeConfig
+from gof_warp.rendering.render import RenderConfig
+from gof_warp.mesh.tetra import TetraConfig
 
 SIGMA, ALPHA = 0.2, 0.9
 RADIUS = SIGMA * np.sqrt(2 * np.log(2 * ALPHA))  # 0.5 level set of α·exp(−r²/2σ²)
@@ -179,8 +179,8 @@ def test_search_planner_serves_many_steps_per_call_only_where_a_call_costs_more_
     no grid sample or a grid no larger than twice the edges keep what they say; the automatic setting is one step a
     call on the CPU; the extraction's mesh is the same bit for bit for any steps per call (the plan is recorded in
     the counts)."""
-    from gof_warp.distributed import Ranks
-    from gof_warp.extraction import SearchPlanner, StageTimer
+    from gof_warp.training.distributed import Ranks
+    from gof_warp.mesh.extraction import SearchPlanner, StageTimer
 
     def planned(grid_call, first_call, edges, fixed=0):
         plan = SearchPlanner(lambda x: x, 8, "cpu", Ranks.single(), fixed=fixed, grid_call=grid_call)
@@ -227,7 +227,7 @@ def test_empty_model_is_a_clear_error():
 @pytest.fixture(scope="module")
 def run_folder(tmp_path_factory):
     """A run folder as training writes it: point_cloud.ply + cameras.json."""
-    from gof_warp.trainer import Trainer  # noqa: F401  (the layout below is Trainer's)
+    from gof_warp.training.trainer import Trainer  # noqa: F401  (the layout below is Trainer's)
 
     run = tmp_path_factory.mktemp("run")
     g = Gaussians.from_activated(np.array([[0.0, 0, 0], [0.25, 0, 0]]), [[1.0, 0, 0, 0], [1.0, 0, 0, 0]],
@@ -243,7 +243,7 @@ def test_cli_writes_mesh_and_stats(run_folder, method, tmp_path, cli_in_process)
     """The command's ``main`` in this process (a ``python -m`` start costs ~7 s of CI per method). Real processes of
     this command: test_cli_errors_name_the_problem (a bad input), test_volume.py's ``--volume`` run and
     test_distributed.py's torchrun extractions (a mesh)."""
-    from gof_warp.extract import main
+    from gof_warp.cli.extract import main
 
     out = tmp_path / f"m_{method}.ply"
     rc, err = cli_in_process(main, str(run_folder), "--method", method, "--out", str(out), "--device", "cpu",
@@ -264,7 +264,7 @@ def test_cli_writes_mesh_and_stats(run_folder, method, tmp_path, cli_in_process)
 
 def test_cli_keep_hidden_skips_the_drop(run_folder, tmp_path, cli_in_process):
     """``--keep-hidden``: no hidden-face stage, and no fewer faces than the default mesh."""
-    from gof_warp.extract import main
+    from gof_warp.cli.extract import main
 
     faces = {}
     for name, extra in (("drop", []), ("keep", ["--keep-hidden"])):
@@ -278,7 +278,7 @@ def test_cli_keep_hidden_skips_the_drop(run_folder, tmp_path, cli_in_process):
 
 
 def test_cli_errors_name_the_problem(run_folder, tmp_path, cli_in_process):
-    from gof_warp.extract import main
+    from gof_warp.cli.extract import main
 
     proc = subprocess.run([sys.executable, "-m", "gof_warp.extract", str(tmp_path / "nothing")], capture_output=True,
                           text=True, timeout=300)  # the real process once; the other cases in this one (CI seconds)
@@ -302,7 +302,7 @@ def test_save_mesh_is_atomic_and_loadable(tmp_path):
 def test_grid_cache_builds_the_tetrahedral_grid_once_per_model():
     """Two extractions of one model that differ in search steps share the grid: the second says so, skips the
     grid stages, and gives the mesh a fresh extraction with its settings gives."""
-    from gof_warp.extraction import StageTimer
+    from gof_warp.mesh.extraction import StageTimer
 
     cams = _ring_cameras(n=8)
     cfg_render = RenderConfig(alpha_min=0.0, k_max=10.0)

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import warp as wp
 
-from gof_warp.geometry_metrics import point_mesh_distance, sample_surface
-from gof_warp.marching import marching_tetrahedra
-from gof_warp.tetra import TetraConfig, tetrahedral_grid
-from gof_warp.tsdf import GridSampler, TSDFVolume
+from gof_warp.eval.geometry_metrics import point_mesh_distance, sample_surface
+from gof_warp.mesh.marching import marching_tetrahedra
+from gof_warp.mesh.tetra import TetraConfig, tetrahedral_grid
+from gof_warp.mesh.tsdf import GridSampler, TSDFVolume
 
 # float32 vs float64: (point − origin) / voxel rounds to ~1e-6 voxels, times slopes up to 2 per voxel,
 # plus seven float32 lerps of values in [-1, 1] (measured max 3e-6).
@@ -96,7 +96,7 @@ def test_warp_grid_sampler_matches_numpy_trilinear():
 
 
 def test_grid_sampler_rejects_a_flat_grid():
-    from gof_warp.errors import GofError
+    from gof_warp.core.errors import GofError
 
     with pytest.raises(GofError, match="every side >= 2"):
         GridSampler(np.zeros((4, 1, 4)), np.zeros(3), 1.0, "cpu")

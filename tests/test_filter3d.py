@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import torch
 
-from gof_warp.camera import Camera, look_at
-from gof_warp.errors import GofError
-from gof_warp.filter3d import compute_filter_3d, nearest_seen_depth_torch, update_filter_3d
-from gof_warp.model import Gaussians
+from gof_warp.core.camera import Camera, look_at
+from gof_warp.core.errors import GofError
+from gof_warp.training.filter3d import compute_filter_3d, nearest_seen_depth_torch, update_filter_3d
+from gof_warp.core.model import Gaussians
 
 TOL64 = 1e-12  # float64 throughout: only rounding
 TOL32 = 1e-6  # float32 model centres: one rounding per operation

@@ -1,4 +1,4 @@
-"""Gaussians hidden behind the rendered surface (gof_warp.hidden) and the densifier's hidden prune (CPU)."""
+"""Gaussians hidden behind the rendered surface (gof_warp.training.hidden) and the densifier's hidden prune (CPU)."""
 
 import json
 import math
@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 import torch
 
-from gof_warp.camera import look_at
-from gof_warp.densify import Densifier, DensifyConfig
-from gof_warp.errors import GofError
-from gof_warp.hidden import (behind_by, behind_surface, blend_weights, hidden_gaussians, surface_depth_ratio,
+from gof_warp.core.camera import look_at
+from gof_warp.training.densify import Densifier, DensifyConfig
+from gof_warp.core.errors import GofError
+from gof_warp.training.hidden import (behind_by, behind_surface, blend_weights, hidden_gaussians, surface_depth_ratio,
                              surface_measures, unoccluded_weight, visible_fraction)
-from gof_warp.model import Gaussians
-from gof_warp.optim import OptimConfig, check_optimizer_state, make_optimizer
+from gof_warp.core.model import Gaussians
+from gof_warp.training.optim import OptimConfig, check_optimizer_state, make_optimizer
 
 W, H, F = 32, 24, 30.0
 
@@ -201,8 +201,8 @@ def test_densifier_prunes_hidden_gaussians_at_its_iterations_only():
 
 def test_training_with_a_hidden_prune_reports_it(tiny_train_scene, tiny_train_overrides, tmp_path):
     from gof_warp.data import load_scene
-    from gof_warp.preset_choice import resolve_config
-    from gof_warp.trainer import Trainer
+    from gof_warp.training.presets import resolve_config
+    from gof_warp.training.trainer import Trainer
 
     # every Gaussian behind shows less than all of itself: with 1.0 the count is the depth test's, through the same path
     over = [*tiny_train_overrides, "iterations=6", "densify.hidden_prune_iters=[4]", "densify.hidden_margin=0.01",
@@ -224,8 +224,8 @@ def test_prune_iterations_beyond_the_run_are_said(tiny_train_scene, tiny_train_o
     import logging
 
     from gof_warp.data import load_scene
-    from gof_warp.preset_choice import resolve_config
-    from gof_warp.trainer import Trainer
+    from gof_warp.training.presets import resolve_config
+    from gof_warp.training.trainer import Trainer
 
     scene = load_scene(tiny_train_scene)
     for prunes, said in (("[4,40]", "densify.hidden_prune_iters [40] lie beyond this run's 6 iterations: those"),
@@ -234,7 +234,7 @@ def test_prune_iterations_beyond_the_run_are_said(tiny_train_scene, tiny_train_o
         caplog.clear()
         cfg = resolve_config("quick", [*tiny_train_overrides, "iterations=6", f"densify.hidden_prune_iters={prunes}"],
                              None)
-        with caplog.at_level(logging.INFO, logger="gof_warp.trainer"):
+        with caplog.at_level(logging.INFO, logger="gof_warp.training.trainer"):
             Trainer(scene, cfg, tmp_path / prunes.strip("[]").replace(",", "_"), "cpu")
         lines = [r.getMessage() for r in caplog.records if "hidden_prune_iters" in r.getMessage()]
         assert (lines == []) if said is None else (len(lines) == 1 and said in lines[0]), lines

@@ -14,9 +14,9 @@ import pytest
 import warp as wp
 
 import gof_warp.kernels as K
-from gof_warp.errors import GofError
+from gof_warp.core.errors import GofError
 from gof_warp.kernels import marching_tets as mt
-from gof_warp.marching import marching_cubes, marching_tetrahedra
+from gof_warp.mesh.marching import marching_cubes, marching_tetrahedra
 
 FIELD_TOL = 1e-6  # float32 field vs float64 reference, values of order 1
 SAME_PATH_TOL = 1e-5  # wp.func vs numpy callback of the same float32 field: bisection ends agree to float32 rounding
@@ -90,7 +90,7 @@ def test_public_names_cover_what_a_warp_user_needs():
 def test_importing_kernels_and_marching_does_not_import_torch(tmp_path):
     code = ("import sys, gof_warp.kernels as K\n"
             "[getattr(K, n) for n in K.__all__]\n"
-            "import gof_warp.marching\n"
+            "import gof_warp.mesh.marching\n"
             "assert 'torch' not in sys.modules, 'torch was imported'\n"
             "print('ok', len(K.__all__))\n")
     env = dict(os.environ, WARP_CACHE_PATH=os.environ.get("WARP_CACHE_PATH", ""))
@@ -181,7 +181,7 @@ def test_marching_cubes_takes_a_warp_field(device):
 def test_pure_warp_caller_gets_warp_device_rules(tmp_path):
     """Without torch: device=None follows wp.ScopedDevice, and the search runs with no torch loaded."""
     code = ("import sys, numpy as np, warp as wp\n"
-            "from gof_warp.marching import marching_tetrahedra, resolve_device\n"
+            "from gof_warp.mesh.marching import marching_tetrahedra, resolve_device\n"
             "@wp.func\n"
             "def f(x: wp.vec3) -> float:\n"
             "    return 0.25 - wp.dot(x, x)\n"

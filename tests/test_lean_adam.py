@@ -4,8 +4,8 @@ import pytest
 import torch
 
 from _optim_cases import small_gaussians, steps_with_surgery, through_state_dict
-from gof_warp.model import PARAM_NAMES
-from gof_warp.optim import LeanAdam, OptimConfig, make_optimizer
+from gof_warp.core.model import PARAM_NAMES
+from gof_warp.training.optim import LeanAdam, OptimConfig, make_optimizer
 
 
 def _groups(seed: int, device="cpu"):

@@ -5,9 +5,9 @@ import pytest
 import torch
 from scipy.signal import convolve2d
 
-from gof_warp.camera import Camera
-from gof_warp.errors import GofError
-from gof_warp.losses import (LossConfig, depth_normal_consistency, depth_to_normal, distortion_loss, dssim, l1,
+from gof_warp.core.camera import Camera
+from gof_warp.core.errors import GofError
+from gof_warp.training.losses import (LossConfig, depth_normal_consistency, depth_to_normal, distortion_loss, dssim, l1,
                              total_loss)
 
 TOL64 = 1e-10  # float64 torch vs float64 numpy: only summation-order rounding
@@ -208,7 +208,7 @@ def test_compiled_training_loss_equals_the_eager_loss(form):
     graph, ``fullgraph=True``, and AOTAutograd's backward, without code generation) gives the eager loss, its terms
     and its gradients, with and without the regularisers, for two cameras of different intrinsics (passed as device
     tensors, not baked in) and with an L1 pair."""
-    from gof_warp.losses import TrainingLoss
+    from gof_warp.training.losses import TrainingLoss
 
     rng = np.random.default_rng(11)
     cams = [_camera(), _camera(cx=8.9, cy=4.2, fx=25.0, fy=23.5)]
@@ -235,8 +235,8 @@ def test_training_loss_with_appearance_compiled_equals_the_eager_correction():
     row is picked by a device index) it gives the loss, terms and gradients (renders, embedding, network) of
     ``total_loss`` with the pair built by ``AppearanceModel.apply`` as the trainer built it before; a camera smaller
     than the 32-pixel crop gets the plain L1."""
-    from gof_warp.appearance import AppearanceModel
-    from gof_warp.losses import TrainingLoss
+    from gof_warp.training.appearance import AppearanceModel
+    from gof_warp.training.losses import TrainingLoss
 
     h, w = 40, 70  # crop 32 x 64
     rng = np.random.default_rng(3)
@@ -291,8 +291,8 @@ def test_training_loss_as_cuda_graphs_equals_the_eager_loss():
     """``cuda_graphs=True`` (inductor, ``mode="reduce-overhead"``): over a sequence of views and both graphs (with and
     without the regularisers), each call's loss, terms and gradients (renders and appearance network) equal the
     eager loss's, and the terms stay valid after later replays (they are copied out of the graph's memory)."""
-    from gof_warp.appearance import AppearanceModel
-    from gof_warp.losses import TrainingLoss
+    from gof_warp.training.appearance import AppearanceModel
+    from gof_warp.training.losses import TrainingLoss
 
     dev = torch.device("cuda")
     h, w = 40, 70
@@ -333,14 +333,14 @@ def test_training_loss_as_cuda_graphs_equals_the_eager_loss():
 
 
 def test_training_loss_modes_and_fallback():
-    from gof_warp.losses import TrainingLoss
+    from gof_warp.training.losses import TrainingLoss
 
     cams = [_camera()]
     assert TrainingLoss(LossConfig(), cams, "cpu").compiled is None  # "auto" compiles on CUDA only
     assert TrainingLoss(LossConfig(), cams, "cpu", mode="off").compiled is None
     with pytest.raises(GofError):
         TrainingLoss(LossConfig(), cams, "cpu", mode="sometimes")
-    from gof_warp.appearance import AppearanceModel
+    from gof_warp.training.appearance import AppearanceModel
 
     with pytest.raises(GofError, match="1 embeddings for 2 cameras"):
         TrainingLoss(LossConfig(), cams * 2, "cpu", appearance=AppearanceModel(1))
@@ -365,8 +365,8 @@ def test_training_loss_modes_and_fallback():
 def test_compile_loss_config_values():
     """``compile_loss``: auto / on / off; a bare YAML on/off (read as true/false) means on/off; nonsense is an error
     naming the key."""
-    from gof_warp.config import ConfigError, merge, parse_override
-    from gof_warp.trainer import TrainConfig
+    from gof_warp.core.config import ConfigError, merge, parse_override
+    from gof_warp.training.trainer import TrainConfig
 
     assert TrainConfig().compile_loss == "auto"
     assert merge(TrainConfig(), parse_override("compile_loss=off")).compile_loss == "off"
@@ -380,8 +380,8 @@ def test_auto_compiles_only_long_runs_on_cuda():
     """``compile_loss="auto"`` (the default) compiles runs of at least AUTO_COMPILE_MIN_ITERATIONS iterations on CUDA
     only: a short run resolves to "off", a long one stays "auto" (which TrainingLoss keeps eager off CUDA), and an
     explicit "on" / "off" is kept whatever the length."""
-    from gof_warp.losses import TrainingLoss
-    from gof_warp.trainer import AUTO_COMPILE_MIN_ITERATIONS, TrainConfig, compile_mode
+    from gof_warp.training.losses import TrainingLoss
+    from gof_warp.training.trainer import AUTO_COMPILE_MIN_ITERATIONS, TrainConfig, compile_mode
 
     long_run, short_run = AUTO_COMPILE_MIN_ITERATIONS, AUTO_COMPILE_MIN_ITERATIONS - 1
     assert compile_mode(TrainConfig(iterations=long_run)) == "auto"

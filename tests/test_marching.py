@@ -14,11 +14,11 @@ import torch
 import warp as wp
 from scipy.spatial.transform import Rotation
 
-from gof_warp.camera import look_at
-from gof_warp.errors import GofError
-from gof_warp.marching import marching_cubes, marching_tetrahedra, merge_keyed_pieces, search_edges
-from gof_warp.delaunay import delaunay, orient_and_drop_degenerate
-from gof_warp.tetra import (TetraConfig, filter_cells, level_band, tetra_points,
+from gof_warp.core.camera import look_at
+from gof_warp.core.errors import GofError
+from gof_warp.mesh.marching import marching_cubes, marching_tetrahedra, merge_keyed_pieces, search_edges
+from gof_warp.mesh.delaunay import delaunay, orient_and_drop_degenerate
+from gof_warp.mesh.tetra import (TetraConfig, filter_cells, level_band, tetra_points,
                             tetrahedral_grid)
 
 EXACT_TOL = 2e-6  # float32 rounding of a point on a unit-size edge

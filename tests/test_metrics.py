@@ -13,11 +13,11 @@ import pytest
 import torch
 import trimesh
 
-from gof_warp.errors import GofError
-from gof_warp.evaluate import main as evaluate_main
-from gof_warp.geometry_metrics import (_closest_point_on_triangles, load_geometry, mesh_accuracy_completeness,
+from gof_warp.core.errors import GofError
+from gof_warp.cli.evaluate import main as evaluate_main
+from gof_warp.eval.geometry_metrics import (_closest_point_on_triangles, load_geometry, mesh_accuracy_completeness,
                                        mesh_statistics, point_mesh_distance, sample_surface)
-from gof_warp.metrics import (LPIPS_WEIGHTS_ENV, LpipsVgg, image_metrics, lpips,
+from gof_warp.eval.image_metrics import (LPIPS_WEIGHTS_ENV, LpipsVgg, image_metrics, lpips,
                               lpips_available, load_lpips, psnr, ssim)
 
 EXACT64 = 1e-10  # float64 closed forms: only rounding separates them

@@ -5,15 +5,15 @@ seen by both and one seen by a single camera."""
 import numpy as np
 import pytest
 
-from gof_warp.camera import look_at
-from gof_warp.errors import GofError
-from gof_warp.evaluate import main as evaluate_main
-from gof_warp.extraction import MeshConfig, extract_mesh
-from gof_warp.model import Gaussians
-from gof_warp.opacity_field import OpacityFieldConfig, opacity_field
-from gof_warp.region_metrics import in_region, observe, scored_region, split_triangles
+from gof_warp.core.camera import look_at
+from gof_warp.core.errors import GofError
+from gof_warp.cli.evaluate import main as evaluate_main
+from gof_warp.mesh.extraction import MeshConfig, extract_mesh
+from gof_warp.core.model import Gaussians
+from gof_warp.rendering.opacity_field import OpacityFieldConfig, opacity_field
+from gof_warp.eval.region_metrics import in_region, observe, scored_region, split_triangles
 from gof_warp.synthetic import meshes as M
-from gof_warp.tetra import TetraConfig
+from gof_warp.mesh.tetra import TetraConfig
 
 BOTH = (0.0, 0.0, 0.0)  # seen by both cameras
 ONE = (-1.5, 0.0, 0.0)  # behind the origin for camera 0 only: 27 degrees off camera 1's axis, its half-FOV is 15

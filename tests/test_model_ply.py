@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from gof_warp.errors import ModelError, PlyError
-from gof_warp.model import SH_C0, Gaussians, num_sh_coeffs
+from gof_warp.core.errors import ModelError, PlyError
+from gof_warp.core.model import SH_C0, Gaussians, num_sh_coeffs
 
 
 def _random_gaussians(n=50, degree=3, seed=0, filter_3d=False):
@@ -181,7 +181,7 @@ def test_shape_errors_and_subset():
 def test_mesh_ply_written_by_us_reads_back_exactly_in_trimesh_and_refuses_bad_meshes(tmp_path):
     import trimesh
 
-    from gof_warp.ply import write_ply_mesh
+    from gof_warp.core.ply import write_ply_mesh
 
     rng = np.random.default_rng(3)
     v = rng.normal(size=(50, 3)).astype(np.float32)
@@ -243,7 +243,7 @@ def test_compiled_activation_follows_the_gaussian_count_without_recompiling():
     """``Activation(compiled=True)`` (``torch.compile`` with dynamic N; backend ``aot_eager`` here) gives the eager
     activations and gradients for models of different sizes, with and without the 3D filter, compiling one graph for
     each filter state and none more when densification changes N."""
-    from gof_warp.model import Activation
+    from gof_warp.core.model import Activation
 
     torch._dynamo.reset()
     torch._dynamo.utils.counters.clear()
@@ -265,7 +265,7 @@ def test_compiled_activation_follows_the_gaussian_count_without_recompiling():
 def test_activation_falls_back_to_eager_unless_strict(caplog):
     """A compiler failure: the non-strict activation warns, says why and computes the eager activations from then on;
     the strict one raises."""
-    from gof_warp.model import Activation
+    from gof_warp.core.model import Activation
 
     def broken(graph, example_inputs):
         raise RuntimeError("no compiler here")
@@ -291,7 +291,7 @@ def test_pointwise_activation_has_no_reduction_for_the_compiler():
     from functorch.compile import make_boxed_func
     from torch._functorch.aot_autograd import aot_function
 
-    from gof_warp.model import activate, activate_pointwise
+    from gof_warp.core.model import activate, activate_pointwise
 
     def ops_of(fn, g):
         seen = []

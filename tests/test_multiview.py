@@ -1,4 +1,4 @@
-"""Multi-view photometric term (gof_warp.multiview): the plane warp against float64 geometry, the loss on an
+"""Multi-view photometric term (gof_warp.training.multiview): the plane warp against float64 geometry, the loss on an
 analytic textured plane (zero at the true depth, gradients towards it, float64 central differences), the masks,
 neighbour selection, config checks and a training run with the term on."""
 
@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 import torch
 
-from gof_warp.camera import look_at
-from gof_warp.config import merge
-from gof_warp.errors import GofError
-from gof_warp.multiview import (MultiViewConfig, MultiViewTerm, _loss, grey, multiview_loss, ncc, neighbour_views,
+from gof_warp.core.camera import look_at
+from gof_warp.core.config import merge
+from gof_warp.core.errors import GofError
+from gof_warp.training.multiview import (MultiViewConfig, MultiViewTerm, _loss, grey, multiview_loss, ncc, neighbour_views,
                                 plane_warp, sample_centres)
 
 PLANE_Z = 5.0  # the world plane z = 5, textured by _texture
@@ -164,7 +164,7 @@ def test_occlusion_test_is_one_sided():
 
 
 def test_nearest_reads_the_pixel_holding_the_point():
-    from gof_warp.multiview import _nearest
+    from gof_warp.training.multiview import _nearest
 
     image = torch.arange(12.0).reshape(3, 4)  # pixel (i, j) spans [i, i + 1] x [j, j + 1]
     uv = torch.tensor([[2.99, 1.0], [3.0, 1.0], [0.0, 2.5], [-0.5, 9.0], [7.0, 0.2]])
@@ -249,7 +249,7 @@ def test_several_neighbours_average_over_those_that_see_a_patch():
     depth = d_ref * 1.04  # off the plane, so that the losses differ from neighbour to neighbour
 
     def multi(cams, greys, depths):
-        from gof_warp.multiview import _relative_pose
+        from gof_warp.training.multiview import _relative_pose
         poses = [_relative_pose(ref, c, torch.float64, None) for c in cams]
         return _loss(depth, normal, alpha, g_ref, greys, ref.pinhole, [c.pinhole for c in cams],
                      [p[0] for p in poses], [p[1] for p in poses], centres, cfg, depths)
@@ -328,7 +328,7 @@ def test_compiled_term_matches_the_eager_one(per_step):
 def test_training_with_the_term_on(tmp_path, device):
     from gof_warp.data import load_scene
     from gof_warp.synthetic import make_scene
-    from gof_warp.trainer import TrainConfig, Trainer
+    from gof_warp.training.trainer import TrainConfig, Trainer
 
     scene = load_scene(make_scene("default", tmp_path / "s", views=6, resolution=(32, 32), device=device))
     cfg = merge(TrainConfig(), {"iterations": 16, "checkpoint_every": 0, "log_every": 1,

@@ -1,13 +1,13 @@
-"""The octree grid (gof_warp.octree_tets): a hand-counted tree, conformity, balance, cover, watertight marching."""
+"""The octree grid (gof_warp.mesh.octree_tets): a hand-counted tree, conformity, balance, cover, watertight marching."""
 
 import numpy as np
 import pytest
 import torch
 
-from gof_warp.arrays import even_split
-from gof_warp.errors import GofError
-from gof_warp.marching import marching_tetrahedra
-from gof_warp.octree_tets import (OctreeConfig, build_octree, octree_grid, octree_grid_tets, octree_tetrahedra, octree_tets,
+from gof_warp.core.arrays import even_split
+from gof_warp.core.errors import GofError
+from gof_warp.mesh.marching import marching_tetrahedra
+from gof_warp.mesh.octree_tets import (OctreeConfig, build_octree, octree_grid, octree_grid_tets, octree_tetrahedra, octree_tets,
                                   unpack)
 
 
@@ -213,7 +213,7 @@ def test_bad_settings_are_clear_errors(kwargs, match):
 def test_a_small_grid_is_built_at_the_finer_factor_unless_a_factor_is_given():
     """cell_factor None: DEFAULT_CELL_FACTOR, or SMALL_CELL_FACTOR when the default grid has fewer than small_leaves
     leaves; a given factor is used as it is."""
-    from gof_warp.octree_tets import DEFAULT_CELL_FACTOR, SMALL_CELL_FACTOR
+    from gof_warp.mesh.octree_tets import DEFAULT_CELL_FACTOR, SMALL_CELL_FACTOR
 
     gen = torch.Generator().manual_seed(3)
     centres = torch.rand(40, 3, generator=gen, dtype=torch.float64)
@@ -235,7 +235,7 @@ def test_a_small_grid_is_built_at_the_finer_factor_unless_a_factor_is_given():
 def test_the_far_corner_of_the_deepest_lattice_keeps_its_key():
     """depth = MAX_DEPTH: the root cube's far corner (2^(depth+1) lattice units) packs and unpacks unchanged, so the
     cells on the far faces keep their corners."""
-    from gof_warp.octree_tets import MAX_DEPTH, pack
+    from gof_warp.mesh.octree_tets import MAX_DEPTH, pack
 
     far = torch.tensor([[1 << (MAX_DEPTH + 1)] * 3], dtype=torch.int64)
     assert torch.equal(unpack(pack(far)), far)
@@ -249,11 +249,11 @@ def test_the_far_corner_of_the_deepest_lattice_keeps_its_key():
 def test_far_outliers_that_coarsen_the_grid_are_named(caplog):
     centres = torch.cat([torch.rand(200, 3, dtype=torch.float64), torch.tensor([[1e7, 0.0, 0.0]])])
     radii = torch.full((201,), 1e-2, dtype=torch.float64)
-    with caplog.at_level("WARNING", logger="gof_warp.octree_tets"):
+    with caplog.at_level("WARNING", logger="gof_warp.mesh.octree_tets"):
         octree_grid(centres, radii, OctreeConfig(depth=8))
     assert "finer than the octree's deepest level" in caplog.text
     caplog.clear()
-    with caplog.at_level("WARNING", logger="gof_warp.octree_tets"):
+    with caplog.at_level("WARNING", logger="gof_warp.mesh.octree_tets"):
         octree_grid(centres, radii, OctreeConfig(depth=8, box_percentile=1.0))
     assert "deepest level" not in caplog.text
 
@@ -281,7 +281,7 @@ def test_same_grid_on_every_device(device):
 def test_key_set_merges_batches_into_the_distinct_sorted_keys(monkeypatch):
     """``_KeySet`` (the octree's cells, corners and points gathered chunk by chunk): batches merged whenever they
     outnumber the set, here every few batches, end as ``torch.unique`` of all of them."""
-    from gof_warp import octree_tets as ot
+    from gof_warp.mesh import octree_tets as ot
 
     monkeypatch.setattr(ot, "KEYSET_MERGE_MIN", 50)
     g = torch.Generator().manual_seed(17)

@@ -8,11 +8,11 @@ import pytest
 import torch
 import warp as wp
 
-from gof_warp.camera import look_at
-from gof_warp.model import Gaussians
+from gof_warp.core.camera import look_at
+from gof_warp.core.model import Gaussians
 from gof_warp import kernels as K
-from gof_warp.opacity_field import OpacityFieldConfig, _min_over_views, _view_inputs, opacity_field
-from gof_warp.render import RenderConfig, render
+from gof_warp.rendering.opacity_field import OpacityFieldConfig, _min_over_views, _view_inputs, opacity_field
+from gof_warp.rendering.render import RenderConfig, render
 
 # float32 kernel vs float64 reference: sums of ≤ 30 terms of O(1) → ~1e-6; decisions near the alpha_min
 # threshold can flip a ≤ 1/255 contribution, which the scenes below avoid by construction (see _scene).
@@ -248,7 +248,7 @@ def _views_split_rank(rank, init_dir, result):
     set of interpreter start-ups for both cases)."""
     import torch.distributed as dist
 
-    from gof_warp.distributed import Ranks, join_process_group
+    from gof_warp.training.distributed import Ranks, join_process_group
 
     means, quats, scales, opac = _scene(seed=8)
     g = Gaussians.from_activated(means, quats, scales, opac, device="cpu")

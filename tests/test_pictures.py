@@ -5,10 +5,10 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from gof_warp import pictures
-from gof_warp.camera import Camera, look_at
-from gof_warp.errors import GofError
-from gof_warp.pictures import BACKGROUND, panel_layout, shade_mesh
+from gof_warp.viz import pictures
+from gof_warp.core.camera import Camera, look_at
+from gof_warp.core.errors import GofError
+from gof_warp.viz.pictures import BACKGROUND, panel_layout, shade_mesh
 
 BG = np.round(np.asarray(BACKGROUND) * 255).astype(np.uint8)
 
@@ -180,8 +180,8 @@ def test_mesh_column_is_clipped_where_the_render_is(tiny_run):
     """view_panels draws the mesh from the larger of render.near and the camera's own clip, as the renderer does."""
     import dataclasses
 
-    from gof_warp.model import Gaussians
-    from gof_warp.render import RenderConfig
+    from gof_warp.core.model import Gaussians
+    from gof_warp.rendering.render import RenderConfig
 
     run, _ = tiny_run
     g = Gaussians.load_ply(run / "point_cloud.ply", device="cpu")
@@ -210,10 +210,10 @@ TINY = {
 def tiny_run(tmp_path_factory):
     """A trained run laid out as the built-in default run: RUN/scene holds the scene (with its ground-truth
     mesh), 40x30 images (no downscaling in the picture)."""
-    from gof_warp.config import merge
+    from gof_warp.core.config import merge
     from gof_warp.data import load_scene
     from gof_warp.synthetic import make_scene
-    from gof_warp.trainer import TrainConfig, Trainer
+    from gof_warp.training.trainer import TrainConfig, Trainer
 
     run = tmp_path_factory.mktemp("pics") / "run"
     make_scene("default", run / "scene", views=5, resolution=(40, 30), device="cpu")
@@ -259,7 +259,7 @@ def test_run_pictures_without_photos_still_show_the_model(tiny_run, tmp_path, ca
     bare.mkdir()
     for name in ("point_cloud.ply", "cameras.json", "config.yaml"):
         (bare / name).write_bytes((run / name).read_bytes())
-    with caplog.at_level("INFO", logger="gof_warp.pictures"):
+    with caplog.at_level("INFO", logger="gof_warp.viz.pictures"):
         (path,) = pictures.write_run_pictures(bare, views=3, device="cpu")
     assert path == bare / "pictures" / "views.png"
     assert "photo column is left out" in caplog.text
@@ -267,7 +267,7 @@ def test_run_pictures_without_photos_still_show_the_model(tiny_run, tmp_path, ca
 
 
 def test_wide_cameras_are_scaled_to_the_width_limit(tiny_run):
-    from gof_warp.model import Gaussians
+    from gof_warp.core.model import Gaussians
 
     run, scene = tiny_run
     g = Gaussians.load_ply(run / "point_cloud.ply", device="cpu")
@@ -289,7 +289,7 @@ def test_cli_writes_the_picture_and_reports_errors_in_one_line(tiny_run, tmp_pat
 
 
 def test_extract_writes_the_mesh_picture_unless_told_not_to(tiny_run, tmp_path, monkeypatch, caplog):
-    from gof_warp import extract
+    from gof_warp.cli import extract
 
     run, _ = tiny_run
     cube = _cube(half=0.4)
@@ -312,6 +312,6 @@ def test_extract_writes_the_mesh_picture_unless_told_not_to(tiny_run, tmp_path, 
 
     monkeypatch.setattr(pictures, "write_run_pictures", broken)
     out.unlink()
-    with caplog.at_level("WARNING", logger="gof_warp.extract"):
+    with caplog.at_level("WARNING", logger="gof_warp.cli.extract"):
         assert extract.main(args) == 0
     assert out.is_file() and "no pictures today" in caplog.text

@@ -7,9 +7,9 @@ import time
 
 import pytest
 
-from gof_warp import bench
-from gof_warp.bench import Run, run_suite, tetra
-from gof_warp.progress import Bar, Stages, TrainingProgress, as_stages, format_seconds, is_terminal
+from gof_warp.cli import bench
+from gof_warp.cli.bench import Run, run_suite, tetra
+from gof_warp.core.progress import Bar, Stages, TrainingProgress, as_stages, format_seconds, is_terminal
 
 INFO = {"total": 0.1234, "psnr": 23.456, "num_gaussians": 9005, "l1": 0.1}
 ANSI = re.compile(r"\x1b\[")

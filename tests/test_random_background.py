@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 import torch
 
-import gof_warp.trainer as trainer_module
-from gof_warp.config import merge
+import gof_warp.training.trainer as trainer_module
+from gof_warp.core.config import merge
 from gof_warp.data import load_scene
 from gof_warp.synthetic import make_scene
-from gof_warp.trainer import TrainConfig, Trainer
+from gof_warp.training.trainer import TrainConfig, Trainer
 from test_train import TINY
 
 
@@ -25,7 +25,7 @@ def _config(**top):
 
 
 def test_only_the_unbounded_preset_trains_on_random_backgrounds():
-    from gof_warp.train import resolve_config
+    from gof_warp.cli.train import resolve_config
 
     assert resolve_config("unbounded", [], None).random_background is True
     for name in ("blender", "dtu", "mipnerf360", "quick"):

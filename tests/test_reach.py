@@ -1,4 +1,4 @@
-"""The Gaussians' reach (gof_warp.reach, kernels/reach.py): points inside oriented boxes, hand-placed and against the
+"""The Gaussians' reach (gof_warp.mesh.reach, kernels/reach.py): points inside oriented boxes, hand-placed and against the
 float64 brute force, and the octree grid's reach filter in the extraction."""
 
 import math
@@ -8,14 +8,14 @@ import pytest
 import torch
 import trimesh
 
-from gof_warp.camera import look_at
-from gof_warp.errors import GofError
-from gof_warp.extract import MeshConfig, StageTimer, extract_mesh
-from gof_warp.model import Gaussians
-from gof_warp.octree_tets import OctreeConfig
-from gof_warp.reach import points_in_boxes, points_in_boxes_reference
-from gof_warp.render import RenderConfig
-from gof_warp.tetra import TetraConfig, octree_tets_from_gaussians
+from gof_warp.core.camera import look_at
+from gof_warp.core.errors import GofError
+from gof_warp.cli.extract import MeshConfig, StageTimer, extract_mesh
+from gof_warp.core.model import Gaussians
+from gof_warp.mesh.octree_tets import OctreeConfig
+from gof_warp.mesh.reach import points_in_boxes, points_in_boxes_reference
+from gof_warp.rendering.render import RenderConfig
+from gof_warp.mesh.tetra import TetraConfig, octree_tets_from_gaussians
 
 
 def _quat_z(angle):

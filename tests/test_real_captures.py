@@ -7,20 +7,20 @@ import numpy as np
 import pytest
 
 from _scene_fixtures import make_blender_scene, make_colmap_scene, make_dtu_scene, ring_cameras
-from gof_warp.config import ConfigError
-from gof_warp.errors import GofError
-from gof_warp.init_points import (
+from gof_warp.core.config import ConfigError
+from gof_warp.core.errors import GofError
+from gof_warp.data.init_points import (
     background_points,
     camera_focus,
     default_init_box,
     fibonacci_sphere,
     initial_point_cloud,
 )
-from gof_warp.loss_monitor import LossSpikeMonitor
-from gof_warp.model import Gaussians
-from gof_warp.preset_choice import choose_preset
-from gof_warp.scene import Scene, View
-from gof_warp.trainer import ModelConfig
+from gof_warp.training.loss_monitor import LossSpikeMonitor
+from gof_warp.core.model import Gaussians
+from gof_warp.training.presets import choose_preset
+from gof_warp.core.scene import Scene, View
+from gof_warp.training.trainer import ModelConfig
 
 W, H = 32, 24
 
@@ -140,7 +140,7 @@ def test_preset_choice_follows_the_files(tmp_path):
 
 
 def test_every_chosen_preset_is_a_shipped_config():
-    from gof_warp.train import PRESETS, preset_path, resolve_config
+    from gof_warp.cli.train import PRESETS, preset_path, resolve_config
 
     for name in ("blender", "unbounded", "dtu"):
         assert name in PRESETS and preset_path(name).is_file()

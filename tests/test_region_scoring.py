@@ -1,4 +1,4 @@
-"""Region scoring (gof_warp.region_metrics) on tiny hand-built scenes: crop-then-sample against the old
+"""Region scoring (gof_warp.eval.region_metrics) on tiny hand-built scenes: crop-then-sample against the old
 sample-then-crop, the exact mesh at the floor, ground holes and waves, unseen faces left out, the CLI."""
 
 import json
@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from gof_warp import look_at
-from gof_warp.evaluate import main as evaluate_main
-from gof_warp.geometry_metrics import mesh_accuracy_completeness
-from gof_warp.region_metrics import Ground, crop_mesh, in_region, observe, region_scores, seen_faces
+from gof_warp.cli.evaluate import main as evaluate_main
+from gof_warp.eval.geometry_metrics import mesh_accuracy_completeness
+from gof_warp.eval.region_metrics import Ground, crop_mesh, in_region, observe, region_scores, seen_faces
 from gof_warp.synthetic import meshes as M
 
 SIZE = 32  # pixels per image side: enough rays for metre-sized faces, seconds on a CPU

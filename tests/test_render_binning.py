@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from gof_warp.camera import look_at
+from gof_warp.core.camera import look_at
 from gof_warp.kernels.binning import bin_gaussians
 from gof_warp.kernels.project import preprocess_gaussians, screen_bounds
 from gof_warp.kernels.render_types import CameraParams, RasterSettings, camera_params_from, make_raster_settings
@@ -402,7 +402,7 @@ def _assert_renders_identically(cam, scene):
     bitwise equal."""
     import torch
 
-    from gof_warp.render import RenderConfig, rasterize
+    from gof_warp.rendering.render import RenderConfig, rasterize
 
     names = ("means", "quats", "scales", "opacities", "sh")
     results = []

@@ -1,4 +1,4 @@
-"""Edge cases of the Warp renderer (``gof_warp.render``): empty and fully culled scenes, one Gaussian
+"""Edge cases of the Warp renderer (``gof_warp.rendering.render``): empty and fully culled scenes, one Gaussian
 covering the image, thousands of Gaussians in one tile, degenerate scales and opacities; the pure-Warp
 ``wp.Tape`` path against the torch path; input validation."""
 
@@ -11,10 +11,10 @@ import pytest
 import torch
 import warp as wp
 
-from gof_warp.camera import look_at
+from gof_warp.core.camera import look_at
 from gof_warp.kernels.render_types import camera_params_from, make_raster_settings
 from gof_warp.kernels.renderer import RenderOutputs, render_backward, render_forward, render_gaussians, sh_parts
-from gof_warp.render import DensifyStats, RenderConfig, rasterize
+from gof_warp.rendering.render import DensifyStats, RenderConfig, rasterize
 from reference_render import reference_render
 
 OUTPUTS = ("rgb", "alpha", "depth", "accum_depth", "median_depth", "normal", "distortion")
@@ -282,8 +282,8 @@ def test_validation_errors():
 def test_render_reads_each_model_attribute_once():
     """A model's activated parameters are computed on every access (normalize, exp, sigmoid: torch ops on the GPU):
     ``render`` reads each once, and renders what the model holds, SH pair or one tensor."""
-    from gof_warp.model import Gaussians
-    from gof_warp.render import render
+    from gof_warp.core.model import Gaussians
+    from gof_warp.rendering.render import render
 
     torch.manual_seed(0)
     g = Gaussians.random_in_box(40, sh_degree=1)

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 import torch
 
-from gof_warp.camera import Camera
-from gof_warp.render import DensifyStats, RenderConfig, rasterize
+from gof_warp.core.camera import Camera
+from gof_warp.rendering.render import DensifyStats, RenderConfig, rasterize
 from reference_render import OUTPUT_NAMES, make_camera, random_scene, reference_render, reference_screen_boxes
 
 # A decision within 0.1% of its threshold may flip: float32 α, T, t*, d² carry relative errors up to

@@ -14,7 +14,7 @@ import dataclasses
 import pytest
 import torch
 
-from gof_warp.render import DensifyStats, RenderConfig, rasterize
+from gof_warp.rendering.render import DensifyStats, RenderConfig, rasterize
 from reference_render import OUTPUT_NAMES, RefConfig, make_camera, random_scene, reference_densify_stats, reference_render, weighted_loss
 
 GRAD_CONFIG = RenderConfig(alpha_min=0.0, transmittance_min=0.0, k_max=10.0)

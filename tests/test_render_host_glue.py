@@ -1,4 +1,4 @@
-"""What a :class:`gof_warp.render.RenderScratch` keeps between renders to spend less host time (issue 14) must never
+"""What a :class:`gof_warp.rendering.render.RenderScratch` keeps between renders to spend less host time (issue 14) must never
 change a result: the spare scratch arrays of finished renders (``kernels.renderer.ScratchPool``), the shared camera /
 settings structs and the stream wrappers. Renders through one scratch, interleaving image sizes, Gaussian counts, SH
 degrees, statistics, settings and overlapping renders, are compared bit for bit with renders without one; what it
@@ -12,9 +12,9 @@ import pytest
 import torch
 import warp as wp
 
-from gof_warp.camera import look_at
+from gof_warp.core.camera import look_at
 from gof_warp.kernels.renderer import GradScratch, PixelScratch, ScratchPool, SplatScratch
-from gof_warp.render import DensifyStats, RenderConfig, RenderScratch, rasterize
+from gof_warp.rendering.render import DensifyStats, RenderConfig, RenderScratch, rasterize
 
 OUTPUTS = ("rgb", "alpha", "depth", "accum_depth", "median_depth", "normal", "distortion", "radii")
 STATS = ("grad2d", "grad2d_abs", "radii", "max_radii", "visible_count")

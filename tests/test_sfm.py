@@ -21,8 +21,8 @@ import trimesh
 from gof_warp.data import DataConfig, load_scene
 from gof_warp.data.sfm import (SfmConfig, SfmError, SfmResult, cache_key, default_cache_dir, pose_pairs,
                                triangulate_known_poses)  # fmt: skip
-from gof_warp.errors import GofError, SceneError
-from gof_warp.geometry_metrics import point_mesh_distance
+from gof_warp.core.errors import GofError, SceneError
+from gof_warp.eval.geometry_metrics import point_mesh_distance
 from gof_warp.synthetic import make_scene
 
 RESOLUTION = (192, 192)

@@ -8,12 +8,12 @@ from types import SimpleNamespace
 import numpy as np
 from PIL import Image
 
-from gof_warp import pictures
+from gof_warp.viz import pictures
 
 
 
 def _train(scene, run, overrides, *extra):
-    from gof_warp import train
+    from gof_warp.cli import train
 
     return train.main([str(scene), "--out", str(run), "--config", "quick", "--iterations", "4", "--device", "cpu",
                        "--quiet", *extra, *overrides, "snapshot_iterations=[2]"])
@@ -55,7 +55,7 @@ def test_training_goes_on_when_a_snapshot_picture_fails(tiny_train_scene, tiny_t
 
     monkeypatch.setattr(pictures, "write_model_views", fail)
     run = tmp_path / "run"
-    with caplog.at_level(logging.WARNING, logger="gof_warp.pictures"):
+    with caplog.at_level(logging.WARNING, logger="gof_warp.viz.pictures"):
         assert _train(tiny_train_scene, run, tiny_train_overrides) == 0
     assert "could not write the picture of the snapshot at iteration 2: no drawing today" in caplog.text
     assert (run / "point_cloud.ply").is_file() and (run / "snapshots" / "iter_2" / "snapshot.json").is_file()

@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 import torch
 
-from gof_warp.camera import Camera
-from gof_warp.config import merge
+from gof_warp.core.camera import Camera
+from gof_warp.core.config import merge
 from gof_warp.data import load_scene
-from gof_warp.loss_monitor import LossSpikeMonitor
-from gof_warp.near_camera import centre_depths, near_camera_census
-from gof_warp.step_scalars import IterationScalars
+from gof_warp.training.loss_monitor import LossSpikeMonitor
+from gof_warp.training.near_camera import centre_depths, near_camera_census
+from gof_warp.training.step_scalars import IterationScalars
 from gof_warp.synthetic import make_scene
-from gof_warp.trainer import TrainConfig, Trainer
+from gof_warp.training.trainer import TrainConfig, Trainer
 from test_train import TINY
 
 
@@ -102,7 +102,7 @@ def test_a_view_spike_in_training_records_what_sits_in_front_of_that_camera(tmp_
 
 
 def test_distortion_colours_run_from_dark_to_bright_and_an_empty_map_is_dark():
-    from gof_warp.panels import colorize_distortion
+    from gof_warp.viz.panels import colorize_distortion
 
     d = np.array([[0.0, 0.01, 0.25, 1.0]])
     c = colorize_distortion(d).astype(int)
@@ -113,7 +113,7 @@ def test_distortion_colours_run_from_dark_to_bright_and_an_empty_map_is_dark():
 
 
 def test_training_draws_a_picture_of_each_listed_spike(tmp_path):
-    from gof_warp.pictures import spike_picture_name, spike_picture_or_warning
+    from gof_warp.viz.pictures import spike_picture_name, spike_picture_or_warning
 
     scene = load_scene(make_scene("default", tmp_path / "s", views=6, resolution=(32, 32), device="cpu"))
     t = Trainer(scene, merge(TrainConfig(), TINY), tmp_path / "run", "cpu")
@@ -149,7 +149,7 @@ def test_training_draws_a_picture_of_each_listed_spike(tmp_path):
 def _ray_census_f64(means, quats, scales, opac, cam, within, near, alpha_min, alpha_max, nx):
     """Brute force with the float64 reference renderer's ray–Gaussian quantities (tests/reference_render)."""
     from reference_render import RefCamera, _ray_gaussian, f64
-    from gof_warp.model import quat_to_rotmat
+    from gof_warp.core.model import quat_to_rotmat
 
     rc = RefCamera(cam)
     ny = max(1, round(nx * cam.height / cam.width))
@@ -167,7 +167,7 @@ def _ray_census_f64(means, quats, scales, opac, cam, within, near, alpha_min, al
 
 
 def test_ray_census_matches_the_float64_reference_on_random_gaussians():
-    from gof_warp.near_camera import near_ray_census
+    from gof_warp.training.near_camera import near_ray_census
 
     cam = _camera((0.0, 0.0, 0.0))
     gen = torch.Generator().manual_seed(3)
@@ -197,7 +197,7 @@ def test_ray_census_matches_the_float64_reference_on_random_gaussians():
 
 
 def test_ray_census_sees_a_wide_gaussian_whose_centre_lies_beside_the_image():
-    from gof_warp.near_camera import near_ray_census
+    from gof_warp.training.near_camera import near_ray_census
 
     cam = _camera((0.0, 0.0, 0.0))  # 40x30, fx 40: the image spans x/z in [-0.5, 0.5]
     means = torch.tensor([[1.2, 0.5, 0.0],    # centre at x/z = 2.4: outside the image; a wide flat disc
@@ -217,7 +217,7 @@ def test_ray_census_sees_a_wide_gaussian_whose_centre_lies_beside_the_image():
 
 
 def test_near_camera_bounds_from_the_nearest_point_each_camera_sees():
-    from gof_warp.near_camera import near_camera_bounds
+    from gof_warp.training.near_camera import near_camera_bounds
 
     cams = [_camera((0.0, 0.0, 0.0), "a"), _camera((0.0, 5.0, 0.0), "b"), _camera((0.0, 0.0, 9.0), "c")]
     pts = torch.tensor([[0.0, 2.0, 0.0], [0.1, 3.0, 0.1], [0.0, 8.0, 0.0]], dtype=torch.float64)
@@ -226,7 +226,7 @@ def test_near_camera_bounds_from_the_nearest_point_each_camera_sees():
 
 
 def test_gaussians_in_front_of_cameras_match_the_float64_ray_test_per_camera():
-    from gof_warp.near_camera import in_front_of_cameras, stack_cameras
+    from gof_warp.training.near_camera import in_front_of_cameras, stack_cameras
 
     cams = [_camera((0.0, 0.0, 0.0), "a"), _camera((0.3, 1.0, 0.0), "b"), _camera((0.0, 0.0, 2.0), "c")]
     bounds = torch.tensor([1.2, 0.8, 0.1])  # c's bound is below the near plane: nothing counts in front of it
@@ -281,8 +281,8 @@ def test_render_near_from_points_gives_every_camera_its_own_near_plane(tmp_path)
     """``render.near_from_points``: each train and test camera clips at that fraction of its nearest initial point
     (never below ``render.near``); a Gaussian planted nearer than that is not drawn in that view but is beyond it;
     the planes reach ``cameras.json`` (what extraction and pictures read); off, with a warning, without points."""
-    from gof_warp.render import render
-    from gof_warp.run_folder import cameras_from_json
+    from gof_warp.rendering.render import render
+    from gof_warp.training.run_folder import cameras_from_json
 
     scene = load_scene(make_scene("default", tmp_path / "s", views=6, resolution=(32, 32), device="cpu"))
     scene.test = scene.train[4:]

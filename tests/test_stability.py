@@ -5,8 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from gof_warp.bench import main
-from gof_warp.stability import BLOB_RADIUS, CASES, FAR_RADIUS, STABILITY_METHODS, make_case
+from gof_warp.cli.bench import main
+from gof_warp.benchmarking.stability import BLOB_RADIUS, CASES, FAR_RADIUS, STABILITY_METHODS, make_case
 
 SHAPE_TOL = 0.25  # the blob's 0.5 level set lies within ~2σ (σ = 0.08) of its radius-0.5 sphere of centres
 EMPTY_SIDE_TOL = 0.15  # half blob: centres at x > 0.05, σ = 0.08, so its level set ends near x = -0.07 (not -0.6)

@@ -6,13 +6,13 @@ import math
 import pytest
 import torch
 
-from gof_warp.config import merge
+from gof_warp.core.config import merge
 from gof_warp.data import load_scene
-from gof_warp.loss_monitor import LossSpikeMonitor
-from gof_warp.optim import OptimConfig
-from gof_warp.step_scalars import IterationScalars, PendingScalars
+from gof_warp.training.loss_monitor import LossSpikeMonitor
+from gof_warp.training.optim import OptimConfig
+from gof_warp.training.step_scalars import IterationScalars, PendingScalars
 from gof_warp.synthetic import make_scene
-from gof_warp.trainer import TrainConfig, Trainer, TrainingError
+from gof_warp.training.trainer import TrainConfig, Trainer, TrainingError
 
 TINY = {"iterations": 24, "checkpoint_every": 0, "log_every": 10,  # test_train's compressed schedule
         "model": {"sh_degree": 1, "init": "random", "random_init_points": 300},

@@ -577,7 +577,7 @@ def test_cut_below_keeps_the_part_above_the_plane():
 def test_bench_init_box_reaches_every_background_presets_shell():
     """A bench run of any preset with a shell starts its random points out to the shell (each preset's largest
     vertex radius), not in the ±1.3 box of the object presets."""
-    from gof_warp.bench_runs import preset_overrides
+    from gof_warp.benchmarking.runs import preset_overrides
 
     for name in list_presets():
         parts = get_preset(name).build(None) if name != "spot" else []

@@ -13,12 +13,12 @@ import pytest
 import torch
 import warp as wp
 
-from gof_warp.config import ConfigError
+from gof_warp.core.config import ConfigError
 from gof_warp.kernels.binning import TileListSizer
 from gof_warp.kernels.renderer import prepare_view
 from gof_warp.kernels.render_types import camera_params_from
-from gof_warp.render import RenderConfig, raster_settings_for, rasterize
-from gof_warp.trainer import TrainConfig
+from gof_warp.rendering.render import RenderConfig, raster_settings_for, rasterize
+from gof_warp.training.trainer import TrainConfig
 
 NAMES = ("means", "quats", "scales", "opacities", "sh")
 

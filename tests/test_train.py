@@ -7,12 +7,12 @@ import sys
 import pytest
 import torch
 
-from gof_warp.checkpoint import list_checkpoints, load_checkpoint
-from gof_warp.config import merge
+from gof_warp.training.checkpoint import list_checkpoints, load_checkpoint
+from gof_warp.core.config import merge
 from gof_warp.data import load_scene
-from gof_warp.errors import GofError
+from gof_warp.core.errors import GofError
 from gof_warp.synthetic import make_scene
-from gof_warp.trainer import TrainConfig, Trainer, TrainingError
+from gof_warp.training.trainer import TrainConfig, Trainer, TrainingError
 
 # A schedule compressed so that every mechanism (densify, prune, opacity reset, SH increase, 3D filter,
 # regularisers, checkpoints) happens within a few dozen iterations on 32x32 images.
@@ -113,7 +113,7 @@ def _cli(*args, cwd):
 
 
 def test_cli_reports_bad_input_before_training(tmp_path, cli_in_process):
-    from gof_warp.train import main
+    from gof_warp.cli.train import main
 
     proc = _cli(str(tmp_path / "no_such_scene"), "--out", str(tmp_path / "o"), cwd=tmp_path)  # the real process
     assert proc.returncode == 2 and "error:" in proc.stderr and "no_such_scene" in proc.stderr
@@ -130,7 +130,7 @@ def test_cli_reports_bad_input_before_training(tmp_path, cli_in_process):
 
 def test_cli_refuses_to_overwrite_a_run_without_resume(tiny_scene, tmp_path, cli_in_process):
     """In this process (the real process's exit path: test_cli_reports_bad_input_before_training)."""
-    from gof_warp.train import main
+    from gof_warp.cli.train import main
 
     Trainer(tiny_scene, _config(iterations=2, checkpoint_every=0), tmp_path / "run", "cpu").run()
     # --iterations 2: were the run not refused, the command would train briefly and exit 0, not for minutes
@@ -139,7 +139,7 @@ def test_cli_refuses_to_overwrite_a_run_without_resume(tiny_scene, tmp_path, cli
 
 
 def test_decoupled_appearance_trains_and_stays_out_of_the_render(tiny_scene, tmp_path):
-    from gof_warp.appearance import AppearanceModel
+    from gof_warp.training.appearance import AppearanceModel
 
     trainer = Trainer(tiny_scene, _config(iterations=6, appearance=True, checkpoint_every=0), tmp_path / "app", "cpu")
     before = {k: v.clone() for k, v in trainer.appearance.state_dict().items()}
@@ -170,7 +170,7 @@ def test_loss_as_cuda_graphs_trains_with_appearance_and_several_views(tmp_path):
 
 
 def test_snapshots_are_written_and_do_not_change_the_run(tiny_scene, straight_run, tmp_path):
-    from gof_warp.model import Gaussians
+    from gof_warp.core.model import Gaussians
 
     plain = straight_run[0]
     short = Trainer(tiny_scene, _config(iterations=8, checkpoint_every=0), tmp_path / "short", "cpu")
@@ -197,7 +197,7 @@ def test_snapshots_are_written_and_do_not_change_the_run(tiny_scene, straight_ru
 
 @pytest.mark.parametrize("bad", [[0], [24], [30], [16, 8], [8, 8], [2.5]])
 def test_snapshot_iterations_are_validated(bad):
-    from gof_warp.config import ConfigError
+    from gof_warp.core.config import ConfigError
 
     with pytest.raises(ConfigError, match="snapshot_iterations"):
         _config(snapshot_iterations=bad)
@@ -262,11 +262,11 @@ def test_overflowed_tile_lists_are_reported(straight_run, caplog):
     try:
         trainer.tile_lists = TileListSizer(1.25)
         trainer.tile_lists.calls = 40
-        with caplog.at_level("WARNING", logger="gof_warp.trainer"):
+        with caplog.at_level("WARNING", logger="gof_warp.training.trainer"):
             trainer._warn_about_overflows()
         assert not caplog.records
         trainer.tile_lists.overflows = 3
-        with caplog.at_level("WARNING", logger="gof_warp.trainer"):
+        with caplog.at_level("WARNING", logger="gof_warp.training.trainer"):
             trainer._warn_about_overflows()
         assert "3 of 40 training renders overflowed" in caplog.text and "tile_list_margin (now 1.25)" in caplog.text
     finally:

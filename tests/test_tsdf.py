@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from gof_warp.camera import look_at
-from gof_warp.model import Gaussians
-from gof_warp.scene import View
-from gof_warp.tsdf import TSDFConfig, extract_tsdf_mesh, fuse_tsdf
+from gof_warp.core.camera import look_at
+from gof_warp.core.model import Gaussians
+from gof_warp.core.scene import View
+from gof_warp.mesh.tsdf import TSDFConfig, extract_tsdf_mesh, fuse_tsdf
 
 RADIUS = 0.5
 

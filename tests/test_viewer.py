@@ -13,11 +13,11 @@ import pytest
 import torch
 from PIL import Image
 
-from gof_warp.camera import look_at
-from gof_warp.errors import GofError
-from gof_warp.model import Gaussians
-from gof_warp.view import find_chromium, page_difference
-from gof_warp.viewer import (
+from gof_warp.core.camera import look_at
+from gof_warp.core.errors import GofError
+from gof_warp.core.model import Gaussians
+from gof_warp.cli.view import find_chromium, page_difference
+from gof_warp.viz.viewer import (
     FAR_DEPTH,
     FRUSTUM_COLOR,
     MODES,
@@ -110,7 +110,8 @@ def test_opacity_slice_marks_points_no_training_camera_sees():
 
 # ------------------------------------------------------------------------------------------ errors
 def test_missing_viser_is_named_with_the_install_command(monkeypatch, tmp_path, capsys):
-    from gof_warp import train, view
+    from gof_warp.cli import train
+    from gof_warp.cli import view
 
     monkeypatch.setitem(sys.modules, "viser", None)  # import viser -> ImportError
     with pytest.raises(GofError, match=r"pip install 'gof_warp\[viewer\]'"):
@@ -122,7 +123,8 @@ def test_missing_viser_is_named_with_the_install_command(monkeypatch, tmp_path, 
 
 
 def test_bad_viewer_options_are_refused(tmp_path, capsys):
-    from gof_warp import train, view
+    from gof_warp.cli import train
+    from gof_warp.cli import view
 
     g, cam = _blob_scene()
     with pytest.raises(GofError, match="max-size"):
@@ -149,10 +151,10 @@ def tiny_run(tmp_path_factory):
     """A trained run folder (12 iterations on 40x30 images of the default synthetic scene) with a mesh."""
     import trimesh
 
-    from gof_warp.config import merge
+    from gof_warp.core.config import merge
     from gof_warp.data import load_scene
     from gof_warp.synthetic import make_scene
-    from gof_warp.trainer import TrainConfig, Trainer
+    from gof_warp.training.trainer import TrainConfig, Trainer
 
     run = tmp_path_factory.mktemp("view") / "run"
     make_scene("default", run / "scene", views=5, resolution=(40, 30), device="cpu")
@@ -165,7 +167,8 @@ def tiny_run(tmp_path_factory):
 @pytest.mark.skipif(CHROMIUM is None, reason="no Chromium binary: apt-get install chromium-headless-shell (or chromium), "
                                              "or set GOF_WARP_CHROMIUM")
 def test_headless_browser_screenshot_shows_the_rendered_scene(tiny_run, tmp_path, monkeypatch, capsys):
-    from gof_warp import view, viewer
+    from gof_warp.cli import view
+    from gof_warp.viz import viewer
 
     made = []
     real_open_run = viewer.open_run
@@ -193,8 +196,8 @@ def test_headless_browser_screenshot_shows_the_rendered_scene(tiny_run, tmp_path
 
 @needs_viser
 def test_train_with_viewer_serves_the_page_and_updates_the_model(tiny_run, tmp_path, monkeypatch, capsys):
-    from gof_warp import train
-    from gof_warp.viewer import Viewer
+    from gof_warp.cli import train
+    from gof_warp.viz.viewer import Viewer
 
     shown, served = [], {}
     original = Viewer.update
@@ -224,7 +227,7 @@ def test_train_with_viewer_serves_the_page_and_updates_the_model(tiny_run, tmp_p
 
 @needs_viser
 def test_viewer_shows_a_copy_of_the_newest_model(tiny_run):
-    from gof_warp.viewer import open_run
+    from gof_warp.viz.viewer import open_run
 
     viewer = open_run(tiny_run, device="cpu", host="127.0.0.1", port=_free_port())
     assert viewer.mesh is not None and len(viewer.mesh[1]) == 320, "the run's mesh_*.ply is found"

@@ -1,4 +1,4 @@
-"""The faces some camera sees (gof_warp.visibility, kernels/visibility.py): a hand-built floor with a pocket under it,
+"""The faces some camera sees (gof_warp.mesh.visibility, kernels/visibility.py): a hand-built floor with a pocket under it,
 random triangle soups against the float64 brute force, and the extraction dropping what no camera sees."""
 
 import dataclasses
@@ -6,14 +6,14 @@ import dataclasses
 import numpy as np
 import pytest
 
-from gof_warp.camera import look_at
-from gof_warp.errors import GofError
-from gof_warp.extract import MeshConfig, StageTimer, extract_mesh
-from gof_warp.model import Gaussians
-from gof_warp.octree_tets import OctreeConfig
-from gof_warp.render import RenderConfig
-from gof_warp.tetra import TetraConfig
-from gof_warp.visibility import faces_seen, faces_seen_reference
+from gof_warp.core.camera import look_at
+from gof_warp.core.errors import GofError
+from gof_warp.cli.extract import MeshConfig, StageTimer, extract_mesh
+from gof_warp.core.model import Gaussians
+from gof_warp.mesh.octree_tets import OctreeConfig
+from gof_warp.rendering.render import RenderConfig
+from gof_warp.mesh.tetra import TetraConfig
+from gof_warp.mesh.visibility import faces_seen, faces_seen_reference
 
 
 def _square(z, half, lo=0):

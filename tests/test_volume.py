@@ -1,4 +1,4 @@
-"""The opacity field baked into a sparse Warp volume (gof_warp.volume): exact at the voxels, within the trilinear
+"""The opacity field baked into a sparse Warp volume (gof_warp.mesh.volume): exact at the voxels, within the trilinear
 bound between them on a smooth field, second-order convergent, sparse, bounded by its budgets, saved and
 loaded as .nvdb, and clear errors for bad inputs. The measured errors on a sharp scene are printed (pytest -s)."""
 
@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 import warp as wp
 
-from gof_warp.camera import look_at
-from gof_warp.errors import GofError
-from gof_warp.model import Gaussians
-from gof_warp.opacity_field import opacity_field
-from gof_warp.render import RenderConfig
-from gof_warp.volume import (VolumeConfig, bake_opacity_volume, bake_run, derive_voxel_size, load_volume,
+from gof_warp.core.camera import look_at
+from gof_warp.core.errors import GofError
+from gof_warp.core.model import Gaussians
+from gof_warp.rendering.opacity_field import opacity_field
+from gof_warp.rendering.render import RenderConfig
+from gof_warp.mesh.volume import (VolumeConfig, bake_opacity_volume, bake_run, derive_voxel_size, load_volume,
                              sample_volume, save_volume)
 
 # One isotropic Gaussian: its field is smooth on the scale σ, so trilinear interpolation obeys the textbook bound.

@@ -1,4 +1,4 @@
-"""A mesh extracted from the baked opacity volume (gof_warp.volume_mesh) is as good as the tetra mesh of the
+"""A mesh extracted from the baked opacity volume (gof_warp.mesh.volume_mesh) is as good as the tetra mesh of the
 same Gaussians (issue 16: "within 2 % Chamfer of the tetra mesh").
 
 Asserted interpretation, on the analytic ground-and-sphere scene of tests/test_volume.py (GT: the plane z = 0
@@ -24,12 +24,12 @@ import pytest
 import trimesh
 import warp as wp
 
-from gof_warp.errors import GofError
-from gof_warp.extraction import MeshConfig, extract_mesh
-from gof_warp.geometry_metrics import evaluate_mesh, mesh_statistics
-from gof_warp.tetra import TetraConfig
-from gof_warp.volume import bake_opacity_volume, sample_volume
-from gof_warp.volume_mesh import volume_mesh
+from gof_warp.core.errors import GofError
+from gof_warp.mesh.extraction import MeshConfig, extract_mesh
+from gof_warp.eval.geometry_metrics import evaluate_mesh, mesh_statistics
+from gof_warp.mesh.tetra import TetraConfig
+from gof_warp.mesh.volume import bake_opacity_volume, sample_volume
+from gof_warp.mesh.volume_mesh import volume_mesh
 from tests.test_volume import SPHERE_C, SPHERE_R, ground_and_sphere, scene_cameras
 
 CHAMFER_RATIO_MAX = 1.02  # issue 16: the volume mesh within 2 % of the tetra mesh's Chamfer to the GT
@@ -109,7 +109,7 @@ def test_vertices_are_on_the_volume_level_set_and_no_false_shell(scene_meshes):
 def test_bisection_on_the_exact_field_puts_vertices_on_its_level_set(scene_meshes):
     """``exact_field``: the lattice's crossings refined on the field the volume was baked from (its samples at
     the lattice nodes are exact), so the vertices read 0.5 on the exact field, not only on the trilinear one."""
-    from gof_warp.opacity_field import opacity_field
+    from gof_warp.rendering.opacity_field import opacity_field
 
     vol, info, (verts, faces), _ = scene_meshes
     g, cams = ground_and_sphere(), scene_cameras()

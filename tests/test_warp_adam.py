@@ -8,9 +8,9 @@ import torch
 import warp as wp
 
 from _optim_cases import small_gaussians, steps_with_surgery, through_state_dict
-from gof_warp.errors import GofError
-from gof_warp.model import PARAM_NAMES
-from gof_warp.optim import LeanAdam, OptimConfig, WarpAdam, make_optimizer
+from gof_warp.core.errors import GofError
+from gof_warp.core.model import PARAM_NAMES
+from gof_warp.training.optim import LeanAdam, OptimConfig, WarpAdam, make_optimizer
 
 
 def _reference(g, m, v, p, beta1, beta2, lr, eps, t):

@@ -1,5 +1,5 @@
 """The Warp-user examples on a baked opacity volume, run as a user runs them: a scene with exact ground truth
-(a ground plane and a sphere of opaque Gaussians) is baked to .nvdb by gof_warp.volume, then
+(a ground plane and a sphere of opaque Gaussians) is baked to .nvdb by gof_warp.mesh.volume, then
 examples/warp_query_volume.py and examples/warp_particles_on_scene.py run in a fresh interpreter that never
 imports torch; no particle may end inside the ground-truth solids."""
 
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from test_volume import LEVEL_TOL, SPHERE_C, SPHERE_R, ground_and_sphere, inside_ground_truth, scene_cameras
 
-from gof_warp.volume import bake_opacity_volume, save_volume
+from gof_warp.mesh.volume import bake_opacity_volume, save_volume
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 # Resting particles sit on the volume's 0.5 level: within 0.35 h of the exact level (test_volume), which is

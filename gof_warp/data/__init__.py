@@ -25,8 +25,8 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..errors import GofError, SceneError
-from ..scene import Scene
+from ..core.errors import GofError, SceneError
+from ..core.scene import Scene
 from .blender import read_blender
 from .colmap import find_model_dir, read_colmap
 from .dtu import read_dtu

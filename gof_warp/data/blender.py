@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..errors import SceneError
+from ..core.errors import SceneError
 from .ingp import frames_to_views, load_points_ply, read_json
 from .plan import ScenePlan
 

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Camera
-from ..errors import SceneError
+from ..core.camera import Camera
+from ..core.errors import SceneError
 from . import images as imio
 from .colmap_model import ColmapImage, quaternion_to_rotation, read_model
 from .plan import ScenePlan, ViewPlan

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import SceneError
+from ..core.errors import SceneError
 
 # COLMAP's camera model ids, names and parameter counts (src/colmap/sensor/models.h)
 CAMERA_MODELS = {

@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 import scipy.linalg
 
-from ..camera import Camera
-from ..errors import SceneError
+from ..core.camera import Camera
+from ..core.errors import SceneError
 from . import images as imio
 from .plan import ScenePlan, ViewPlan
 

@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Camera
-from ..errors import SceneError
+from ..core.camera import Camera
+from ..core.errors import SceneError
 from . import images as imio
 from .plan import ScenePlan, ViewPlan
 from .undistort import LensCamera, undistorted_intrinsics

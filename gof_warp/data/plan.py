@@ -22,9 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Camera
-from ..errors import SceneError
-from ..scene import ImageSource, Scene, View
+from ..core.camera import Camera
+from ..core.errors import SceneError
+from ..core.scene import ImageSource, Scene, View
 from . import images as imio
 from .undistort import LensCamera, undistort_image
 

@@ -44,9 +44,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import GofError
-from ..io_utils import atomic_path
-from ..scene import Scene, View
+from ..core.errors import GofError
+from ..core.io_utils import atomic_path
+from ..core.scene import Scene, View
 from .sfm_colmap import MIN_PAIR_MATCHES, _quiet_colmap, _run  # noqa: F401 - MIN_PAIR_MATCHES re-exported
 from .sfm_config import MATCHING_MODES, SfmConfig, SfmError, SfmResult  # noqa: F401 - re-exported
 from .sfm_geometry import pose_pairs, sampson_distance  # noqa: F401 - re-exported

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Camera
-from ..scene import View
+from ..core.camera import Camera
+from ..core.scene import View
 from .sfm_config import SfmConfig, SfmError, SfmResult
 from .sfm_geometry import _fundamental, pose_pairs, sampson_distance
 

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import GofError, SceneError
+from ..core.errors import GofError, SceneError
 
 MATCHING_MODES = ("exhaustive", "pose", "auto")
 

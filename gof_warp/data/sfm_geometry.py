@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..camera import Camera
+from ..core.camera import Camera
 
 
 def _viewing_focus(cams: list[Camera]) -> np.ndarray:

@@ -28,8 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from ..camera import Intrinsics
-from ..errors import SceneError
+from ..core.camera import Intrinsics
+from ..core.errors import SceneError
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +41,7 @@ _NEWTON_TOL = 1e-12  # normalised units; far below a pixel for any focal length 
 
 def default_device() -> str:
     """Warp's name of the default device (:func:`gof_warp.devices.resolve_device`'s rule)."""
-    from ..devices import warp_device
+    from ..core.devices import warp_device
 
     return warp_device(None)
 

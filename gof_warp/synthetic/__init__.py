@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import GofError
-from ..io_utils import ensure_writable_dir, write_bytes_atomic, write_json_atomic
+from ..core.errors import GofError
+from ..core.io_utils import ensure_writable_dir, write_bytes_atomic, write_json_atomic
 from . import writer
 from .meshes import Material, SyntheticMesh
 from .presets import DEFAULT_RESOLUTION, GPU_RESOLUTION, CameraRig, Preset, get_preset, list_presets, with_rig

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..arrays import used_vertices
-from ..errors import SceneError
+from ..core.arrays import used_vertices
+from ..core.errors import SceneError
 
 
 @dataclass(frozen=True, eq=False)

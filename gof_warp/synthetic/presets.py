@@ -20,8 +20,8 @@ from typing import Callable
 
 import numpy as np
 
-from ..camera import look_at
-from ..errors import SceneError
+from ..core.camera import look_at
+from ..core.errors import SceneError
 from . import meshes as M
 from .render import Lighting
 

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from ..camera import Camera
-from ..errors import GofError
+from ..core.camera import Camera
+from ..core.errors import GofError
 from ..kernels import raycast
 from .meshes import SyntheticMesh
 
@@ -25,7 +25,7 @@ _KINDS = {"constant": raycast.MAT_CONSTANT, "texture": raycast.MAT_TEXTURE, "pro
 
 def default_device() -> str:
     """Warp's name of the default device (:func:`gof_warp.devices.resolve_device`'s rule)."""
-    from ..devices import warp_device
+    from ..core.devices import warp_device
 
     return warp_device(None)
 

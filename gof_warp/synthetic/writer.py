@@ -22,8 +22,8 @@ import io
 
 import numpy as np
 
-from ..camera import Camera
-from ..io_utils import write_bytes_atomic
+from ..core.camera import Camera
+from ..core.io_utils import write_bytes_atomic
 
 
 def png_bytes(rgba: np.ndarray) -> bytes:

@@ -1,0 +1,42 @@
+"""What every ``python -m gof_warp.<command>`` shares: output set-up and the error contract.
+
+A command's user sees ``error: <message>`` (exit code 2, no traceback) for anything that is the input's
+fault (:class:`~gof_warp.errors.GofError`), and a short note (exit code 130) on Ctrl-C; every file the
+commands write is written atomically, so an interrupted command leaves nothing half-written.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from typing import Callable
+
+
+def configure_output(quiet: bool = False) -> None:
+    """Log progress at INFO (WARNING when ``quiet``); silence Warp's start-up banner and module-load lines."""
+    logging.basicConfig(level=logging.WARNING if quiet else logging.INFO, format="%(message)s")
+    import warp as wp
+
+    wp.config.log_level = wp.LOG_WARNING
+
+
+def run_command(body: Callable[[], int | None],
+                interrupted_note: str | Callable[[KeyboardInterrupt], str] = "") -> int:
+    """Run a command's body and map its failures to exit codes (0 ok, 2 bad input, 130 interrupted).
+
+    On Ctrl-C one line ``interrupted: <note>`` is printed; ``interrupted_note`` is that note, or a function
+    of the ``KeyboardInterrupt`` (which may carry details, e.g. the iteration training reached) returning it.
+    """
+    from ..core.errors import GofError
+
+    try:
+        rc = body()
+    except GofError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt as e:
+        note = interrupted_note(e) if callable(interrupted_note) else interrupted_note
+        end_progress_line = "\n" if sys.stderr.isatty() else ""  # a progress line may be open
+        print(f"{end_progress_line}interrupted{': ' + note if note else ''}", file=sys.stderr)
+        return 130
+    return 0 if rc is None else int(rc)

@@ -1,0 +1,201 @@
+"""``python -m gof_warp.extract RUN [--scene SCENE] [--out MESH.ply] [--method tetra|cubes|tsdf] ...``
+
+Mesh extraction from trained Gaussians (the library: :mod:`gof_warp.extraction`). Under
+``torchrun --nproc_per_node N -m gof_warp.extract RUN ...`` the field's views are shared out among the processes
+(one GPU each) and rank 0 triangulates and writes (:mod:`gof_warp.distributed`). ``RUN`` is a training output
+folder (``point_cloud.ply`` + ``cameras.json``) or any Gaussian PLY in the 3DGS layout together with ``--scene``
+for the cameras. Writes the mesh (PLY) and ``<mesh>.json`` with vertex/face counts and per-stage time and peak
+memory. An empty mesh is an error (exit 2) and writes nothing; Gaussians whose scales overflow (see
+:func:`gof_warp.extraction.meshable`) are left out with a warning.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from .common import configure_output, run_command
+from ..core.errors import GofError
+from ..mesh.extraction import (METHODS, MeshConfig, StageTimer, empty_mesh_message, extract_mesh, meshable,  # noqa: F401
+                         save_mesh)
+from ..core.io_utils import write_json_atomic
+from ..training.run_folder import cameras_from_json, load_run  # noqa: F401 - re-exported: extract.load_run is public
+from ..mesh.octree_tets import DEFAULT_CELL_FACTOR, SMALL_CELL_FACTOR, OctreeConfig
+from ..rendering.opacity_field import OpacityFieldConfig
+from ..mesh.tetra import GRIDS, TetraConfig
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    """The command's arguments (``argv``: a list, or None for ``sys.argv``), for :func:`main` and
+    :func:`extract_run`."""
+    ap = argparse.ArgumentParser(prog="python -m gof_warp.extract", description="Mesh extraction from trained Gaussians (GOF): tetra, cubes or tsdf.")
+    ap.add_argument("run", help="training output folder, or a 3DGS-layout Gaussian PLY (with --scene)")
+    ap.add_argument("--scene", default=None, help="scene folder for the cameras (and masks for TSDF)")
+    ap.add_argument("--out", default=None, help="mesh path (default RUN/mesh_<method>.ply)")
+    ap.add_argument("--method", default="tetra", choices=METHODS)
+    ap.add_argument("--levels", type=float, nargs="+", default=[0.5])
+    ap.add_argument("--binary-steps", type=int, default=8)
+    ap.add_argument("--search-steps-per-call", type=int, default=MeshConfig.search_steps_per_call,
+                    help="tetra: bisection steps served by one opacity-field call (0, the default: on a GPU chosen from "
+                         "the field's measured cost, on the CPU one; the mesh is the same for any value)")
+    ap.add_argument("--resolution", type=int, default=None, help="grid resolution for cubes/tsdf")
+    ap.add_argument("--delaunay", default="scipy", choices=("scipy", "cgal", "auto"))
+    ap.add_argument("--delaunay-workers", type=int, default=TetraConfig.delaunay_workers,
+                    help="threads for scipy's Delaunay in chunks (0, the default: every CPU; 1: one Qhull call)")
+    ap.add_argument("--delaunay-processes", action=argparse.BooleanOptionalAction,
+                    default=TetraConfig.delaunay_processes,
+                    help="run the Delaunay chunks in forked processes (default, where the OS can fork: Linux) or, "
+                         "with --no-delaunay-processes, in threads")
+    ap.add_argument("--band", action="store_true",
+                    help="tetra: triangulate only the points near a level crossing (faster, not the same mesh: "
+                         "benchmarks/extract/README.md)")
+    ap.add_argument("--grid", default=TetraConfig.grid, choices=GRIDS,
+                    help="tetra: the tetrahedral grid: 'delaunay' (official: Delaunay of the 3-sigma box corners and "
+                         "centres, on the CPU), 'octree' (a balanced octree sized by the Gaussians, on the model's "
+                         "device; no Delaunay) or 'auto' (the default: the octree, but the Delaunay grid for a small "
+                         f"model, whose octree at cell factor {DEFAULT_CELL_FACTOR} has fewer than "
+                         f"{OctreeConfig.small_leaves:,} leaves, unless --cell-factor is given)")
+    ap.add_argument("--cell-factor", type=float, default=None,
+                    help="the octree grid: leaf side at most this times a Gaussian's 3-sigma box width (smaller: "
+                         f"finer; default {DEFAULT_CELL_FACTOR}, or with --grid octree {SMALL_CELL_FACTOR} for a grid "
+                         f"of fewer than {OctreeConfig.small_leaves:,} leaves at {DEFAULT_CELL_FACTOR}; given, it is "
+                         "used as it is, and --grid auto keeps the octree)")
+    ap.add_argument("--piece-tets", type=int, default=None,
+                    help="--grid octree: make and march the grid's tetrahedra in pieces of at most this many, so they are "
+                         f"never held whole (default {OctreeConfig.piece_tets}; the mesh is the same for any value)")
+    ap.add_argument("--reach-filter", action=argparse.BooleanOptionalAction, default=None,
+                    help="the octree grid: keep only the tetrahedra with a vertex inside some Gaussian's oriented "
+                         "3-sigma box, where the Delaunay grid reaches (off by default: it can cut a surface of flat "
+                         "Gaussians that no grid vertex falls in; benchmarks/extract/README.md, session 32)")
+    ap.add_argument("--opacity-min", type=float, default=None, help="drop Gaussians below this opacity first")
+    ap.add_argument("--corner-min-extent", type=float, default=None,
+                    help="tetra: only the centre point for Gaussians whose 3-sigma extent is below this (world units)")
+    ap.add_argument("--keep-hidden", action="store_true",
+                    help="keep the faces no training camera sees (by default they are dropped: level crossings under a "
+                         "ground, inside objects or behind walls that no photo supports; gof_warp.visibility)")
+    ap.add_argument("--min-component-faces", type=int, default=0)
+    ap.add_argument("--min-views", type=int, default=OpacityFieldConfig.min_views,
+                    help="mesh only space that at least this many training views see (default %(default)s, GOF's; 2 "
+                         "leaves out what a single photo alone sees, where nothing places the surface's depth)")
+    ap.add_argument("--max-faces", type=int, default=None,
+                    help="quadric decimation (fast-simplification) to at most this many faces per mesh")
+    ap.add_argument("--max-error", type=float, default=None,
+                    help="decimate to the fewest faces whose input vertices stay within this distance (world units)")
+    ap.add_argument("--volume", action="store_true",
+                    help="bake the opacity field into a sparse NanoVDB volume (RUN/opacity_volume.nvdb + .json) for Warp "
+                         "kernels instead of a mesh (docs/warp_volume.md)")
+    ap.add_argument("--voxel-size", type=float, default=None,
+                    help="--volume voxel edge in world units (default: median 3-sigma extent of the opaque Gaussians / 4)")
+    ap.add_argument("--volume-band", type=int, default=4, help="--volume: voxels kept on each side of the 0.5 level")
+    ap.add_argument("--device", default="auto")
+    ap.add_argument("--no-pictures", action="store_true",
+                    help="do not write RUN/pictures/mesh_<stem>.png (views of the model and the shaded mesh)")
+    ap.add_argument("--quiet", action="store_true")
+    return ap.parse_args(argv)
+
+
+def main(argv=None) -> int:
+    a = parse_args(argv)
+    configure_output(a.quiet)
+
+    def body():
+        from ..core.devices import resolve_device as pick_device
+        from ..training.distributed import rank_device, ranks_from_environment
+
+        ranks = ranks_from_environment()  # several processes under torchrun: views shared out (gof_warp.distributed)
+        try:
+            extract_run(a, ranks, rank_device(pick_device(a.device), ranks))
+            ranks.barrier()
+        finally:
+            ranks.close()
+
+    return run_command(body)
+
+
+def extract_run(a, ranks, device) -> None:
+    """The command's work for parsed arguments ``a`` on ``device``; rank 0 alone writes."""
+    run = Path(a.run)
+    if a.volume:
+        if ranks.active:
+            raise GofError("--volume runs in one process (launch without torchrun)")
+        from ..mesh.volume import bake_run
+
+        info = bake_run(run, scene=a.scene, out_path=a.out, voxel_size=a.voxel_size, band=a.volume_band,
+                        device=device)
+        print(f"wrote {info['nvdb']}: {info['active_voxels']} voxels of {info['voxel_size']:.4g}, "
+              f"{info['bytes'] / 2**20:.1f} MiB, {info['time_s']['total']:.1f} s")
+        return
+    cfg = MeshConfig(method=a.method, levels=tuple(a.levels), binary_steps=a.binary_steps,
+                     drop_hidden=not a.keep_hidden,
+                     min_component_faces=a.min_component_faces, max_faces=a.max_faces, max_error=a.max_error,
+                     search_steps_per_call=a.search_steps_per_call, field=OpacityFieldConfig(min_views=a.min_views),
+                     tetra=TetraConfig(backend=a.delaunay, opacity_min=a.opacity_min,
+                                       corner_min_extent=a.corner_min_extent,
+                                       delaunay_workers=a.delaunay_workers, band=a.band,
+                                       delaunay_processes=a.delaunay_processes, grid=a.grid,
+                                       octree=OctreeConfig(**{k: v for k, v in (("cell_factor", a.cell_factor),
+                                                                                ("piece_tets", a.piece_tets),
+                                                                                ("reach_filter", a.reach_filter))
+                                                              if v is not None})))
+    if a.resolution:
+        cfg.cubes_resolution = a.resolution
+        cfg.tsdf.resolution = a.resolution
+    cfg.validate()
+    t_load = time.perf_counter()
+    gaussians, cameras, views, render_config = load_run(run, a.scene, device)
+    command = {"load_s": round(time.perf_counter() - t_load, 3)}
+    from ..core.progress import Stages
+
+    timer = StageTimer(device, progress=Stages(quiet=a.quiet or not ranks.is_main))
+    t0 = time.perf_counter()
+    meshes = extract_mesh(gaussians, cameras, cfg, render_config=render_config, views=views, timer=timer,
+                          ranks=ranks)
+    total = time.perf_counter() - t0
+    per_rank = ranks.gather_to_main(rank_summary(ranks, device, timer.stages, total))  # every rank calls it
+    if not ranks.is_main:
+        return
+    levels = cfg.levels if a.method != "tsdf" else (0.0,)
+    empty = [level for level, (_, f) in zip(levels, meshes) if len(f) == 0]
+    if empty:  # before anything is written: an existing mesh of that name stays as it is
+        raise GofError(empty_mesh_message(gaussians, a.method, empty, cfg))
+    base = Path(a.out) if a.out else (run if run.is_dir() else run.parent) / f"mesh_{a.method}.ply"
+    outputs = []
+    t_save = time.perf_counter()
+    for level, (v, f) in zip(levels, meshes):
+        path = base if len(meshes) == 1 else base.with_name(f"{base.stem}_{level:g}{base.suffix}")
+        save_mesh(path, v, f)
+        outputs.append({"path": str(path), "level": level, "vertices": int(len(v)), "faces": int(len(f))})
+        print(f"wrote {path}: {len(v)} vertices, {len(f)} faces")
+    command["save_s"] = round(time.perf_counter() - t_save, 3)
+    summary = {
+        "method": a.method, "binary_steps": a.binary_steps, "min_views": a.min_views, "num_gaussians": len(gaussians),
+        "num_views": len(cameras), "device": device, "processes": ranks.world, "total_time_s": round(total, 3),
+        "command": command, "stages": timer.stages, "meshes": outputs, **({"ranks": per_rank} if ranks.active else {})}
+    write_json_atomic(base.with_suffix(".json"), summary)
+    if not a.no_pictures:  # a picture per mesh; a failure only warns: the mesh is already written
+        from ..viz.pictures import pictures_or_warning
+
+        t_pictures = time.perf_counter()
+        for o, m in zip(outputs, meshes):  # the model and meshes in memory: no second read of the files
+            for p in pictures_or_warning(run, mesh_path=o["path"], device=device, scene=a.scene, gaussians=gaussians,
+                                         mesh=m):
+                print(f"wrote {p}")
+        command["pictures_s"] = round(time.perf_counter() - t_pictures, 3)
+        write_json_atomic(base.with_suffix(".json"), summary)  # again, with the pictures' time
+
+
+def rank_summary(ranks, device, stages: dict, total_s: float) -> dict:
+    """One rank's figures for ``<mesh>.json``: its device, wall time, and the peaks over its stages (host RSS; on
+    CUDA torch's allocation and Warp's pool) — each GPU's own memory, which rank 0's stages alone do not show."""
+    peaks = {}
+    for entry in (e for e in stages.values() if isinstance(e, dict)):
+        for key in ("host_peak_rss_mb", "gpu_peak_allocated_mb", "gpu_warp_pool_high_mb"):
+            if key in entry:
+                peaks[key] = max(peaks.get(key, 0.0), entry[key])
+    return {"rank": ranks.rank, "device": str(device), "total_time_s": round(total_s, 3), **peaks}
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,231 @@
+"""``python -m gof_warp.train [SCENE] --out RUN [--config NAME|PATH] [--iterations N] [--device D] [--resume] [key=value ...]``
+
+Trains GOF on a scene folder (any format :func:`gof_warp.data.load_scene` reads). With no SCENE it
+runs the built-in default: a small synthetic scene is generated into ``RUN/scene`` and trained with
+the ``quick`` preset, which finishes on a 2-core CPU in minutes.
+
+Overrides are ``section.key=value`` pairs applied on top of the preset, e.g.
+``loss.lambda_normal=0.1 densify.max_gaussians=200000``; values are YAML data (never evaluated).
+
+Progress: a bar with loss, PSNR, Gaussian count and ETA in a terminal, a plain line every few seconds
+otherwise (logs, CI); ``--quiet``: neither. At the end ``RUN/pictures/views.png`` and ``RUN/pictures/curves.png``
+(loss, train PSNR and Gaussian count against the iteration), and ``RUN/pictures/views_it<N>.png`` at each of
+``snapshot_iterations``. ``--viewer``: the live web viewer of
+:mod:`gof_warp.viewer` during training (``--viewer-port``, ``--viewer-every N`` iterations), kept up after
+training until Ctrl-C.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import shlex
+import sys
+from pathlib import Path
+
+from .common import configure_output, run_command
+from ..core.errors import GofError
+from ..training.presets import PRESETS, preset_path, resolve_config  # noqa: F401 - public here since session 1
+from ..core.progress import TrainingProgress
+
+log = logging.getLogger("gof_warp.train")
+
+def pick_device(name: str) -> str:
+    """``--device`` (cpu, cuda, cuda:N or auto) under the one rule of :mod:`gof_warp.devices`."""
+    from ..core.devices import resolve_device
+
+    return resolve_device(name)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m gof_warp.train", description=__doc__.split("\n\n")[1],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("args", nargs="*", metavar="SCENE | key=value", help="scene folder, then config overrides")
+    ap.add_argument("--out", default=None, help="run folder (default runs/<scene name>)")
+    ap.add_argument("--config", default=None, help=f"preset ({', '.join(PRESETS)}) or YAML path (default: quick "
+                                                   "for the built-in scene, else auto: chosen from the scene "
+                                                   "folder, printed with its reason)")
+    ap.add_argument("--iterations", type=int, default=None)
+    ap.add_argument("--device", default="auto", help="cpu, cuda or auto")
+    ap.add_argument("--resume", action="store_true", help="continue from the newest checkpoint in --out")
+    ap.add_argument("--no-pictures", action="store_true", help="do not write RUN/pictures/views.png (photo | render "
+                                                               "| depth | normal of a few views) and curves.png "
+                                                               "(loss, PSNR, Gaussians) at the end, nor "
+                                                               "views_it<N>.png at snapshots")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar or log lines (errors and warnings still shown)")
+    ap.add_argument("--viewer", action="store_true", help="serve the live web viewer during training (needs "
+                    "pip install 'gof_warp[viewer]'); it stays up after training until Ctrl-C")
+    ap.add_argument("--viewer-port", type=int, default=8080, help="port of the viewer page (default 8080)")
+    ap.add_argument("--viewer-host", default="0.0.0.0", help="interface the viewer listens on (default all)")
+    ap.add_argument("--viewer-every", type=int, default=100, metavar="N", help="show the model every N iterations")
+    a = ap.parse_intermixed_args(argv)
+    configure_output(a.quiet)
+    return run_command(lambda: _run(a), lambda e: _interrupted_note(a, e))
+
+
+def _out_dir(a) -> Path:
+    scenes = [x for x in a.args if "=" not in x]
+    return Path(a.out) if a.out else Path("runs") / (Path(scenes[0]).resolve().name if scenes else "default")
+
+
+def resume_command(a) -> str:
+    """The command line that continues this run: the same scene, config, overrides and device, plus ``--resume``."""
+    words = ["python", "-m", "gof_warp.train", *a.args, "--out", str(_out_dir(a))]
+    if a.config:
+        words += ["--config", a.config]
+    if a.iterations is not None:
+        words += ["--iterations", str(a.iterations)]
+    if a.device != "auto":
+        words += ["--device", a.device]
+    words += [flag for flag, on in (("--no-pictures", a.no_pictures), ("--quiet", a.quiet), ("--viewer", a.viewer)) if on]
+    if a.viewer:
+        words += [f"--viewer-{k}={v}" for k, v, default in (("port", a.viewer_port, 8080), ("host", a.viewer_host, "0.0.0.0"),
+                                                             ("every", a.viewer_every, 100)) if v != default]
+    return shlex.join(words + ["--resume"])
+
+
+def _interrupted_note(a, e: KeyboardInterrupt) -> str:
+    """One line for Ctrl-C: where training stopped and how to go on (see :meth:`Trainer.run`)."""
+    from ..training.trainer import TrainingInterrupted, has_checkpoints
+
+    if isinstance(e, TrainingInterrupted):
+        saved = f", saved in {e.checkpoint}" if e.checkpoint else ""
+        return f"training stopped at iteration {e.iteration} of {e.total}{saved}; continue with: {resume_command(a)}"
+    if has_checkpoints(_out_dir(a)):
+        return f"the newest checkpoint in the run folder is intact; continue with: {resume_command(a)}"
+    return "no checkpoint was written yet; run the command again to start"
+
+
+def _start_viewer(a, trainer, out: Path):
+    """The live viewer of ``trainer``'s model (:mod:`gof_warp.viewer`), started, its address printed."""
+    from ..viz.viewer import Viewer
+
+    logging.getLogger("websockets").setLevel(logging.WARNING)  # not a line per browser connection
+    viewer = Viewer(trainer.gaussians, trainer.cameras, render_config=trainer.render_config, host=a.viewer_host,
+                    port=a.viewer_port, title=f"gof_warp · training {out.name}").start()
+    print(viewer.how_to_open(), flush=True)
+    return viewer
+
+
+def _on_iteration(progress, viewer, every: int, trainer):
+    """The trainer's per-iteration callback: the progress bar, and the viewer's model every ``every`` iterations."""
+    if viewer is None:
+        return progress
+
+    def callback(it: int, info: dict) -> None:
+        progress(it, info)
+        if it % every == 0:
+            viewer.update(trainer.gaussians, it)
+
+    return callback
+
+
+def _keep_serving(viewer) -> None:
+    """Serve the viewer after training until Ctrl-C (which ends the command normally)."""
+    try:
+        viewer.serve_forever()
+    except KeyboardInterrupt:
+        print("viewer stopped", file=sys.stderr)
+
+
+def _snapshot_pictures(trainer, record: dict) -> None:
+    """The trainer's snapshot callback: ``RUN/pictures/views_it<N>.png`` (a failure only warns)."""
+    from ..viz.pictures import snapshot_pictures_or_warning
+
+    for p in snapshot_pictures_or_warning(trainer, record):
+        log.info("wrote %s", p)
+
+
+def _spike_pictures(trainer, event: dict) -> None:
+    """The trainer's loss-spike callback: ``RUN/pictures/spike_it<N>_<view>.png`` (a failure only warns)."""
+    from ..viz.pictures import spike_picture_or_warning
+
+    for p in spike_picture_or_warning(trainer, event):
+        log.info("loss spike on view %s at iteration %s (%sx its median): wrote %s", event.get("view"),
+                 event.get("iteration"), event.get("ratio"), p)
+
+
+def _run(a) -> int:
+    from ..data import load_scene
+    from ..training.distributed import rank_device, ranks_from_environment
+    from ..core.io_utils import ensure_writable_dir
+    from ..training.trainer import Trainer, has_checkpoints
+
+    scenes = [x for x in a.args if "=" not in x]
+    overrides = [x for x in a.args if "=" in x]
+    if len(scenes) > 1:
+        raise GofError(f"give one scene folder, got {scenes}")
+    builtin = not scenes
+    if a.viewer:
+        from ..viz.viewer import require_viser
+
+        if a.viewer_every < 1:
+            raise GofError(f"--viewer-every must be >= 1, got {a.viewer_every}")
+        require_viser()  # before any work: a missing optional dependency is named at once
+    out = _out_dir(a)
+    ensure_writable_dir(out)
+    if has_checkpoints(out) and not a.resume:
+        raise GofError(f"{out} already holds checkpoints of a run: pass --resume to continue it, or choose another --out")
+    preset = a.config or ("quick" if builtin else "auto")
+    if preset == "auto":
+        from ..training.presets import choose_preset
+
+        resolve_config("unbounded", overrides, a.iterations)  # a bad override is named before the scene is read
+        choice = choose_preset(scenes[0])
+        log.info("%s", choice.describe())
+        preset = choice.preset
+    cfg = resolve_config(preset, overrides, a.iterations)
+    ranks = ranks_from_environment()  # several processes under torchrun: data-parallel (gof_warp.distributed)
+    device = rank_device(pick_device(a.device), ranks)
+    if builtin:
+        from ..synthetic import make_scene
+
+        scene_dir = out / "scene"
+        if ranks.is_main and not (scene_dir / "transforms_train.json").is_file():
+            log.info("generating the built-in default scene into %s", scene_dir)
+            make_scene("default", scene_dir, force=True)
+        ranks.barrier()
+    else:
+        scene_dir = Path(scenes[0])
+    scene = load_scene(scene_dir, cfg.data)
+    log.info("scene %s: %d train / %d test views, extent %.3f; device %s", scene_dir, len(scene.train), len(scene.test),
+             scene.extent, device)
+    trainer = Trainer(scene, cfg, out, device, scene_path=scene_dir, ranks=ranks)
+    if ranks.active:
+        log.info("rank %d of %d on %s, %d views per step", ranks.rank, ranks.world, device, trainer.views_per_step)
+    if a.resume and has_checkpoints(out):
+        it = trainer.resume()
+        log.info("resuming from iteration %d (%s)", it, trainer.resumed_from)
+    viewer = _start_viewer(a, trainer, out) if a.viewer and ranks.is_main else None
+    try:
+        with TrainingProgress(cfg.iterations, start=trainer.iteration, quiet=a.quiet or not ranks.is_main) as progress:
+            metrics = trainer.run(progress=_on_iteration(progress, viewer, a.viewer_every, trainer),
+                                  on_snapshot=None if a.no_pictures else _snapshot_pictures,
+                                  on_spike=None if a.no_pictures else _spike_pictures)
+        if not ranks.is_main:
+            ranks.barrier()  # wait for rank 0's evaluation and writes: leaving earlier can abort the whole job
+            return 0
+        if not a.no_pictures:
+            from ..viz.curves import curves_or_warning
+            from ..viz.pictures import pictures_or_warning
+
+            for p in pictures_or_warning(out, device=device) + curves_or_warning(out):
+                log.info("wrote %s", p)
+        t = metrics["test"]
+        print(f"done: {metrics['iterations']} iterations in {metrics['train_time_s']:.1f} s, {metrics['num_gaussians']} "
+              f"Gaussians, {t['split']} PSNR {t.get('psnr', float('nan')):.2f} dB SSIM {t.get('ssim', float('nan')):.4f}; "
+              f"outputs in {out}")
+        ranks.barrier()  # the other ranks wait here for the run folder to be complete
+        if viewer is not None:
+            viewer.update(trainer.gaussians, trainer.iteration)
+            print(f"training done; the viewer is still at {viewer.url} (Ctrl-C to stop)", flush=True)
+            _keep_serving(viewer)
+    finally:
+        if viewer is not None:
+            viewer.stop()
+        ranks.close()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

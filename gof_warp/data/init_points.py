@@ -1,0 +1,155 @@
+"""Where the first Gaussians go: SfM points, triangulated points, background points or a random box.
+
+3DGS and GOF start from the sparse points of structure-from-motion; scenes without them (Blender,
+instant-ngp, DTU/NeuS) get points triangulated from their known poses (:mod:`gof_warp.data.sfm`), and a
+random box only where asked. Sparse points rarely reach the far background of a capture (sky, distant walls),
+which a box around the object cannot reach either: :func:`background_points` adds points on a sphere beyond
+the cameras in the directions the cameras see and the initial points do not cover, coloured from the photos.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+
+from ..core.camera import Camera
+from ..core.errors import GofError
+from ..core.scene import Scene
+
+log = logging.getLogger(__name__)
+
+# Triangulation that finds fewer points than this is not a usable start ("auto" then falls back to random).
+MIN_SFM_POINTS = 100
+
+
+def camera_focus(cameras: list[Camera]) -> np.ndarray:
+    """``[3]`` the least-squares closest point to all principal axes (what an inward-facing rig looks at);
+    one camera: a unit in front of it."""
+    centres = np.stack([c.center for c in cameras])
+    axes = np.stack([c.R[2] for c in cameras])  # viewing directions in world space
+    if len(cameras) == 1:
+        return centres[0] + axes[0]
+    projectors = np.eye(3)[None] - axes[:, :, None] * axes[:, None, :]
+    A, b = projectors.sum(0), np.einsum("nij,nj->i", projectors, centres)
+    return np.linalg.lstsq(A, b, rcond=None)[0]
+
+
+def default_init_box(scene: Scene) -> np.ndarray:
+    """``[6]`` a box around what the cameras look at: :func:`camera_focus` ± 0.5 × the mean camera distance
+    to it (object-centric captures)."""
+    cams = scene.train_cameras
+    focus = camera_focus(cams)
+    half = 0.5 * float(np.mean(np.linalg.norm(np.stack([c.center for c in cams]) - focus, axis=1)))
+    return np.concatenate([focus - half, focus + half])
+
+
+def fibonacci_sphere(n: int) -> np.ndarray:
+    """``[n, 3]`` unit vectors spread evenly over the sphere."""
+    k = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * k / n
+    r = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    phi = k * math.pi * (3.0 - math.sqrt(5.0))
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def _sample_colours(points: np.ndarray, scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """Mean photo colour of each point over the train views that see it: ``(colours [P, 3] uint8,
+    seen count [P])`` (occlusion is not tested: background points lie behind everything)."""
+    acc = np.zeros((len(points), 3))
+    count = np.zeros(len(points), dtype=np.int64)
+    for v in scene.train:
+        uv, _, ok = v.camera.in_image(points)
+        ij = np.floor(uv[ok]).astype(np.int64)
+        acc[ok] += v.image[ij[:, 1], ij[:, 0]].astype(np.float64)
+        count[ok] += 1
+    colours = np.where(count[:, None] > 0, acc / np.maximum(count, 1)[:, None], 127.0)
+    return np.clip(np.rint(colours), 0, 255).astype(np.uint8), count
+
+
+def background_points(scene: Scene, n: int, existing: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Points for the far background: ``(points [P, 3], colours [P, 3] uint8)`` with ``P ≤ n``.
+
+    Candidates are ``n`` directions spread over the sphere around the cameras' focus, placed at radius
+    ``R = max(2 × the largest camera distance from the focus, 1.05 × the farthest initial point)``. A
+    candidate is kept when some train camera sees it and no initial point farther than the cameras lies
+    within its angular spacing (there SfM has already found background). Colours: the mean photo colour of
+    the views that see it.
+    """
+    if n <= 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
+    cams = scene.train_cameras
+    focus = camera_focus(cams)
+    cam_radius = float(np.max(np.linalg.norm(np.stack([c.center for c in cams]) - focus, axis=1)))
+    radius = 2.0 * max(cam_radius, 1e-6)
+    dirs = fibonacci_sphere(n)
+    keep = np.ones(n, dtype=bool)
+    if existing is not None and len(existing):
+        rel = np.asarray(existing, np.float64) - focus
+        dist = np.linalg.norm(rel, axis=1)
+        radius = max(radius, 1.05 * float(dist.max()))
+        far = rel[dist > cam_radius] / dist[dist > cam_radius, None]
+        if len(far):
+            from scipy.spatial import cKDTree
+
+            spacing = math.sqrt(4.0 * math.pi / n)  # chord ≈ angle between neighbouring candidates
+            keep &= ~np.isfinite(cKDTree(far).query(dirs, k=1, distance_upper_bound=spacing)[0])
+    pts = focus + radius * dirs[keep]
+    colours, seen = _sample_colours(pts, scene)
+    return pts[seen > 0], colours[seen > 0]
+
+
+def initial_point_cloud(scene: Scene, init: str, *, random_points: int, init_box=None, background: int = 0,
+                        seed: int = 0, sfm_config=None) -> tuple[np.ndarray, np.ndarray | None, dict]:
+    """The initial points of a run: ``(points [P, 3], colours [P, 3] (uint8, or float in [0, 1]) or None, info)``.
+
+    ``init`` is ``ModelConfig.init`` (``"auto" | "sfm" | "random"``, see there); ``info`` says what was used
+    (``source``: ``scene`` / ``triangulated`` / ``random``, counts, and the triangulation's statistics), for
+    the run's ``metrics.json`` and log.
+    """
+    info: dict = {"init": init}
+    points = colours = None
+    if init in ("auto", "sfm"):
+        if scene.points is not None and len(scene.points) > 0:
+            points, colours, info["source"] = scene.points, scene.point_colors, "scene"
+        else:
+            from .sfm import default_cache_dir, triangulate_known_poses
+
+            try:
+                result = triangulate_known_poses(scene.train, sfm_config, cache_dir=default_cache_dir(scene))
+            except GofError as e:
+                if init == "sfm":
+                    raise
+                log.warning("triangulation from the known poses failed (%s); random initialisation instead", e)
+            else:
+                info["sfm"] = result.stats
+                if len(result.points) >= MIN_SFM_POINTS or init == "sfm":
+                    points, colours, info["source"] = result.points, result.colors, "triangulated"
+                else:
+                    log.warning("triangulation found only %d points (< %d); random initialisation instead",
+                                len(result.points), MIN_SFM_POINTS)
+    if points is None:
+        box = np.asarray(init_box, float) if init_box is not None else default_init_box(scene)
+        if box.shape != (6,) or np.any(box[3:] <= box[:3]):
+            raise GofError(f"model.init_box must be (xmin, ymin, zmin, xmax, ymax, zmax) with max > min, got {box.tolist()}")
+        rng = np.random.default_rng(seed)
+        points = box[:3] + (box[3:] - box[:3]) * rng.random((random_points, 3))
+        colours = rng.random((random_points, 3))  # as Gaussians.random_in_box: same draws, same model
+        info["source"] = "random"
+    info["points"] = int(len(points))
+    if background > 0:
+        bg, bg_col = background_points(scene, background, points if info["source"] != "random" else None)
+        info["background_points"] = int(len(bg))
+        if len(bg):
+            points, colours = np.concatenate([points, bg]), np.concatenate([_unit_rgb(colours, len(points)),
+                                                                            _unit_rgb(bg_col, len(bg))])
+    return np.asarray(points, np.float64), colours, info
+
+
+def _unit_rgb(colours, n: int) -> np.ndarray:
+    """``[n, 3]`` float RGB in [0, 1] from uint8, float or None (grey)."""
+    if colours is None:
+        return np.full((n, 3), 0.5)
+    c = np.asarray(colours)
+    return c.astype(np.float64) / 255.0 if c.dtype == np.uint8 else c.astype(np.float64)

@@ -1,0 +1,467 @@
+"""A live web viewer of a model: our renderer's images from the browser's camera, served with viser.
+
+Library part of ``python -m gof_warp.view RUN`` and ``python -m gof_warp.train --viewer`` (both thin CLIs).
+:class:`Viewer` starts a viser server (a web page with a 3D scene and a GUI panel) and keeps, for every
+connected browser, the picture of the Gaussians rendered by :func:`gof_warp.render.render` from that
+browser's camera, set as the page's background image; over it viser draws the training cameras as frustums
+and the mesh (``RUN/mesh_*.ply``) when there is one. A GUI dropdown picks what is shown:
+
+* ``render``: the Gaussian render; ``depth``: median depth, colour-mapped as in the run pictures;
+  ``normal``: rendered normals in world space, ``(n + 1) / 2``;
+* ``opacity slice``: the GOF opacity field (min over the training views, :func:`gof_warp.opacity_field`) on
+  the plane at ``slice depth`` in front of the browser's camera (black 0 → white 1, unseen points red).
+
+Renders are at most ``max_size`` pixels on the long side (default 256 on a CPU, 1024 on a GPU; a GUI
+slider changes it) and run in one worker thread, newest camera first: a browser that moves faster than
+the renderer skips the stale poses. While training, :meth:`Viewer.update` hands the viewer a copy of the
+Gaussians every few hundred iterations (``train --viewer-every``).
+
+viser is an optional dependency (``pip install 'gof_warp[viewer]'``), imported only when a viewer starts.
+Cameras: ours are world-to-camera with OpenCV axes; viser's are camera-to-world with OpenCV axes
+(``P_world = R_c2w p_cam + position``), vertical field of view in radians, quaternions wxyz.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..core.camera import Camera
+from ..core.errors import GofError
+
+log = logging.getLogger(__name__)
+
+MODES = ("render", "depth", "normal", "opacity slice")
+CPU_MAX_SIZE, GPU_MAX_SIZE = 256, 1024  # default render size (long side, pixels)
+MIN_SIZE, MAX_SIZE = 32, 2048
+JPEG_QUALITY = 90
+UNSEEN_COLOR = (200, 40, 40)  # opacity slice: points no training view sees
+MESH_COLOR = (200, 200, 190)
+FRUSTUM_COLOR = (255, 150, 40)
+FAR_DEPTH = 160.0  # depth of empty pixels for the browser's compositing (viser's depth range ends at 167.77)
+START_PULL_BACK = 1.3  # the first view: the first training camera, moved back from its orbit centre by this
+START_TURN = math.radians(12.0)  # factor and turned about the scene's up axis by this angle (off every frustum)
+
+
+def require_viser():
+    """The ``viser`` module, or a :class:`GofError` saying how to install it."""
+    try:
+        import viser
+    except ImportError:
+        raise GofError("the web viewer needs viser, an optional dependency: pip install 'gof_warp[viewer]'") from None
+    return viser
+
+
+# ------------------------------------------------------------------------------------------ cameras
+def quat_to_matrix(wxyz) -> np.ndarray:
+    """Unit quaternion ``[4]`` (w, x, y, z) → rotation ``[3, 3]`` (normalised first)."""
+    w, x, y, z = np.asarray(wxyz, np.float64) / np.linalg.norm(wxyz)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def matrix_to_quat(R) -> np.ndarray:
+    """Rotation ``[3, 3]`` → unit quaternion ``[4]`` (w, x, y, z) with ``w >= 0``."""
+    R = np.asarray(R, np.float64)
+    tr = np.trace(R)
+    if tr > 0:
+        s = 2.0 * math.sqrt(tr + 1.0)
+        q = [0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s]
+    else:
+        i = int(np.argmax(np.diag(R)))
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = 2.0 * math.sqrt(max(1.0 + R[i, i] - R[j, j] - R[k, k], 1e-12))
+        q = [0.0] * 4
+        q[0] = (R[k, j] - R[j, k]) / s
+        q[1 + i], q[1 + j], q[1 + k] = 0.25 * s, (R[j, i] + R[i, j]) / s, (R[k, i] + R[i, k]) / s
+    q = np.asarray(q) / np.linalg.norm(q)
+    return q if q[0] >= 0 else -q
+
+
+def camera_from_viewer(position, wxyz, fov: float, aspect: float, max_size: int, name: str = "viewer") -> Camera:
+    """A browser's camera → our :class:`Camera`, ``max_size`` pixels on its long side.
+
+    Args:
+        position: ``[3]`` camera centre in the world; wxyz: ``[4]`` camera-to-world rotation (OpenCV axes).
+        fov: vertical field of view in radians; aspect: width / height of the browser's canvas.
+    """
+    if not (0 < fov < math.pi) or not aspect > 0 or max_size < 1:
+        raise GofError(f"bad viewer camera: fov {fov}, aspect {aspect}, max_size {max_size}")
+    R_c2w = quat_to_matrix(wxyz)
+    R = R_c2w.T
+    t = -R @ np.asarray(position, np.float64)
+    if aspect >= 1:
+        w, h = max_size, max(1, round(max_size / aspect))
+    else:
+        w, h = max(1, round(max_size * aspect)), max_size
+    f = 0.5 * h / math.tan(0.5 * fov)
+    return Camera(R=R, t=t, fx=f, fy=f, cx=0.5 * w, cy=0.5 * h, width=w, height=h, name=name)
+
+
+def viewer_pose(camera: Camera) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """Our camera → viser's ``(wxyz [4], position [3], vertical fov (rad), aspect)`` (the inverse of
+    :func:`camera_from_viewer` up to the image size)."""
+    R_c2w = camera.R.T
+    position = -R_c2w @ camera.t
+    return matrix_to_quat(R_c2w), position, 2.0 * math.atan(0.5 * camera.height / camera.fy), camera.width / camera.height
+
+
+def _rotate(v: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
+    """``v [3]`` rotated by ``angle`` (radians) about the unit ``axis [3]`` (Rodrigues)."""
+    return (v * math.cos(angle) + np.cross(axis, v) * math.sin(angle)
+            + axis * float(axis @ v) * (1 - math.cos(angle)))
+
+
+def scene_up(cameras: list[Camera]) -> np.ndarray:
+    """The mean "up" (``-y`` camera axis in the world) of the cameras, normalised; ``+z`` when they disagree."""
+    up = np.mean([-c.R[1] for c in cameras], axis=0) if cameras else np.zeros(3)
+    n = np.linalg.norm(up)
+    return up / n if n > 0.3 else np.array([0.0, 0.0, 1.0])
+
+
+# ------------------------------------------------------------------------------------------ pictures
+def colorize_opacity(field: np.ndarray, seen: np.ndarray) -> np.ndarray:
+    """Opacity ``[H, W]`` in [0, 1] → grey ``[H, W, 3]`` uint8 (0 black, 1 white); points no view sees red."""
+    v = np.round(np.clip(np.asarray(field, np.float32), 0, 1) * 255).astype(np.uint8)
+    img = np.repeat(v[..., None], 3, axis=-1)
+    img[np.asarray(seen) == 0] = UNSEEN_COLOR
+    return img
+
+
+def render_mode(gaussians, camera: Camera, mode: str, *, render_config=None, train_cameras=None,
+                slice_depth: float = 1.0) -> tuple[np.ndarray, np.ndarray | None]:
+    """What the viewer shows for ``camera`` (``mode`` one of :data:`MODES`).
+
+    Returns ``(image [H, W, 3] uint8, depth [H, W] float32 or None)``: ``depth`` is the camera-space depth the
+    browser composites its own objects (frustums, mesh) against — the median depth where the Gaussians cover
+    a pixel (alpha > 0.5), :data:`FAR_DEPTH` elsewhere; None for the opacity slice. ``opacity slice`` evaluates
+    the opacity field over ``train_cameras`` at H·W points: the plane at camera-space depth ``slice_depth``,
+    one point per pixel centre.
+    """
+    if mode not in MODES:
+        raise GofError(f"viewer mode must be one of {MODES}, got {mode!r}")
+    if mode == "opacity slice":
+        from ..rendering.opacity_field import opacity_field
+
+        if not train_cameras:
+            raise GofError("the opacity slice needs the training cameras")
+        u = (np.arange(camera.width) + 0.5 - camera.cx) / camera.fx
+        v = (np.arange(camera.height) + 0.5 - camera.cy) / camera.fy
+        uu, vv = np.meshgrid(u, v, indexing="xy")
+        rays = np.stack([uu, vv, np.ones_like(uu)], -1) * float(slice_depth)  # camera space, z = slice_depth
+        points = (rays - camera.t) @ camera.R  # world: R^T (x - t) on row vectors
+        field, seen = opacity_field(gaussians, train_cameras, points.reshape(-1, 3), render_config=render_config,
+                                    return_seen=True)
+        shape = (camera.height, camera.width)
+        return colorize_opacity(field.cpu().numpy().reshape(shape), seen.cpu().numpy().reshape(shape)), None
+    import torch
+
+    from .pictures import colorize_depth, colorize_normal
+    from ..rendering.render import render
+
+    with torch.no_grad():
+        out = render(gaussians, camera, config=render_config)
+    alpha = out["alpha"].reshape(camera.height, camera.width).cpu().numpy()
+    median = out["median_depth"].reshape(camera.height, camera.width).cpu().numpy()
+    if mode == "render":
+        image = np.round(out["rgb"].clamp(0, 1).cpu().numpy() * 255).astype(np.uint8)
+    elif mode == "depth":
+        image = colorize_depth(median, alpha)
+    else:
+        image = colorize_normal(out["normal"].cpu().numpy(), alpha, camera)
+    depth = np.where((alpha > 0.5) & (median > 0), median, FAR_DEPTH).astype(np.float32)
+    return image, depth
+
+
+def find_mesh(run_dir) -> Path | None:
+    """The newest ``RUN/mesh_*.ply`` (what ``python -m gof_warp.extract`` writes), or None."""
+    meshes = sorted(Path(run_dir).glob("mesh_*.ply"), key=lambda p: p.stat().st_mtime)
+    return meshes[-1] if meshes else None
+
+
+def load_mesh(path) -> tuple[np.ndarray, np.ndarray]:
+    """``(vertices [V, 3] float32, faces [F, 3] uint32)`` of a mesh file (PLY/OBJ/...), with a clear error."""
+    import trimesh
+
+    try:
+        m = trimesh.load(Path(path), process=False, force="mesh")
+    except Exception as e:  # trimesh raises many types for unreadable files
+        raise GofError(f"{path}: cannot read the mesh: {e}") from None
+    return np.asarray(m.vertices, np.float32).reshape(-1, 3), np.asarray(m.faces, np.uint32).reshape(-1, 3)
+
+
+# ------------------------------------------------------------------------------------------ the viewer
+class Viewer:
+    """A viser server showing one model (see the module docstring).
+
+    Args:
+        gaussians: :class:`~gof_warp.model.Gaussians` (a copy is rendered; see :meth:`update`).
+        cameras: the training cameras (frustums, the initial view, the opacity field).
+        render_config: :class:`~gof_warp.render.RenderConfig` of the run (background, near plane, ...).
+        mesh: ``(vertices [V, 3], faces [F, 3])`` to show (toggle in the GUI), or None.
+        host, port: where to listen (``0.0.0.0`` for every interface; a busy port → the next free one).
+        max_size: render size, long side in pixels (default 256 on CPU, 1024 on CUDA).
+        title: label of the GUI panel.
+    Call :meth:`start` (or use ``with``), then :meth:`stop`.
+    """
+
+    def __init__(self, gaussians, cameras: list[Camera], *, render_config=None, mesh=None, host: str = "0.0.0.0",
+                 port: int = 8080, max_size: int | None = None, title: str = "gof_warp"):
+        if not cameras:
+            raise GofError("the viewer needs at least one camera (the run's cameras.json)")
+        if max_size is not None and not MIN_SIZE <= int(max_size) <= MAX_SIZE:
+            raise GofError(f"--max-size must be in [{MIN_SIZE}, {MAX_SIZE}], got {max_size}")
+        if not 0 <= int(port) <= 65535:
+            raise GofError(f"--port must be in [0, 65535], got {port}")
+        self.cameras, self.render_config, self.mesh = list(cameras), render_config, mesh
+        self.host, self.port, self.title = host, int(port), title
+        on_gpu = gaussians.device.type == "cuda"
+        self.max_size = int(max_size or (GPU_MAX_SIZE if on_gpu else CPU_MAX_SIZE))
+        self._gaussians = gaussians.clone()
+        self._iteration: int | None = None
+        self._lock = threading.Lock()
+        self._dirty: dict[int, object] = {}  # client id → client handle, waiting for a render (under _dirty_lock)
+        self._dirty_lock = threading.Lock()
+        self._wake = threading.Event()
+        self._stopping = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.server = None
+        self.frames_sent = 0
+        self.last_frame: np.ndarray | None = None  # [H, W, 3] uint8: the newest image sent to a browser
+        self.last_render_s = float("nan")
+        self.errors: list[str] = []
+        centres = np.stack([c.center for c in self.cameras])
+        self.scene_size = float(np.linalg.norm(centres - centres.mean(0), axis=1).max()) or 1.0
+
+    # ------------------------------------------------------------------ life cycle
+    def start(self) -> "Viewer":
+        """Start the server and the render thread; returns self."""
+        viser = require_viser()
+        self.server = viser.ViserServer(host=self.host, port=self.port, label=self.title, verbose=False)
+        self.port = int(self.server.get_port())
+        self._build_scene()
+        self._build_gui()
+        self.server.on_client_connect(self._on_connect)
+        self.server.on_client_disconnect(self._forget)
+        self._thread = threading.Thread(target=self._render_loop, name="gof_warp-viewer", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop the render thread and the server (idempotent)."""
+        self._stopping.set()
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join(timeout=30)
+            self._thread = None
+        if self.server is not None:
+            self.server.stop()
+            self.server = None
+
+    def __enter__(self) -> "Viewer":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+    @property
+    def url(self) -> str:
+        """The page's address on this machine."""
+        host = "localhost" if self.host in ("0.0.0.0", "::", "") else self.host
+        return f"http://{host}:{self.port}"
+
+    def how_to_open(self) -> str:
+        """Where to point a browser, here and from another machine through SSH port forwarding."""
+        return (f"viewer at {self.url}\n"
+                f"  on a remote machine (e.g. a GPU server): ssh -L {self.port}:localhost:{self.port} user@gpu-host, "
+                f"then open http://localhost:{self.port} on your computer")
+
+    @property
+    def iteration(self) -> int | None:
+        """The training iteration of the model shown (None outside training)."""
+        return self._iteration
+
+    @property
+    def num_gaussians(self) -> int:
+        """How many Gaussians the model shown has."""
+        return len(self._gaussians)
+
+    def serve_forever(self) -> None:
+        """Block until Ctrl-C (KeyboardInterrupt is left to the caller)."""
+        while not self._stopping.is_set():
+            time.sleep(0.5)
+
+    # ------------------------------------------------------------------ model updates (training)
+    def update(self, gaussians, iteration: int | None = None) -> None:
+        """Show ``gaussians`` from now on and re-render for every browser. A copy is taken here, in the caller's
+        thread (the trainer's), so training may go on changing its model: [N, 59] floats, e.g. 240 MB for 1M
+        Gaussians with degree-3 SH — cheap next to a training step when done every few hundred iterations."""
+        copy = gaussians.clone()
+        with self._lock:
+            self._gaussians = copy
+            self._iteration = iteration
+        self._refresh_info()
+        self.rerender()
+
+    def rerender(self) -> None:
+        """Render again for every connected browser (e.g. after a GUI change)."""
+        if self.server is None:
+            return
+        for client in self.server.get_clients().values():
+            self._mark(client)
+
+    # ------------------------------------------------------------------ scene and GUI
+    def _build_scene(self) -> None:
+        s = self.server.scene
+        s.set_up_direction(tuple(scene_up(self.cameras)))
+        scale = 0.06 * self.scene_size
+        self._frustums = []
+        for i, cam in enumerate(self.cameras):
+            wxyz, pos, fov, aspect = viewer_pose(cam)
+            self._frustums.append(s.add_camera_frustum(f"/cameras/{i}", fov=fov, aspect=aspect, scale=scale,
+                                                       wxyz=wxyz, position=pos, color=FRUSTUM_COLOR,
+                                                       thickness=0.01 * scale))
+        self._mesh_handle = None
+        if self.mesh is not None:
+            v, f = self.mesh
+            self._mesh_handle = s.add_mesh_simple("/mesh", np.asarray(v, np.float32), np.asarray(f, np.uint32),
+                                                  color=MESH_COLOR, side="double", visible=False)
+        first = self.cameras[0]
+        wxyz, pos, fov, _ = viewer_pose(first)
+        forward, d = quat_to_matrix(wxyz)[:, 2], self._look_distance(first)
+        look = pos + forward * d
+        pos = look + _rotate(pos - look, scene_up(self.cameras), START_TURN) * START_PULL_BACK
+        cam = self.server.initial_camera
+        cam.position, cam.look_at, cam.up, cam.fov = tuple(pos), tuple(look), tuple(-first.R[1]), fov
+
+    def _look_distance(self, camera: Camera) -> float:
+        """Distance from ``camera`` to the Gaussians' centroid along its axis (the orbit centre), at least 0.1."""
+        centroid = self._gaussians.means.detach().mean(0).cpu().numpy().astype(np.float64)
+        return max(float(camera.R[2] @ centroid + camera.t[2]), 0.1)
+
+    def _build_gui(self) -> None:
+        g = self.server.gui
+        self._mode = g.add_dropdown("show", MODES, initial_value="render")
+        self._slice = g.add_slider("slice depth", min=0.01, max=round(4 * self.scene_size, 2),
+                                   step=round(self.scene_size / 100, 4) or 0.01,
+                                   initial_value=round(self._look_distance(self.cameras[0]), 2))
+        self._size = g.add_slider("max size (px)", min=MIN_SIZE, max=MAX_SIZE, step=32, initial_value=self.max_size)
+        self._show_cams = g.add_checkbox("training cameras", initial_value=True)
+        self._show_mesh = g.add_checkbox("mesh", initial_value=False, disabled=self.mesh is None)
+        self._info = g.add_markdown("")
+        for handle in (self._mode, self._slice, self._size):
+            handle.on_update(lambda _: self.rerender())
+        self._show_cams.on_update(lambda _: [setattr(f, "visible", self._show_cams.value) for f in self._frustums])
+        if self._mesh_handle is not None:
+            self._show_mesh.on_update(lambda _: setattr(self._mesh_handle, "visible", self._show_mesh.value))
+        self._refresh_info()
+
+    def _refresh_info(self) -> None:
+        if self.server is None:
+            return
+        it = "" if self._iteration is None else f"iteration {self._iteration} · "
+        ms = "" if self.last_render_s != self.last_render_s else f" · render {1000 * self.last_render_s:.0f} ms"
+        self._info.content = f"{it}{len(self._gaussians):,} Gaussians · {len(self.cameras)} cameras{ms}"
+
+    def _on_connect(self, client) -> None:
+        client.camera.on_update(lambda cam: self._mark(client))
+        self._mark(client)
+
+    def _mark(self, client) -> None:
+        with self._dirty_lock:
+            self._dirty[client.client_id] = client
+        self._wake.set()
+
+    def _forget(self, client) -> None:
+        with self._dirty_lock:
+            self._dirty.pop(client.client_id, None)
+
+    def _next_dirty(self):
+        """The client waiting longest for a render (removed from the set), or None."""
+        with self._dirty_lock:
+            return self._dirty.pop(next(iter(self._dirty))) if self._dirty else None
+
+    # ------------------------------------------------------------------ rendering (worker thread)
+    def _render_loop(self) -> None:
+        self._warm_up()
+        while not self._stopping.is_set():
+            self._wake.wait()
+            self._wake.clear()
+            while not self._stopping.is_set() and (client := self._next_dirty()) is not None:
+                try:
+                    self._render_for(client)
+                except Exception as e:  # noqa: BLE001 - a failed frame must not end the viewer
+                    if str(e) not in self.errors:
+                        self.errors.append(str(e))
+                        log.warning("viewer: render failed: %s", e)
+
+    def _warm_up(self) -> None:
+        """One small render before any browser asks, so that the first real frame is not slowed by first-use costs."""
+        try:
+            wxyz, pos, fov, aspect = viewer_pose(self.cameras[0])
+            render_mode(self._gaussians, camera_from_viewer(pos, wxyz, fov, aspect, MIN_SIZE), "render",
+                        render_config=self.render_config)
+        except Exception as e:  # noqa: BLE001 - the real frames will report the error
+            log.debug("viewer warm-up render failed: %s", e)
+
+    def _render_for(self, client) -> None:
+        cam = client.camera
+        try:
+            position, wxyz, fov, aspect = cam.position, cam.wxyz, cam.fov, cam.aspect
+        except (AssertionError, ZeroDivisionError):  # the browser has not sent its camera yet
+            return
+        size = int(self._size.value)
+        camera = camera_from_viewer(position, wxyz, fov, aspect, size)
+        with self._lock:
+            gaussians = self._gaussians
+        t0 = time.perf_counter()
+        image, depth = render_mode(gaussians, camera, self._mode.value, render_config=self.render_config,
+                                   train_cameras=self.cameras, slice_depth=float(self._slice.value))
+        self.last_render_s = time.perf_counter() - t0
+        client.scene.set_background_image(image, format="jpeg", jpeg_quality=JPEG_QUALITY, depth=depth)
+        self.last_frame = image
+        self.frames_sent += 1
+        self._refresh_info()
+
+
+def open_run(run_dir, *, device: str = "cpu", mesh_path=None, **viewer_kwargs) -> Viewer:
+    """A :class:`Viewer` (not started) of a training run folder: its Gaussians, training cameras, render
+    settings and its newest ``mesh_*.ply`` (or ``mesh_path``; ``False``: no mesh)."""
+    from ..training.run_folder import load_run
+
+    run = Path(run_dir)
+    if not run.is_dir():
+        raise GofError(f"{run} is not a run folder (a training output with point_cloud.ply and cameras.json)")
+    gaussians, cameras, _, render_config = load_run(run, None, device)
+    cfg_background = _run_background(run)
+    if cfg_background is not None:
+        import dataclasses
+
+        render_config = dataclasses.replace(render_config, background=cfg_background)
+    mesh = None
+    if mesh_path is not False:
+        path = Path(mesh_path) if mesh_path else find_mesh(run)
+        if path is not None:
+            if not path.is_file():
+                raise GofError(f"mesh {path} does not exist")
+            mesh = load_mesh(path)
+            log.info("mesh %s: %d vertices, %d faces", path, len(mesh[0]), len(mesh[1]))
+    return Viewer(gaussians, cameras, render_config=render_config, mesh=mesh, title=f"gof_warp · {run.name}",
+                  **viewer_kwargs)
+
+
+def _run_background(run: Path):
+    """The scene background of a run (``config.yaml``'s ``data.background``), as the trainer renders with."""
+    cfg = run / "config.yaml"
+    if not cfg.is_file():
+        return None
+    from ..core.config import load_yaml
+
+    bg = (load_yaml(cfg).get("data") or {}).get("background")
+    return tuple(float(c) for c in bg) if isinstance(bg, (list, tuple)) and len(bg) == 3 else None
