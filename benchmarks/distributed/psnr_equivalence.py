@@ -1,7 +1,7 @@
 """Is the test PSNR of n-GPU trainings within a margin of one GPU's? (issue 17, dp_psnr.sh)
 
 Equal trainings on one GPU already differ by tenths of a dB (the GPU's atomics change the summation order, and
-densification turns that into another model; session 23 measured 0.49 dB between two equal runs). So a single pair of
+densification turns that into another model; 0.49 dB was measured between two equal runs). So a single pair of
 runs cannot tell 0.1 dB. This reads several runs a side (``metrics_g{n}_s{seed}.json``, one per GPU count n and seed)
 and applies the two one-sided tests for equivalence: the n-GPU mean is within ``--margin`` dB of the one-GPU mean when
 the 90 % confidence interval of the difference (Welch's, unequal variances) lies inside (−margin, +margin).
