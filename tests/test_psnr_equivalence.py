@@ -1,15 +1,12 @@
-"""benchmarks/distributed/psnr_equivalence.py: Welch's interval and the equivalence verdict of issue 17's PSNR runs."""
+"""gof_warp.benchmarking.equivalence: Welch's interval and the equivalence verdict of issue 17's PSNR runs."""
 
 import json
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy import stats
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks" / "distributed"))
-from psnr_equivalence import read_runs, summarise, welch_interval  # noqa: E402
+from gof_warp.benchmarking.equivalence import read_runs, summarise, welch_interval
 
 
 def test_welch_interval_matches_scipy():

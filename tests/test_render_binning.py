@@ -471,11 +471,7 @@ def test_near_plane_tile_culling_renders_identically():
 def test_tile_culling_renders_benchmark_scene_identically():
     """The benchmark scene (20k Gaussians, 320x240, SH degree 2; its ~100 near-plane-crossing Gaussians lose
     all their entries): outputs and gradients bitwise equal with and without culling."""
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks" / "render"))
-    from bench_render import make_camera, make_scene
+    from gof_warp.benchmarking.render_scene import make_camera, make_scene
 
     means, quats, scales, opac, sh = make_scene(20_000, device="cpu")
     scene = dict(means=means.double(), quats=quats.double(), scales=scales.double(), opacities=opac.double(), sh=sh[:, :9].double())
@@ -488,11 +484,7 @@ def test_tile_culling_reduces_benchmark_entries(n, W, H, bound):
     """The renderer benchmark's scene: the few Gaussians crossing the near plane (ground splats beside the
     camera, background splats behind it) held most entries as whole-image rectangles; culled, they keep
     only the tiles their lines reach (none here), and the total drops below ``bound`` × the rectangles'."""
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks" / "render"))
-    from bench_render import make_camera, make_scene
+    from gof_warp.benchmarking.render_scene import make_camera, make_scene
 
     from gof_warp.kernels.renderer import prepare_view
 

@@ -20,7 +20,7 @@ OUTPUTS = ("rgb", "alpha", "depth", "accum_depth", "median_depth", "normal", "di
 STATS = ("grad2d", "grad2d_abs", "radii", "max_radii", "visible_count")
 # On the CPU every kernel is deterministic: renders with and without a scratch agree bit for bit. On CUDA the backward
 # adds the per-pixel gradients with float atomics, whose order varies from run to run (the forward stays exact). On an
-# H100 (session 31, benchmarks/train/results/s31_scratch/cuda_spread.py, these renders three times over) two renders
+# H100 (these renders three times over) two renders
 # without a scratch differed by up to 1.8e-4 of an element (elements over 1e-3 of the largest) and 4.7e-6 of the
 # gradient's largest element; with and without a scratch by 1.5e-4 and 6.4e-6.
 CUDA_GRAD_RTOL = 1e-3

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Whole trainings on 1, 2, ... GPUs of one host (issue 17): the synthetic garden at RES (SCENE_VIEWS train views, the
-# preset's test views) from SFM pseudo-SfM points (sweep_ground.pseudo_sfm: visible GT-surface points, 2 mm noise),
+# preset's test views) from SFM pseudo-SfM points (pseudo_sfm.py: visible GT-surface points, 2 mm noise),
 # trained with CONFIG (garden_3k.yaml: the unbounded preset's schedule compressed 10x, densification and every
 # regulariser on) at VIEWS views a step: one GPU renders them one after another, n GPUs VIEWS/n each. The 1-GPU run
 # compiles Warp's kernels in its warm-up, outside its timed loop. Needs Warp staged, benchmarks/device_setup.sh
@@ -20,8 +20,7 @@ if [ ! -f $S/transforms_train.json ]; then
     || { echo "scene generation failed"; exit 1; }
 fi
 if [ ! -f $S/points3d.ply ]; then
-  python3 -c "import sys; from pathlib import Path; sys.path.insert(0, 'benchmarks/real_captures');
-from sweep_ground import pseudo_sfm; pseudo_sfm(Path('$S'), $SFM)" || { echo "pseudo-SfM failed"; exit 1; }
+  python3 benchmarks/distributed/pseudo_sfm.py $S $SFM || { echo "pseudo-SfM failed"; exit 1; }
 fi
 echo "scene and points at $(( $(date +%s) - t0 )) s"
 ARGS=($S --config "$CONFIG" --no-pictures --quiet "views_per_step=$VIEWS" "seed=$SEED" $EXTRA)

@@ -15,8 +15,8 @@ A reduction is ``none`` or comma-separated ``key=value`` with keys ``opacity_min
 diagonal of the Gaussians' robust box), ``workers`` (``TetraConfig.delaunay_workers``: Delaunay in
 chunks on that many workers, 0 = every CPU), ``processes`` (1: the chunks in forked processes, the default;
 0: in threads), ``grid`` (``delaunay`` or ``octree``) and ``cell_factor`` (the octree's) — the last four are not
-reductions, but set per run the same way. ``none`` is the default grid (the octree since session 10; since session
-30 ``auto``: the Delaunay grid for a small model); the Delaunay-point settings (``corner_*``, ``workers``,
+reductions, but set per run the same way. ``none`` is the default grid (``auto``: the octree, or the Delaunay grid for a
+small model); the Delaunay-point settings (``corner_*``, ``workers``,
 ``processes``) need ``grid=delaunay`` first. Reductions apply to ``tetra`` only; ``cubes``/``tsdf`` run once.
 Memory per stage: ``host_peak_rss_mb`` (process maximum so far, from ``extract.StageTimer``),
 ``peak_rss_above_start_mb`` (sampled every 5 ms), ``peak_tree_pss_mb`` (PSS of the process and its forked
@@ -38,7 +38,6 @@ import warp as wp
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_marching import DEFAULT_DATA, Stage, load_gaussians, machine_info
-from point_reduction import scene_diagonal
 
 from gof_warp.camera import look_at
 from gof_warp.extract import MeshConfig, StageTimer, cameras_from_json, extract_mesh
@@ -46,6 +45,13 @@ from gof_warp.io_utils import write_json_atomic
 from gof_warp.model import Gaussians
 from gof_warp.tetra import TetraConfig
 from gof_warp.tsdf import gaussian_bounds
+
+
+def scene_diagonal(gaussians) -> float:
+    """Diagonal of the robust box of the Gaussians (as the TSDF/cubes bounds use, unpadded)."""
+    box = gaussian_bounds(gaussians.means.detach().cpu().numpy(), 0.5, 0.0)
+    return float(np.linalg.norm(box[3:] - box[:3]))
+
 
 REDUCTION_KEYS = ("opacity_min", "corner_min_extent", "corner_frac", "workers", "processes", "grid", "cell_factor")
 

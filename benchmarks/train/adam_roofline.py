@@ -6,7 +6,7 @@ This times, for DTU scan 24's final model size by default (776,149 Gaussians, SH
 
 * ``fused``: torch's fused Adam (six groups, the means' rate changed every step as the schedule does);
 * ``lean``: ``gof_warp.optim.LeanAdam``, the same kernel with less host work (``optim.adam=torch``);
-* ``warp``: ``gof_warp.optim.WarpAdam`` (``optim.adam=warp``, the default on CUDA since session 38), one Warp
+* ``warp``: ``gof_warp.optim.WarpAdam`` (``optim.adam=warp``, the default on CUDA), one Warp
   kernel a parameter, four floats a thread;
 * ``foreach``: torch's multi-tensor Adam, for comparison;
 * ``copy``: 12 B a float copied and 4 B more read (28 B of traffic a float, as Adam's), the practical roofline;

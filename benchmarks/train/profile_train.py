@@ -4,7 +4,7 @@
         [--iterations 300] [--trace 30] [--out DIR] [override ...]
 
 The trainer is built as ``python -m gof_warp.train`` builds it (preset + overrides), then optionally given a
-trained model (``--ply``, e.g. the DTU scan 24 model unpacked by ``benchmarks/extract/pack_model.py``; higher SH
+trained model (``--ply``, e.g. a trained DTU scan 24 run's ``point_cloud.ply``; higher SH
 bands are zero if the PLY has none) and moved to iteration ``--start`` — ≥ ``densify.stop_iter`` for the
 regularised phase (distortion + normal terms, no densification statistics), below it for the densification
 phase — so that a step is timed on the model size and in the phase of a real run without training to it.

@@ -1,7 +1,7 @@
-"""WarpAdam against torch's fused Adam at the DTU model's size on a GPU (session 36): the same parameters and
+"""WarpAdam against torch's fused Adam at the DTU model's size on a GPU: the same parameters and
 gradients, 30 steps with the means' rate changing, a densification (rows kept and appended) at step 10 and GOF's
 opacity reset at step 20; prints the largest relative difference of each parameter and moment and how many floats
-of them differ at all (on a GPU, with WarpAdam doing torch's fused CUDA arithmetic since session 37: none).
+of them differ at all (on a GPU, where WarpAdam does torch's fused CUDA arithmetic: none).
 
     python benchmarks/train/warp_adam_check.py [--gaussians 848237]
 """
@@ -66,7 +66,7 @@ def main() -> None:
             out[f"{k}.{mk}"] = float((sa - sb).abs().max() / sa.abs().max().clamp_min(1e-30))
             differing += int((sa != sb).sum())
     out["worst"] = max(out.values())
-    # since session 37 WarpAdam does torch's fused CUDA arithmetic: on a GPU every float should be the same
+    # WarpAdam does torch's fused CUDA arithmetic: on a GPU every float should be the same
     out["differing_floats"] = differing
     out["device"] = torch.cuda.get_device_name(dev) if dev.type == "cuda" else "cpu"
     print(json.dumps(out, indent=1))

@@ -1,11 +1,11 @@
-"""WarpAdam inside a real training run, checked at every step against Adam written out in torch (session 36).
+"""WarpAdam inside a real training run, checked at every step against Adam written out in torch.
 
     python benchmarks/train/warp_adam_shadow.py [--iterations 1200] [--against-fused] [train options / overrides ...]
 
 Trains with ``optim.adam=warp`` (the README job's built-in scene unless a scene is given) and wraps ``WarpAdam.step``:
 before each step it copies every parameter, gradient and moment, after it recomputes the step in torch (float32,
 torch's unfused formula) from the copies and records the largest difference from what the kernel wrote, relative to
-the size of the step (since session 37 the kernel does torch's fused CUDA arithmetic, whose 1 − β₂ is 1 − fl(0.999):
+the size of the step (the kernel does torch's fused CUDA arithmetic, whose 1 − β₂ is 1 − fl(0.999):
 expect ~1e-5 of the step against this formula, or one float32 ulp of the parameter where the steps are small); a
 parameter without a gradient must come back unchanged, and every step counter must have moved by one.
 Densification (new tensors, new launches), opacity resets and the gradients' changing addresses are all in the run.
