@@ -13,7 +13,7 @@ import math
 
 import torch
 
-from gof_warp.camera import look_at
+from ..core.camera import look_at
 
 
 def _frames_from_normals(n: torch.Tensor, g: torch.Generator) -> torch.Tensor:
