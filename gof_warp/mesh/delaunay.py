@@ -29,7 +29,7 @@ the bisection use the exact points); volumes, orientation and flatness are those
 the exact inputs come out as slivers rather than gaps. Duplicate points are merged onto their lowest index
 and every tetrahedron is positively oriented (in the perturbed coordinates).
 
-Memory (measured on the 2-core CPU, session 7): a chunk in flight holds ~4.9 KB per point of its halo box
+Memory (measured on a 2-core CPU): a chunk in flight holds ~4.9 KB per point of its halo box
 (Qhull's own peak and the tetrahedra's geometry: ~740 B per local tetrahedron, ~6.6 per point), times the
 chunks in flight (= ``workers``): with the default ``CHUNK_POINTS`` 25k (37.5k with the halo), ~0.18 GB per
 worker. Around it ~200 B per point of the whole set: the perturbed points, the KD-tree (~40 B), the kept
@@ -62,9 +62,8 @@ SPHERE_RTOL = 1e-9
 BACKENDS = ("scipy", "cgal", "auto")
 PARALLEL_MIN_POINTS = 200_000  # below this one Qhull call is as fast as the chunked path
 CHUNK_POINTS = 25_000  # target points per chunk core (auto chunk count); ~1 s of Qhull on one core. Memory in flight
-# is ∝ workers × chunk size; 150k (up to session 6) held 1.1 GB per chunk in flight, 17.6 GB of DTU's 18.4 GB host
-# peak at 16 workers. Measured on the 2-core CPU (benchmarks/extract/README.md, session 7): 150k / 50k / 25k →
-# 3M points in 96 / 88 / 75 s, 2.33 / 1.36 / 1.21 GB above the start.
+# is ∝ workers × chunk size: a 150k chunk holds 1.1 GB in flight (17.6 GB of DTU's host peak at 16 workers). On a
+# 2-core CPU, 150k / 50k / 25k chunks take 3M points in 96 / 88 / 75 s, 2.33 / 1.36 / 1.21 GB above the start.
 DUPLICATES_SEEN = 8  # the exact merge maps a point to the lowest index among this many exact copies
 FILL_SPLIT_POINTS = 8 * CHUNK_POINTS  # a fill with this many points is triangulated in chunks itself
 MAX_FILLS = 3  # passes of the exact merge (one suffices in general position; more only guard against rounding)

@@ -11,7 +11,8 @@ appendix Algorithms 1–3):
 * ``tsdf``: fusion of rendered median depths (the 2DGS/3DGS baseline) → marching cubes.
 
 :class:`MeshConfig` (one dataclass for the stage), :func:`extract_mesh`, :class:`StageTimer` (per-stage wall time
-and peak memory), :func:`meshable`, :func:`save_mesh`. Memory per stage: ``benchmarks/extract/README.md``.
+and peak memory; ``python -m gof_warp.extract`` writes them per stage as JSON), :func:`meshable`,
+:func:`save_mesh`. Each stage's memory bound is in its module's docstring.
 """
 
 

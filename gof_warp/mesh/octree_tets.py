@@ -87,14 +87,14 @@ _KUHN = torch.tensor([[[0, 0, 0], list(map(int, [a == 0, a == 1, a == 2])),
                       for a in range(3) for b in range(3) if a != b], dtype=torch.int64)  # [6, 4, 3]
 
 
-# the octree's cell factor when none is given: 0.5 meshes DTU scan 24 in 4.22M faces (the extraction issue's bar 4.3M;
-# 0.35 gives 7.9M) at the Delaunay grid's accuracy on the garden crop (benchmarks/extract/README.md, session 10)
+# the octree's cell factor when none is given: 0.5 meshes DTU scan 24 in ~4.2M faces (under the 4.3M-face target;
+# 0.35 gives 7.9M) at the Delaunay grid's accuracy on the synthetic garden's ground-and-objects crop
 DEFAULT_CELL_FACTOR = 0.5
 # ... and, with TetraConfig.grid = "octree" (the default "auto" takes the Delaunay grid there: gof_warp.tetra), for a
 # grid of fewer than OctreeConfig.small_leaves leaves at 0.5, where the finer grid costs a second or two.
-# The README job's model (40k leaves): Chamfer +3.2 % → +1.7 % against the Delaunay grid over five seeds. colmap_can,
-# fox, background_full (1.0–2.0M leaves at 0.5) and the 400×400 default scene (242k) keep 0.5, as does DTU (800k
-# Gaussians, more than background_full's 360k) (benchmarks/extract/README.md, session 29)
+# On the README job's model (40k leaves) 0.35 gives a Chamfer +1.7 % of the Delaunay grid's over five seeds, 0.5
+# +3.2 % (benchmarks/RESULTS.md). colmap_can, fox, background_full (1.0–2.0M leaves at 0.5) and the 400×400 default
+# scene (242k) keep 0.5, as does DTU (800k Gaussians, more than background_full's 360k)
 SMALL_CELL_FACTOR = 0.35
 
 
@@ -116,7 +116,7 @@ class OctreeConfig:
     piece_tets: int = 1 << 24
     # keep only the tetrahedra with a vertex inside some Gaussian's oriented 3σ box (gof_warp.reach). Off by default:
     # where a surface is made of flat Gaussians, whether any octree vertex falls inside their thin boxes depends on how
-    # the lattice happens to lie. Measured (benchmarks/extract/README.md, sessions 31-32): the background model's crop
+    # the lattice happens to lie. Measured: the background model's crop
     # Chamfer +5.5 % of the Delaunay grid's without it, +1.7 % / +5.2 % with unfiltered / 3D-filtered boxes; on
     # background_full 12 % of the ground lost (264 of 1,324 ground patches); colmap_can loses a floater but gets holes
     reach_filter: bool = False

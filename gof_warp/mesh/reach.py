@@ -5,7 +5,7 @@ no Gaussian is, under a ground and between objects; GOF's Delaunay grid has poin
 centres. :func:`points_in_boxes` marks the grid points that lie in some Gaussian's box (the Warp kernels of
 :mod:`gof_warp.kernels.reach`: a ``wp.Bvh`` over the boxes' bounds, one thread per point, on the points' device), and
 the extraction can keep only the tetrahedra with such a vertex (``OctreeConfig.reach_filter``, off by default). Measured
-(``benchmarks/extract/README.md``, sessions 31–32) on a 170k-Gaussian model of the synthetic ``background`` scene: the
+on a 170k-Gaussian model of the synthetic ``background`` scene: the
 ground-and-objects crop's Chamfer +5.5 % of the Delaunay grid's without it, +1.7 % with boxes of the unfiltered
 scales, +5.2 % with the 3D-filtered ones used here. What it cuts depends on whether the octree's lattice lies near a
 surface of flat Gaussians: on ``background_full`` no vertex fell inside the ground's thin boxes in places and 12 % of

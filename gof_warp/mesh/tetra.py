@@ -11,9 +11,9 @@ on one core): ``opacity_min`` drops Gaussians below an opacity; ``cameras`` keep
 some camera between ``near`` and ``far`` (official PR #91, there with ``near=0.02, far=1e6``);
 ``corner_min_extent`` keeps only the centre of Gaussians whose 3σ extent is below it. All are off unless
 asked for (the official code has only the frustum mask); ``TetraConfig.fast()`` sets the measured
-``opacity_min`` (see ``benchmarks/extract/README.md``).
+``opacity_min`` (see :meth:`TetraConfig.fast`).
 
-Memory (host, measured on 900k points / 6.0M tetrahedra, ``benchmarks/extract``): points 12 B + owner
+Memory (host, measured on 900k points / 6.0M tetrahedra): points 12 B + owner
 4 B + scale 4 B per point; ``delaunay`` output 16 B/tet (int32); scipy's Qhull peaks at ~360 B/tet
 (2.2 GB), the CGAL backend at ~50 B/tet in memory plus a ~60 B/tet temporary text file (``TMPDIR``);
 ``orient_and_drop_degenerate`` and ``filter_cells`` work in chunks (~250 B/tet and ~100 B/tet of a chunk)
@@ -45,7 +45,7 @@ BOX_SIGMAS = 3.0  # paper: "3 times the Gaussian scales"
 CORNER_SIGNS = np.array(list(itertools.product((-1.0, 1.0), repeat=3)))  # [8, 3]
 BAND_NEIGHBOURS = 12  # level_band: nearest points looked at per point
 GRIDS = ("auto", "delaunay", "octree")
-FAST_OPACITY_MIN = 0.2  # TetraConfig.fast(): −34 % points, F-score ±0.2 points (benchmarks/extract)
+FAST_OPACITY_MIN = 0.2  # TetraConfig.fast(): −34 % points, F-score ±0.2 points
 
 
 @dataclass
@@ -70,10 +70,10 @@ class TetraConfig:
     # (gof_warp.octree_tets; no Delaunay). "delaunay": the official grid, the Delaunay of the 3σ-box corners and
     # centres on the CPU. "auto" (default): the octree, but the Delaunay grid for a small model, one whose octree at the
     # default cell factor would have fewer than octree.small_leaves leaves (and no cell factor is given): there the
-    # Delaunay costs seconds and the octree's few large cells cost accuracy. Measured (benchmarks/extract/README.md):
-    # DTU scan 24 on an H200 7.9 s / 4.2M faces against 81 s / 9.4M, on the synthetic garden's ground-and-objects crop
-    # the same Chamfer (0.00563 vs 0.00565) (session 10); the README job's model (40k leaves), five seeds: the octree
-    # ×0.35 Chamfer +1.7 % (worst +2.3 %) against the Delaunay grid in 7.8 s, the Delaunay grid 15.4 s (session 30)
+    # Delaunay costs seconds and the octree's few large cells cost accuracy. Measured: DTU scan 24 on an H200 7.9 s /
+    # 4.2M faces against 81 s / 9.4M, on the synthetic garden's ground-and-objects crop the same Chamfer (0.00563 vs
+    # 0.00565); the README job's model (40k leaves), five seeds: the octree ×0.35 Chamfer +1.7 % (worst +2.3 %)
+    # against the Delaunay grid in 7.8 s, the Delaunay grid 15.4 s (benchmarks/RESULTS.md)
     grid: str = "auto"
     octree: OctreeConfig = field(default_factory=OctreeConfig)
 
@@ -101,7 +101,7 @@ class TetraConfig:
         """Faster grid: Gaussians with opacity < 0.2 give no points (the Delaunay runs in exact chunks on every CPU
         by default anyway).
 
-        Measured (``benchmarks/extract/README.md``): on a trained synthetic scene ``opacity_min = 0.2`` kept
+        Measured on a trained synthetic scene: ``opacity_min = 0.2`` kept
         66 % of the points; F-score at τ = 0.5 % of the scene moved −0.2 points with linear interpolation and
         +0.2 with 8 search steps. ``corner_min_extent`` is scale-dependent and left off."""
         return cls(**{"opacity_min": FAST_OPACITY_MIN, **overrides})
@@ -233,7 +233,7 @@ def level_band(points, values, owner, point_scale, levels, *, neighbours: int = 
     An approximation: after the paper's cell filter a crossing edge joins two points within reach on either
     side of a level, but the partner need not be among the few nearest points (a point's nearest ones are
     mostly its own Gaussian's corners), and dropping the far points changes which tetrahedra fill the band.
-    Measured on the DTU model (``benchmarks/extract/README.md``): 29 % of the points with nearest neighbours
+    Measured on the DTU model: 29 % of the points with nearest neighbours
     alone (F 0.90 against the full grid's mesh at 0.1 % of the diagonal), 75 % with whole Gaussians (F 0.95):
     not the same mesh, hence off by default. Cost: a KD-tree and a ``neighbours``-NN query over all points (``workers``
     threads; ~8 core-s per million points at 12 neighbours).

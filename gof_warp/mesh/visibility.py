@@ -3,8 +3,8 @@
 The level set of GOF's opacity field has parts no photo can see: level crossings under a ground, inside objects,
 behind walls, where the field hovers near the level because a few views see through a thin or half-transparent
 surface. The Delaunay grid rarely finds them (it has points only at the Gaussians' box corners and centres); the
-octree grid, which fills the cells around the boxes, does (``benchmarks/extract/README.md``, sessions 31–32: a
-skirt 5–14 cm under the ground of the ``background`` scene). Nothing in the photos supports such faces; the
+octree grid, which fills the cells around the boxes, does (e.g. a skirt 5–14 cm under the ground of the
+``background`` scene). Nothing in the photos supports such faces; the
 extraction drops the faces that no training camera sees (:func:`faces_seen`; the Warp kernel
 :func:`gof_warp.kernels.visibility.faces_seen`, one thread per face, on the model's device): a face is seen when the
 ray from some camera's centre to the face's centroid, or for a face that spans a few pixels one of three points towards
