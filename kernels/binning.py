@@ -152,8 +152,8 @@ class TileListSizer:
       up by how much the number of Gaussians grew since (never down: pruning removes mostly transparent Gaussians,
       which own few entries). Views see very different numbers of entries (a close-up against a wide shot of an
       unbounded capture): with one size for all, the first views after each densification overflowed whenever they
-      needed more than ``margin ×`` the one view measured so far (11–595 renders of a 30k run on the real captures,
-      sessions 11–22).
+      needed more than ``margin ×`` the one view measured so far (11–595 renders of a 30k run on the real
+      captures).
     - A call with no estimate (nothing seen yet for this number of Gaussians, and its view never rendered) measures
       exactly: one synchronisation.
     - A count over the size it was given is an **overflow**: that render dropped the entries past the size (the

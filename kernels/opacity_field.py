@@ -79,7 +79,7 @@ def point_view_tile(x_v: wp.vec3, cam: CameraParams, settings: RasterSettings) -
     sees the points between the scene's near plane and that clip: the clip keeps Gaussians out of its renders, but the
     space in front of it is space the camera looked through, where its opacity (the tails of the Gaussians beyond the
     clip) is low. Counting it as unseen by that camera left the field there to the cameras across the scene, which
-    see it behind the objects (opacity ~1), and the mesh closed around the cameras (session 22, colmap_can).
+    see it behind the objects (opacity ~1), and the mesh closed around the cameras (seen on colmap_can).
     """
     z = x_v[2]
     if z <= settings.ndc_near:
@@ -127,7 +127,7 @@ def opacity_min_over_view_whole(
     seen: wp.array(dtype=wp.int32),
 ):
     """:func:`opacity_min_over_view` with every view walking its whole list: the reference the bounded kernel
-    equals bit for bit, and the baseline of its benchmark (``benchmarks/extract/field_bound.py``)."""
+    equals bit for bit (``tests/test_opacity_field.py``)."""
     i = wp.tid()
     x_v = cam.R * points[i] + cam.t
     tile = point_view_tile(x_v, cam, settings)

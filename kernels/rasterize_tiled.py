@@ -24,16 +24,16 @@ from .rasterize_backward import BackState, backward_step, pixel_grads
 from .render_types import CameraParams, PixelAux, PixelMaps, RasterSettings, SplatGrads, Splats, TileLists
 
 # fast_math (approximate division, square root and exp2, denormals flushed): the per-pair maths is issue-bound and
-# its ~15 IEEE divisions per pair in the backward were a large share of its instructions. Measured on an H100
-# (benchmarks/render/README.md, session 21): the DTU step's GPU time 15.3 → 12.6 ms; against the float64 reference the
-# CUDA kernels stay within the same tolerances as without it (forward ≤ 1.0e-5, gradients ≤ 2.7e-6 relative).
+# its ~15 IEEE divisions per pair in the backward are a large share of its instructions. On an H100 it takes the DTU
+# step's GPU time from 15.3 to 12.6 ms; against the float64 reference the CUDA kernels stay within the same tolerances
+# as without it (forward ≤ 1.0e-5, gradients ≤ 2.7e-6 relative; ``benchmarks/render/bench_render.py --check``).
 wp.set_module_options({"enable_backward": False, "fast_math": True})
 
 TILE_SIZE = 16
 TILE_PIXELS = wp.constant(TILE_SIZE * TILE_SIZE)
 #: Registers per thread of both kernels: 80 × 256 threads lets three blocks share an SM's 64K registers (two at the
-#: ~120 the compiler chose unbounded). On an H100 this took the DTU step's forward from 3.30 to 2.88 ms and its backward
-#: from 6.8 to 6.3 ms (``benchmarks/render/README.md``, session 21).
+#: ~120 the compiler chooses unbounded). On an H100 this takes the DTU step's forward from 3.30 to 2.88 ms and its
+#: backward from 6.8 to 6.3 ms.
 MAX_REGISTERS = 80
 
 
@@ -160,7 +160,7 @@ def rasterize_backward_tiled(lists: TileLists, splats: Splats, cam: CameraParams
         tK = wp.tile_load_indexed(sK, indices=ids, shape=(TILE_PIXELS,), axis=0, storage="shared")
         tM = wp.tile_load_indexed(sM, indices=ids, shape=(TILE_PIXELS,), axis=0, storage="shared")
         # thread `lane` works out entry batch + lane's warp mask once for the block (warp_rows_mask); the forward does
-        # not: measured slower there (benchmarks/train/README.md, session 34), where a skipped pair costs one test
+        # not: it measured slower there, where a skipped pair costs one test
         wp.tile_assign(tW, wp.tile(wp.where(batch + lane < batch_end, warp_rows_mask(wp.tile_extract(tK, lane),
                                                                                      wp.tile_extract(tM, lane), tile,
                                                                                      cam, settings), 0)))  # fmt: skip

@@ -4,8 +4,7 @@
 :func:`even_split` cuts ``n`` items into consecutive ranges; :func:`check_triangles` is the one shape-and-index check
 of a triangle mesh at the public boundaries that take one. NumPy 2.4's ``np.unique`` without ``return_*`` flags takes a
 hash-table path that is 20-60x slower than a sort on the int64 keys and int32 face indices this package makes:
-9.5 s against 0.16 s for 6.1M edge keys on the 2-core dev box, 3.4 s a call on 4.6M keys inside a GPU extraction
-(``benchmarks/extract/README.md``, session 20).
+9.5 s against 0.16 s for 6.1M edge keys on a 2-core CPU, 3.4 s a call on 4.6M keys inside a GPU extraction.
 """
 
 from __future__ import annotations

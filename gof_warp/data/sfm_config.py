@@ -23,8 +23,8 @@ class SfmError(SceneError):
 class SfmConfig:
     """How to triangulate sparse points from known poses.
 
-    Defaults were measured on a 2-core CPU (``benchmarks/sfm``): DTU scan 24 (49 views, 800x600) takes
-    38 s and gives 6,094 points; pose-chosen pairs (12 per view, 342 pairs) keep 99 % of the points of
+    Defaults were measured on a 2-core CPU (``benchmarks/RESULTS.md``, section 7): DTU scan 24 (49 views, 800x600)
+    takes 38 s and gives 6,094 points; pose-chosen pairs (12 per view, 342 pairs) keep 99 % of the points of
     exhaustive matching (1,176 pairs, 6,151 points) at 29 % of its matching time (13 s vs 44 s).
 
     Attributes:

@@ -47,7 +47,7 @@ class OpacityFieldConfig:
     # Points inside fewer than this many training views' frusta count as unseen (GOF: 1). A surface one photo alone
     # sees has no parallax to place it (COLMAP's fusion likewise asks for several views: min_num_pixels); with 2 the
     # tetra path leaves such space out of the grid (gof_warp.extraction) instead of meshing whatever depth the
-    # Gaussians took there. benchmarks/real_captures/README.md, session 18.
+    # Gaussians took there.
     min_views: int = 1
     chunk_size: int = 1 << 22  # points per device chunk
     # Screen tile (pixels) of the per-view Gaussian lists the points are evaluated against; None: CPU_TILE_SIZE on

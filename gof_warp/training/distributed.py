@@ -40,7 +40,7 @@ from ..core.devices import cuda_available
 from ..core.errors import GofError
 
 # points per float64 chunk of check_same_points' checksums (~0.9 GB of work). Whole, the float64 copies took ~56 B per
-# point: at 360M points the two-GPU field stage peaked 12 GB above one GPU's (benchmarks/extract/README.md, session 20)
+# point: at 360M points the two-GPU field stage would peak 12 GB above one GPU's
 CHECKSUM_ROWS = 1 << 24
 
 

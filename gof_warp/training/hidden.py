@@ -3,12 +3,11 @@
 The renderer composites each Gaussian at its peak ``t*`` along the ray, so a Gaussian whose centre lies behind an
 opaque surface adds (almost) nothing to any photo and no loss moves it away. GOF's opacity field counts every
 Gaussian before its peak too, by its tail ``α G(t)`` (``kernels.opacity_field``): a large Gaussian behind a surface
-reaches through it and raises the field in front of it. On the synthetic ``background_full`` scene (session 28,
-``benchmarks/real_captures/README.md``) ~2,900 round Gaussians of 12–19 cm that training left 5–100 cm behind the
-far shell put the field at 0.41 five centimetres in front of the shell (0.04 without them): the mesh stood ~5 cm in
-front of the photographed surface. Removed during training, the renders go on without them (the ground's rim there
-was complete in both runs); left out of a finished model at extraction instead, they open surfaces behind the
-half-transparent layer they backed (session 28's measurements).
+reaches through it and raises the field in front of it. On the synthetic ``background_full`` scene ~2,900 round
+Gaussians of 12–19 cm that training left 5–100 cm behind the far shell put the field at 0.41 five centimetres in
+front of the shell (0.04 without them): the mesh stood ~5 cm in front of the photographed surface. Removed during
+training, the renders go on without them (the ground's rim there was complete in both runs); left out of a finished
+model at extraction instead, they open surfaces behind the half-transparent layer they backed.
 
 * :func:`surface_depth_ratio` — each centre's depth over the rendered median depth at its pixel, the least over the
   training views whose image holds it where the render shows a surface.
@@ -20,8 +19,8 @@ half-transparent layer they backed (session 28's measurements).
 * :func:`visible_fraction` — how much of each Gaussian the photos show: its blending weight summed over a view's
   pixels (:func:`blend_weights`) over what it would show with nothing in front of it (:func:`unoccluded_weight`), the
   largest over the views. A Gaussian behind the median depth but under a half-transparent layer (a glossy floor's
-  texture, fur, a reflection) still shows; one behind an opaque surface does not. Session 29 measured why this
-  matters: pruned on depth alone, colmap_can lost its floor's tile lines and 2.9 dB, fox 1.5 dB.
+  texture, fur, a reflection) still shows; one behind an opaque surface does not. Why this matters: pruned on depth
+  alone, colmap_can loses its floor's tile lines and 2.9 dB, fox 1.5 dB.
 
 Shapes: ``means [N, 3]``; returns ``[N]`` bool. The test reads the centre's pixel only: a Gaussian whose centre is
 hidden but whose body shows beside an edge is kept only if some view's median depth at its centre is within the

@@ -268,7 +268,7 @@ class TrainingLoss:
     The loss is some 60 small tensor operations (SSIM's moments, the normals of the depth map, the products
     of the consistency term) and as many in its backward, and the appearance network a dozen layers more: on a GPU
     the host spends longer issuing them than the GPU takes to run them, and training steps are host-bound
-    (``benchmarks/train/README.md``). Compiled, the forward and the backward are a few fused kernels each. The
+    (``benchmarks/RESULTS.md``, section 2). Compiled, the forward and the backward are a few fused kernels each. The
     compiled graph takes the intrinsics as a ``[4]`` tensor per camera and the appearance embedding's row as a device
     index, so that views do not trigger recompilation; there is one graph per value of ``regularise``.
 

@@ -69,8 +69,8 @@ class MultiViewConfig:
             ``neighbours``). Each patch's loss is the mean ``1 − NCC`` over the drawn neighbours that see it, so a
             surface that only one or two of the candidates see (the edge of a capture) is compared at every step
             where one of those is drawn. 1 (PGSR's choice): one neighbour per step. All 8 moved ``background_full``'s
-            far shell 2.3 cm forward and made its whole seen region worse (F 0.944 → 0.920), at +6.6 ms a step on an
-            H100 (``benchmarks/real_captures``, session 27).
+            far shell 2.3 cm forward and made its whole seen region worse (F 0.920 against 0.944 with one), at +6.6 ms
+            a step on an H100.
         max_angle_deg: neighbours' viewing directions within this angle of the reference's.
         alpha_min: reference alpha at the patch centre below which the patch is left out.
         min_std: reference patches whose grey standard deviation is below this are textureless: left out.

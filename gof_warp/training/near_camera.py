@@ -204,8 +204,8 @@ def in_front_of_cameras(means: torch.Tensor, quats: torch.Tensor, scales: torch.
     """``[N]`` bool: the Gaussians that some camera's rays meet nearer than that camera's bound, by the renderer's
     own test (:func:`near_ray_census`'s: ``near < t* ≤ bounds[c]``, ``α ≥ alpha_min``) on a ``rays_across``-wide
     grid. A Gaussian whose centre lies beside the image but which covers part of it counts. (Adding the Gaussians
-    whose centre lies in the image nearer than the bound, behind the near plane included, was measured worse on
-    colmap_can: benchmarks/real_captures/README.md, session 13.)
+    whose centre lies in the image nearer than the bound, behind the near plane included, measured worse on
+    colmap_can.)
 
     ``cameras``: :func:`stack_cameras`; ``bounds [C]`` (:func:`near_camera_bounds`; ``≤ near``: nothing in front
     of that camera). Candidates for all cameras come from one batched projection; only cameras with candidates

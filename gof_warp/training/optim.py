@@ -62,7 +62,7 @@ class OptimConfig:
     # a thread, doing torch's fused CUDA arithmetic float for float: on a GPU the same bits as "torch", 0.3 ms less GPU
     # time a DTU step on an H200) or "auto" (the default): "warp" on CUDA, "torch" on the CPU (where torch's Adam is
     # its loop version, whose arithmetic WarpAdam does not copy). The appearance network's Adam is always torch's.
-    # Measured in benchmarks/train/README.md, sessions 36-38
+    # Timings and the bit-for-bit check: benchmarks/RESULTS.md
     adam: str = "auto"
 
     def __post_init__(self):
@@ -110,8 +110,8 @@ class LeanAdam(torch.optim.Adam):
     """``torch.optim.Adam`` whose fused step costs the host less: the same kernel (``torch._fused_adam_``), the same
     state and the same results bit for bit, with one ``_foreach_add_`` for every parameter's step counter and one
     fused call per group, instead of torch's per-group set-up (state checks, grouping by device and dtype, a counter
-    update per group): for the Gaussians' six groups 0.32 → 0.16 ms of host time a step, the GPU's time unchanged
-    (848k Gaussians on an H100 host, ``benchmarks/train/README.md``, session 36).
+    update per group): for the Gaussians' six groups 0.16 ms of host time a step instead of 0.32 ms, the GPU's time
+    unchanged (848k Gaussians on an H100 host).
 
     The lean path is taken for ``fused=True`` when every group is plain Adam (no AMSGrad, weight decay, maximize,
     capturable or differentiable mode, float learning rate and betas) and every parameter that has a gradient has its

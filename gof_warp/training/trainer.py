@@ -185,7 +185,7 @@ def _image_tensor(image: np.ndarray, device) -> torch.Tensor:
 
 
 #: ``compile_loss="auto"`` compiles only runs at least this long: compiling costs ~15 s on a fresh machine and saves
-#: ~1–2.5 ms per DTU iteration on an H100 (benchmarks/train/README.md, session 21).
+#: ~1–2.5 ms per DTU iteration on an H100, so shorter runs would spend more on compiling than they save.
 AUTO_COMPILE_MIN_ITERATIONS = 10_000
 
 
