@@ -32,6 +32,7 @@ def main(argv: list[str] | None = None) -> int:
         print("usage: gof-warp <command> [args]   (gof-warp <command> --help for its options)\n\ncommands:")
         for name, (_, text) in COMMANDS.items():
             print(f"  {name:<{width}}  {text}")
+        print("\nThe same as python -m gof_warp <command> [args], or python -m gof_warp.<command> [args].")
         return 0 if argv else 2
     name, rest = argv[0], argv[1:]
     if name not in COMMANDS:

@@ -72,7 +72,7 @@ from ..benchmarking.runs import (  # noqa: F401 - the run pieces live in the lib
     _trained,
     _train_or_load,
 )
-from .common import configure_output, run_command
+from .common import HelpFormatter, configure_output, run_command
 from ..core.errors import GofError
 
 log = logging.getLogger("gof_warp.bench")
@@ -388,21 +388,42 @@ def describe(runs: list[Run]) -> str:
     return "\n".join(lines)
 
 
+DESCRIPTION = """\
+Accuracy against cost, across extraction methods, training lengths, Gaussian budgets and the
+regularisers: scenes x training configurations x extraction methods. Each run (scene, training
+configuration) is trained once; its model and the snapshots saved on the way are extracted with
+every method of the run, timed, and scored against the scene's exact gt_mesh.ply. Writes
+DIR/results.json and DIR/results.csv (one row per run, iteration and method) and charts."""
+EPILOG = """\
+Rows already in DIR/results.json are skipped, so an interrupted suite continues where it stopped
+(a run whose model is still in DIR/runs/<run>, or --runs-dir, is not trained again). With
+--time-limit S no run starts whose planned cost would end more than S seconds after the command
+started; when runs are left the exit code is 3: run the same command again. --time-limit 0 runs
+nothing: it redraws the charts of the table so far and lists what is left.
+
+The stability suite writes stability.json; its exit code is 1 when any (case, method) crashed."""
+
+
 def main(argv=None) -> int:
     started = time.perf_counter()
-    ap = argparse.ArgumentParser(prog="python -m gof_warp.bench", description=__doc__.split("\n\n")[1])
-    ap.add_argument("--suite", default="quick", choices=SUITES)
-    ap.add_argument("--out", default=None, help="results folder (default benchmarks/results/<suite>)")
+    ap = argparse.ArgumentParser(prog="python -m gof_warp.bench", description=DESCRIPTION, epilog=EPILOG,
+                                 formatter_class=HelpFormatter)
+    ap.add_argument("--suite", default="quick", choices=SUITES,
+                    help="tiny (the test's), quick (a CPU in minutes), full (the GPU run) or stability (where each "
+                         "extraction method breaks)")
+    ap.add_argument("--out", default=None, help="results folder (default: benchmarks/results/<suite>)")
     ap.add_argument("--list", action="store_true", help="print the runs of the suite (budgets, total) and exit")
     ap.add_argument("--only", nargs="+", metavar="PATTERN", help="only the runs whose names match one of these "
-                                                                  "shell patterns, e.g. 'default_*' thin_7k")
+                                                                  "shell patterns, e.g. 'default_*' thin_7k (default: "
+                                                                  "every run)")
     ap.add_argument("--time-limit", type=float, metavar="SECONDS", help="start no run whose budget would end later "
-                    "than this after the command started; exit code 3 when runs are left")
+                    "than this after the command started; exit code 3 when runs are left (default: "
+                    "no limit)")
     ap.add_argument("--runs-dir", default=None, help="folder for the trained models and generated scenes "
-                                                     "(default OUT/runs)")
+                                                     "(default: OUT/runs)")
     ap.add_argument("--data", default=None, help="folder of the real scenes and spot's mesh "
                                                  "(default: $GOF_WARP_DATA, else ../shared/data)")
-    ap.add_argument("--device", default="auto", help="cpu, cuda or auto")
+    ap.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto")
     ap.add_argument("--fast", action="store_true", help="stability: only the hand-made cases (no training)")
     ap.add_argument("--quiet", action="store_true", help="no progress bars or log lines (errors and warnings shown)")
     a = ap.parse_args(argv)

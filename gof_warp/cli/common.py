@@ -7,9 +7,25 @@ commands write is written atomically, so an interrupted command leaves nothing h
 
 from __future__ import annotations
 
+import argparse
 import logging
 import sys
 from typing import Callable
+
+
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """The commands' ``--help`` layout: description and epilog printed as written (plain text, line breaks
+    kept), and ``(default: X)`` after an option's help unless that help already states its default. A flag that
+    takes no value is off unless given; an option whose default is None says in its help what None means."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        default = action.default
+        if (not action.option_strings or "default" in text.lower() or default is None
+                or default is argparse.SUPPRESS or (action.nargs == 0 and default is False)):
+            return text
+        shown = " ".join(map(str, default)) if isinstance(default, (list, tuple)) else str(default)
+        return f"{text} (default: {shown.replace('%', '%%')})"
 
 
 def configure_output(quiet: bool = False) -> None:

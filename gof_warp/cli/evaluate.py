@@ -22,13 +22,13 @@ import argparse
 import logging
 import sys
 
-from .common import run_command
+from .common import HelpFormatter, run_command
 from ..core.errors import GofError
 from ..eval.geometry_metrics import evaluate_mesh
 from ..eval.region_metrics import PATCH_SIZE, evaluate_region
 from ..core.io_utils import write_json_atomic
 
-__all__ = ["format_report", "image_metrics", "main"]
+__all__ = ["format_report", "image_metrics", "main", "tau_diagonal", "tau_fractions"]
 
 
 def __getattr__(name):
@@ -40,26 +40,51 @@ def __getattr__(name):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
+DESCRIPTION = "Score a reconstructed mesh against a ground-truth mesh or point cloud."
+EPILOG = """\
+Prints both meshes' statistics, accuracy, completeness and Chamfer distance, and a table of
+precision, recall and F-score at each tau (also given as a fraction of the diagonal). --json
+writes the same results to a file.
+
+Defaults are relative to the diagonal of the ground truth's bounding box: tau = 0.5 % and 1 %,
+max-dist = 5 %, and a sample spacing that puts about 300,000 samples on the ground truth.
+
+With --scene (a folder with transforms_train.json, and for synthetic scenes scene.json) the scores
+are taken on the region the training cameras observe, with the exact-vs-exact floor (the ground
+truth scored against itself) beside each score; the diagonal is then that of the seen ground
+truth, and --crop sets the box of interest. When scene.json records a ground plane, the ground's
+patch completeness and flatness are printed too.
+
+Bad input: "error: ..." on stderr, exit code 2."""
+
+
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m gof_warp.evaluate", description=__doc__.split("\n")[0])
-    p.add_argument("--mesh", required=True, help="reconstructed mesh (PLY/OBJ/...)")
+    p = argparse.ArgumentParser(prog="python -m gof_warp.evaluate", description=DESCRIPTION, epilog=EPILOG,
+                                formatter_class=HelpFormatter)
+    p.add_argument("--mesh", required=True, help="reconstructed mesh (PLY, OBJ, ...)")
     p.add_argument("--gt", required=True, help="ground-truth mesh or point cloud")
-    p.add_argument("--tau", type=float, nargs="+", help="F-score thresholds (default: 0.5%% and 1%% of the GT diagonal)")
-    p.add_argument("--density", type=float, help="surface sample spacing (default: ~300k samples on the GT)")
-    p.add_argument("--max-dist", type=float, help="truncation distance (default: 5%% of the GT diagonal)")
+    p.add_argument("--tau", type=float, nargs="+",
+                   help="F-score distance thresholds (default: 0.5 %% and 1 %% of the diagonal)")
+    p.add_argument("--density", type=float,
+                   help="surface sample spacing (default: the spacing that puts about 300,000 samples on the GT)")
+    p.add_argument("--max-dist", type=float,
+                   help="truncation distance: farther samples count as outliers (default: 5 %% of the diagonal)")
     p.add_argument("--crop", type=float, nargs=6, metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
-                   help="score only samples inside this axis-aligned box")
+                   help="score only the samples inside this axis-aligned box (default: no box, every sample)")
     p.add_argument("--method", choices=("points", "triangles"), default="points",
-                   help="nearest sample (DTU-style, default) or exact point-to-triangle distances")
+                   help="distance to the nearest sample (DTU-style) or exact point-to-triangle distance")
     p.add_argument("--truncate", choices=("exclude", "clamp"), default="exclude",
-                   help="drop distances >= max-dist from the means (DTU, default) or clamp them")
-    p.add_argument("--seed", type=int, default=0, help="sampling seed")
-    p.add_argument("--scene", help="scene folder (transforms_train.json [+ scene.json]): score the observed region")
-    p.add_argument("--patch", type=float, default=PATCH_SIZE, help="ground patch side (with --scene; default 0.1)")
-    p.add_argument("--supersample", type=int, default=3, help="rays per pixel axis for the seen test (--scene)")
+                   help="distances >= max-dist: left out of the means (DTU) or clamped to max-dist")
+    p.add_argument("--seed", type=int, default=0, help="surface sampling seed")
+    p.add_argument("--scene",
+                   help="scene folder (transforms_train.json, optionally scene.json): score only the region the "
+                        "training cameras observe (default: none, score everything)")
+    p.add_argument("--patch", type=float, default=PATCH_SIZE, help="with --scene: side of a ground patch")
+    p.add_argument("--supersample", type=int, default=3,
+                   help="with --scene: rays per pixel axis for deciding what the cameras see")
     p.add_argument("--min-views", type=int, default=1,
-                   help="with --scene: score only what at least this many training cameras see (default 1: any)")
-    p.add_argument("--json", help="write the results to this JSON file")
+                   help="with --scene: score only what at least this many training cameras see (1: any camera)")
+    p.add_argument("--json", metavar="OUT.json", help="also write the results to this JSON file (default: none)")
     return p
 
 
@@ -67,40 +92,96 @@ def _num(v) -> str:
     return "inf" if v is None else f"{v:.6g}"
 
 
+def _percent(fraction) -> str:
+    """``0.005`` -> ``0.50 %`` (two significant digits below 0.01 %); ``-`` for None."""
+    if fraction is None:
+        return "-"
+    pct = 100.0 * fraction
+    return f"{pct:.2f} %" if pct >= 0.01 or pct == 0 else f"{pct:.2g} %"
+
+
+def _table(rows: list[list[str]], align: str = "l", indent: str = "") -> list[str]:
+    """Rows of cells as aligned lines, two spaces apart; ``align[i]`` is column i's ``l`` (left) or ``r`` (right),
+    its last letter applies to the remaining columns."""
+    ncol = max(map(len, rows))
+    align = align.ljust(ncol, align[-1] if len(align) > 1 else "r")
+    widths = [max(len(r[i]) for r in rows if i < len(r)) for i in range(ncol)]
+    return [indent + "  ".join(c.ljust(w) if align[i] == "l" else c.rjust(w)
+                               for i, (c, w) in enumerate(zip(r, widths))).rstrip() for r in rows]
+
+
+def _cell(v) -> str:
+    return _num(v) if isinstance(v, float) else str(v)
+
+
+def tau_diagonal(report: dict) -> tuple[float, str]:
+    """The length the default taus are fractions of, and what it is the diagonal of: the seen GT's bounding box
+    for a region score (``region.diagonal``), else the GT's bounding box (``gt_stats.bbox_diagonal``, the
+    diagonal of :func:`~gof_warp.eval.geometry_metrics.default_eval_params`)."""
+    if report.get("region"):
+        return report["region"]["diagonal"], report["region"]["diagonal_of"]
+    return report["gt_stats"]["bbox_diagonal"], "bounding box of the GT"
+
+
+def tau_fractions(report: dict) -> list[float | None]:
+    """Each tau of ``report["metrics"]`` divided by :func:`tau_diagonal` (None where the diagonal is 0)."""
+    diag = tau_diagonal(report)[0]
+    return [t / diag if diag else None for t in report["metrics"]["tau"]]
+
+
 def format_report(report: dict) -> str:
-    """The human-readable table of an :func:`~gof_warp.geometry_metrics.evaluate_mesh` result."""
+    """The human-readable form of an :func:`~gof_warp.eval.geometry_metrics.evaluate_mesh` (or
+    :func:`~gof_warp.eval.region_metrics.evaluate_region`) result: the meshes' statistics and the
+    tau-independent scores as aligned key-value blocks, then one row per tau (with tau as a fraction of
+    :func:`tau_diagonal`); with a region score the exact-vs-exact floor is a column beside each score."""
     m = report["metrics"]
-    lines = [f"mesh: {report['mesh']}", f"gt:   {report['gt']}",
-             f"density {_num(m['density'])}  max_dist {_num(m['max_dist'])} ({m['truncate']})  method {m['method']}",
-             f"samples scored: mesh {m['num_pred_samples']}, gt {m['num_gt_samples']}", "",
-             f"{'':14s}{'mean':>12s}{'median':>12s}{'outliers':>10s}",
-             f"{'accuracy':14s}{_num(m['accuracy']):>12s}{_num(m['accuracy_median']):>12s}{m['pred_outlier_fraction']:>10.2%}",
-             f"{'completeness':14s}{_num(m['completeness']):>12s}{_num(m['completeness_median']):>12s}{m['gt_outlier_fraction']:>10.2%}",
-             f"{'chamfer':14s}{_num(m['chamfer']):>12s}", "",
-             f"{'tau':>12s}{'precision':>11s}{'recall':>9s}{'F-score':>9s}"]
-    lines += [f"{_num(t):>12s}{p:>11.4f}{r:>9.4f}{f:>9.4f}" for t, p, r, f in zip(m["tau"], m["precision"], m["recall"], m["fscore"])]
-    if report.get("floor"):
-        fl, rg = report["floor"]["metrics"], report["region"]
-        lines += ["", f"region: seen GT area {rg['gt_seen_area']:.4g} of {rg['gt_area']:.4g}, scored GT {rg['gt_scored_area']:.4g}, "
-                  f"mesh {rg['pred_scored_area']:.4g} of {rg['pred_area']:.4g}; diagonal {rg['diagonal']:.4g} ({rg['diagonal_of']})"
-                  + (f"; seen by at least {rg['min_views']} views" if rg.get("min_views", 1) > 1 else ""),
-                  f"{'':14s}{'score':>12s}{'floor':>12s}"]
-        lines += [f"{k:14s}{_num(m[k]):>12s}{_num(fl[k]):>12s}" for k in ("accuracy", "completeness", "chamfer")]
-        lines += [f"{'F@' + _num(t):14s}{f:>12.4f}{g:>12.4f}" for t, f, g in zip(m["tau"], m["fscore"], fl["fscore"])]
+    fl = report["floor"]["metrics"] if report.get("floor") else None
+    diag, diag_of = tau_diagonal(report)
+    ms, gs = report["mesh_stats"], report["gt_stats"]
+    lines = _table([["mesh", str(report["mesh"])], ["gt", str(report["gt"])]], align="ll")
+    keys = ("vertices", "faces", "connected_components", "watertight", "boundary_edges", "non_manifold_edges",
+            "degenerate_faces", "area")
+    lines += [""] + _table([["", "mesh", "gt"]] + [[k, _cell(ms[k]), _cell(gs[k])] for k in keys])
+    rg = report.get("region")
+    if rg:
+        lines += ["", f"region: seen GT area {rg['gt_seen_area']:.4g} of {rg['gt_area']:.4g}, scored GT "
+                  f"{rg['gt_scored_area']:.4g}, mesh {rg['pred_scored_area']:.4g} of {rg['pred_area']:.4g}"
+                  + (f"; seen by at least {rg['min_views']} views" if rg.get("min_views", 1) > 1 else "")]
+    lines += [""] + _table([
+        ["diagonal", _num(diag), f"({diag_of})"],
+        ["density", _num(m["density"]), "(sample spacing)"],
+        ["max_dist", _num(m["max_dist"]), f"({m['truncate']})"],
+        ["method", m["method"]],
+        ["samples scored", f"mesh {m['num_pred_samples']}, gt {m['num_gt_samples']}"]], align="lrl")
+
+    def score_rows(rows):  # [name, key, formatter]: the score, and with a region the floor beside it
+        return [[name, fmt(m[key])] + ([fmt(fl[key])] if fl else []) for name, key, fmt in rows]
+
+    lines += [""] + _table([["", "score"] + (["floor"] if fl else [])] + score_rows([
+        ["accuracy", "accuracy", _num], ["accuracy median", "accuracy_median", _num],
+        ["completeness", "completeness", _num], ["completeness median", "completeness_median", _num],
+        ["chamfer", "chamfer", _num],
+        ["mesh samples >= max_dist", "pred_outlier_fraction", _percent],
+        ["gt samples >= max_dist", "gt_outlier_fraction", _percent]]))
+    floor = ["floor"] if fl else []
+    rows = [["tau", "tau / diagonal", "precision", *floor, "recall", *floor, "F-score", *floor]]
+    for i, (t, frac) in enumerate(zip(m["tau"], tau_fractions(report))):
+        row = [_num(t), _percent(frac)]
+        for key in ("precision", "recall", "fscore"):
+            row += [f"{m[key][i]:.4f}"] + ([f"{fl[key][i]:.4f}"] if fl else [])
+        rows.append(row)
+    lines += [""] + _table(rows, align="r")
     g = report.get("ground")
     if g:
         gf = report["floor"]["ground"]
-        lines += ["", f"ground (z = {g['height']:.4g}, {g['patches']} patches of {g['patch']:.3g}, tolerance {_num(g['tau'])}):"
-                  f"{'':2s}score / floor"]
-        for k in ("worst_patch_completeness", "patches_over_limit", "ground_completeness", "flat_fraction",
-                  "height_error_p95"):
-            lines.append(f"  {k:26s}{_num(g[k]) if g[k] is not None else '-':>12s}{_num(gf[k]) if gf[k] is not None else '-':>12s}")
+        lines += ["", f"ground (z = {g['height']:.4g}, {g['patches']} patches of {g['patch']:.3g}, "
+                  f"tolerance {_num(g['tau'])}):"]
+        lines += _table([["", "score", "floor"]] + [
+            [k, _num(g[k]) if g[k] is not None else "-", _num(gf[k]) if gf[k] is not None else "-"]
+            for k in ("worst_patch_completeness", "patches_over_limit", "ground_completeness", "flat_fraction",
+                      "height_error_p95")], indent="  ")
         lines.append(f"  targets: no patch > {g['missing_limit']:.0%} missing: {g['patch_target_met']}; "
                      f"{g['flat_target']:.0%} within {_num(g['flat_tolerance'])}: {g['flat_target_met']}")
-    keys = ("vertices", "faces", "connected_components", "watertight", "boundary_edges", "non_manifold_edges",
-            "degenerate_faces", "area")
-    lines += ["", f"{'':22s}{'mesh':>14s}{'gt':>14s}"]
-    lines += [f"{k:22s}{report['mesh_stats'][k]!s:>14.14s}{report['gt_stats'][k]!s:>14.14s}" for k in keys]
     return "\n".join(lines)
 
 
@@ -120,6 +201,7 @@ def main(argv=None) -> int:
         else:
             report = evaluate_mesh(args.mesh, args.gt, tau=args.tau, density=args.density, max_dist=args.max_dist,
                                    crop=crop, truncate=args.truncate, method=args.method, seed=args.seed)
+        report["metrics"]["tau_fraction_of_diagonal"] = tau_fractions(report)
         print(format_report(report))
         if args.json:
             write_json_atomic(args.json, report)

@@ -16,7 +16,7 @@ import sys
 import time
 from pathlib import Path
 
-from .common import configure_output, run_command
+from .common import HelpFormatter, configure_output, run_command
 from ..core.errors import GofError
 from ..mesh.extraction import (METHODS, MeshConfig, StageTimer, empty_mesh_message, extract_mesh, meshable,  # noqa: F401
                          save_mesh)
@@ -27,72 +27,107 @@ from ..rendering.opacity_field import OpacityFieldConfig
 from ..mesh.tetra import GRIDS, TetraConfig
 
 
+DESCRIPTION = """\
+Extract a mesh from trained Gaussians (Gaussian Opacity Fields): tetra, cubes or tsdf.
+
+RUN is a training output folder (point_cloud.ply and cameras.json), or any Gaussian PLY in the 3DGS
+layout together with --scene for the cameras. Writes the mesh (PLY) and <mesh>.json with vertex and
+face counts and each stage's time and peak memory."""
+EPILOG = """\
+An empty mesh is an error (exit code 2) and writes nothing. Gaussians whose scales overflow are left
+out with a warning.
+
+Several GPUs: under "torchrun --nproc_per_node N -m gof_warp.extract RUN ..." the field's views are
+shared out among the processes (one GPU each), and the first process triangulates and writes."""
+
+
 def parse_args(argv=None) -> argparse.Namespace:
     """The command's arguments (``argv``: a list, or None for ``sys.argv``), for :func:`main` and
     :func:`extract_run`."""
-    ap = argparse.ArgumentParser(prog="python -m gof_warp.extract", description="Mesh extraction from trained Gaussians (GOF): tetra, cubes or tsdf.")
+    ap = argparse.ArgumentParser(prog="python -m gof_warp.extract", description=DESCRIPTION, epilog=EPILOG,
+                                 formatter_class=HelpFormatter)
     ap.add_argument("run", help="training output folder, or a 3DGS-layout Gaussian PLY (with --scene)")
-    ap.add_argument("--scene", default=None, help="scene folder for the cameras (and masks for TSDF)")
-    ap.add_argument("--out", default=None, help="mesh path (default RUN/mesh_<method>.ply)")
-    ap.add_argument("--method", default="tetra", choices=METHODS)
-    ap.add_argument("--levels", type=float, nargs="+", default=[0.5])
-    ap.add_argument("--binary-steps", type=int, default=8)
-    ap.add_argument("--search-steps-per-call", type=int, default=MeshConfig.search_steps_per_call,
-                    help="tetra: bisection steps served by one opacity-field call (0, the default: on a GPU chosen from "
-                         "the field's measured cost, on the CPU one; the mesh is the same for any value)")
-    ap.add_argument("--resolution", type=int, default=None, help="grid resolution for cubes/tsdf")
-    ap.add_argument("--delaunay", default="scipy", choices=("scipy", "cgal", "auto"))
-    ap.add_argument("--delaunay-workers", type=int, default=TetraConfig.delaunay_workers,
-                    help="threads for scipy's Delaunay in chunks (0, the default: every CPU; 1: one Qhull call)")
-    ap.add_argument("--delaunay-processes", action=argparse.BooleanOptionalAction,
-                    default=TetraConfig.delaunay_processes,
-                    help="run the Delaunay chunks in forked processes (default, where the OS can fork: Linux) or, "
-                         "with --no-delaunay-processes, in threads")
-    ap.add_argument("--band", action="store_true",
-                    help="tetra: triangulate only the points near a level crossing (faster, not the same mesh: "
-                         "benchmarks/extract/README.md)")
-    ap.add_argument("--grid", default=TetraConfig.grid, choices=GRIDS,
-                    help="tetra: the tetrahedral grid: 'delaunay' (official: Delaunay of the 3-sigma box corners and "
-                         "centres, on the CPU), 'octree' (a balanced octree sized by the Gaussians, on the model's "
-                         "device; no Delaunay) or 'auto' (the default: the octree, but the Delaunay grid for a small "
-                         f"model, whose octree at cell factor {DEFAULT_CELL_FACTOR} has fewer than "
-                         f"{OctreeConfig.small_leaves:,} leaves, unless --cell-factor is given)")
-    ap.add_argument("--cell-factor", type=float, default=None,
-                    help="the octree grid: leaf side at most this times a Gaussian's 3-sigma box width (smaller: "
-                         f"finer; default {DEFAULT_CELL_FACTOR}, or with --grid octree {SMALL_CELL_FACTOR} for a grid "
-                         f"of fewer than {OctreeConfig.small_leaves:,} leaves at {DEFAULT_CELL_FACTOR}; given, it is "
-                         "used as it is, and --grid auto keeps the octree)")
-    ap.add_argument("--piece-tets", type=int, default=None,
-                    help="--grid octree: make and march the grid's tetrahedra in pieces of at most this many, so they are "
-                         f"never held whole (default {OctreeConfig.piece_tets}; the mesh is the same for any value)")
-    ap.add_argument("--reach-filter", action=argparse.BooleanOptionalAction, default=None,
-                    help="the octree grid: keep only the tetrahedra with a vertex inside some Gaussian's oriented "
-                         "3-sigma box, where the Delaunay grid reaches (off by default: it can cut a surface of flat "
-                         "Gaussians that no grid vertex falls in; benchmarks/extract/README.md, session 32)")
-    ap.add_argument("--opacity-min", type=float, default=None, help="drop Gaussians below this opacity first")
-    ap.add_argument("--corner-min-extent", type=float, default=None,
-                    help="tetra: only the centre point for Gaussians whose 3-sigma extent is below this (world units)")
-    ap.add_argument("--keep-hidden", action="store_true",
-                    help="keep the faces no training camera sees (by default they are dropped: level crossings under a "
-                         "ground, inside objects or behind walls that no photo supports; gof_warp.visibility)")
-    ap.add_argument("--min-component-faces", type=int, default=0)
-    ap.add_argument("--min-views", type=int, default=OpacityFieldConfig.min_views,
-                    help="mesh only space that at least this many training views see (default %(default)s, GOF's; 2 "
-                         "leaves out what a single photo alone sees, where nothing places the surface's depth)")
-    ap.add_argument("--max-faces", type=int, default=None,
-                    help="quadric decimation (fast-simplification) to at most this many faces per mesh")
-    ap.add_argument("--max-error", type=float, default=None,
-                    help="decimate to the fewest faces whose input vertices stay within this distance (world units)")
-    ap.add_argument("--volume", action="store_true",
-                    help="bake the opacity field into a sparse NanoVDB volume (RUN/opacity_volume.nvdb + .json) for Warp "
-                         "kernels instead of a mesh (docs/warp_volume.md)")
-    ap.add_argument("--voxel-size", type=float, default=None,
-                    help="--volume voxel edge in world units (default: median 3-sigma extent of the opaque Gaussians / 4)")
-    ap.add_argument("--volume-band", type=int, default=4, help="--volume: voxels kept on each side of the 0.5 level")
-    ap.add_argument("--device", default="auto")
-    ap.add_argument("--no-pictures", action="store_true",
-                    help="do not write RUN/pictures/mesh_<stem>.png (views of the model and the shaded mesh)")
-    ap.add_argument("--quiet", action="store_true")
+    common = ap.add_argument_group("common options")
+    common.add_argument("--out", default=None, help="mesh path (default: RUN/mesh_<method>.ply)")
+    common.add_argument("--method", default="tetra", choices=METHODS,
+                        help="tetra (GOF's tetrahedral grid), cubes (marching cubes) or tsdf (fused depth maps)")
+    common.add_argument("--max-faces", type=int, default=None,
+                        help="decimate each mesh to at most this many faces (default: no decimation)")
+    common.add_argument("--max-error", type=float, default=None,
+                        help="decimate to the fewest faces whose input vertices stay within this distance, in world "
+                             "units (default: no decimation)")
+    common.add_argument("--levels", type=float, nargs="+", default=[0.5],
+                        help="opacity levels to mesh, one mesh each (tetra, cubes)")
+    common.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto")
+    common.add_argument("--quiet", action="store_true", help="no progress lines (errors and warnings still shown)")
+    common.add_argument("--keep-hidden", action="store_true",
+                        help="keep the faces no training camera sees (by default they are dropped: level crossings "
+                             "under a ground, inside objects or behind walls that no photo supports)")
+    common.add_argument("--min-views", type=int, default=OpacityFieldConfig.min_views,
+                        help="mesh only space that at least this many training views see (default %(default)s, GOF's; "
+                             "2 leaves out what a single photo alone sees, where nothing places the surface's "
+                             "depth)")
+    common.add_argument("--scene", default=None,
+                        help="scene folder for the cameras, and the photos and masks for tsdf (default: none; the "
+                             "cameras come from RUN/cameras.json)")
+    common.add_argument("--no-pictures", action="store_true",
+                        help="do not write RUN/pictures/mesh_<stem>.png (views of the model and the shaded mesh)")
+    grid = ap.add_argument_group("grid and search")
+    grid.add_argument("--grid", default=TetraConfig.grid, choices=GRIDS,
+                      help="tetra: the tetrahedral grid: 'delaunay' (GOF's: Delaunay of the 3-sigma box corners and "
+                           "centres, on the CPU), 'octree' (a balanced octree sized by the Gaussians, on the "
+                           "model's device; no Delaunay) or 'auto' (the default: the octree, but the Delaunay grid "
+                           f"for a small model, whose octree at cell factor {DEFAULT_CELL_FACTOR} has fewer than "
+                           f"{OctreeConfig.small_leaves:,} leaves, unless --cell-factor is given)")
+    grid.add_argument("--cell-factor", type=float, default=None,
+                      help="octree grid: leaf side at most this times a Gaussian's 3-sigma box width (smaller: "
+                           f"finer; default {DEFAULT_CELL_FACTOR}, or with --grid octree {SMALL_CELL_FACTOR} for a "
+                           f"grid of fewer than {OctreeConfig.small_leaves:,} leaves at {DEFAULT_CELL_FACTOR}; "
+                           "given, it is used as it is, and --grid auto keeps the octree)")
+    grid.add_argument("--binary-steps", type=int, default=8,
+                      help="tetra: bisection steps that place each vertex on the level")
+    grid.add_argument("--resolution", type=int, default=None,
+                      help="cubes and tsdf: grid nodes along the longest side (default: "
+                           f"{MeshConfig.cubes_resolution} for cubes, {MeshConfig().tsdf.resolution} for tsdf)")
+    grid.add_argument("--opacity-min", type=float, default=None,
+                      help="tetra: leave out the Gaussians below this opacity first (default: none left out)")
+    grid.add_argument("--corner-min-extent", type=float, default=None,
+                      help="delaunay grid: only the centre point for Gaussians whose 3-sigma extent is below this, "
+                           "in world units (default: box corners for every Gaussian)")
+    grid.add_argument("--min-component-faces", type=int, default=0,
+                      help="drop connected pieces of the mesh with fewer faces than this (0: keep all)")
+    grid.add_argument("--reach-filter", action=argparse.BooleanOptionalAction, default=None,
+                      help="octree grid: keep only the tetrahedra with a vertex inside some Gaussian's oriented "
+                           "3-sigma box, where the Delaunay grid reaches (default: off; it can cut a surface of "
+                           "flat Gaussians that no grid vertex falls in: benchmarks/extract/README.md)")
+    perf = ap.add_argument_group("advanced and performance (the mesh is the same unless said)")
+    perf.add_argument("--band", action="store_true",
+                      help="delaunay grid: triangulate only the points near a level crossing (faster, not the same "
+                           "mesh: benchmarks/extract/README.md)")
+    perf.add_argument("--search-steps-per-call", type=int, default=MeshConfig.search_steps_per_call,
+                      help="tetra: bisection steps served by one opacity-field call (0, the default: on a GPU chosen "
+                           "from the field's measured cost, on the CPU one)")
+    perf.add_argument("--piece-tets", type=int, default=None,
+                      help="octree grid: make and march the grid's tetrahedra in pieces of at most this many, so "
+                           f"they are never held whole (default {OctreeConfig.piece_tets})")
+    perf.add_argument("--delaunay", default="scipy", choices=("scipy", "cgal", "auto"),
+                      help="delaunay grid: the Delaunay library (cgal: the optional gof_warp[cgal] extra)")
+    perf.add_argument("--delaunay-workers", type=int, default=TetraConfig.delaunay_workers,
+                      help="delaunay grid: threads for scipy's Delaunay in chunks (0, the default: every CPU; 1: "
+                           "one Qhull call)")
+    perf.add_argument("--delaunay-processes", action=argparse.BooleanOptionalAction,
+                      default=TetraConfig.delaunay_processes,
+                      help="delaunay grid: run the Delaunay chunks in forked processes (the default, where the OS "
+                           "can fork: Linux) or, with --no-delaunay-processes, in threads")
+    volume = ap.add_argument_group("other outputs")
+    volume.add_argument("--volume", action="store_true",
+                        help="bake the opacity field into a sparse NanoVDB volume (RUN/opacity_volume.nvdb and "
+                             ".json) for Warp kernels instead of a mesh (docs/warp_volume.md)")
+    volume.add_argument("--voxel-size", type=float, default=None,
+                        help="--volume: voxel edge in world units (default: the median 3-sigma extent of the opaque "
+                             "Gaussians / 4)")
+    volume.add_argument("--volume-band", type=int, default=4,
+                        help="--volume: voxels kept on each side of the 0.5 level")
     return ap.parse_args(argv)
 
 

@@ -15,7 +15,7 @@ import sys
 
 import numpy as np
 
-from .common import configure_output, run_command
+from .common import HelpFormatter, configure_output, run_command
 
 _PINHOLE = ("PINHOLE", "SIMPLE_PINHOLE")
 
@@ -60,15 +60,24 @@ def format_text(info: dict) -> str:
     return "\n".join(lines)
 
 
+DESCRIPTION = """\
+What gof_warp makes of a scene folder: format, camera models (and whether they were undistorted),
+view counts, resolutions, focal lengths, extent, masks, initial points, image memory, the training
+preset that "train --config auto" picks with its reason, and the readers' warnings. Every image is
+decoded, so a clean run also proves the scene readable. Exit code 0 on success, 2 with
+"error: <message>" on stderr when the scene cannot be read."""
+
+
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m gof_warp.inspect", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m gof_warp.inspect", description=DESCRIPTION,
+                                     formatter_class=HelpFormatter)
     parser.add_argument("scene", help="scene folder (COLMAP, Blender, instant-ngp or NeuS/DTU)")
     parser.add_argument("--downscale", type=float, default=1.0, help="divide the resolution by this factor (>= 1)")
     parser.add_argument("--test-every", type=int, default=8, help="every N-th view is a test view (0: none)")
     parser.add_argument("--memory-budget", type=float, default=8.0, help="decoded-image budget in GB")
-    parser.add_argument("--undistort", choices=("valid", "same"), default="valid", help="pinhole K after undistortion")
-    parser.add_argument("--device", default=None, help="Warp device for undistortion (default: cuda if available)")
-    parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+    parser.add_argument("--undistort", choices=("valid", "same"), default="valid", help="pinhole camera after undistortion: valid (only pixels with data) or same (the original field of view)")
+    parser.add_argument("--device", default=None, help="Warp device for undistortion (default: cuda if available, else cpu)")
+    parser.add_argument("--json", action="store_true", help="print the summary as JSON instead of text")
     args = parser.parse_args(argv)
     configure_output(quiet=True)  # the CLI's stdout is the summary, not Warp's banner
     from ..data import DataConfig, load_scene

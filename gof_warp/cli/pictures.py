@@ -7,18 +7,25 @@ import sys
 
 from ..viz import pictures as _pictures
 from ..core.devices import resolve_device
-from .common import configure_output, run_command
+from .common import HelpFormatter, configure_output, run_command
+
+
+DESCRIPTION = """\
+Pictures of a run, to see what training and extraction produced: one PNG with a row per view and
+the columns photo | Gaussian render | median depth | rendered normal | shaded mesh, written to
+RUN/pictures/views.png (no mesh) or RUN/pictures/mesh_<stem>.png."""
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m gof_warp.pictures", description=_pictures.__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m gof_warp.pictures", description=DESCRIPTION,
+                                 formatter_class=HelpFormatter)
     ap.add_argument("run", help="training output folder (or a Gaussian PLY with --scene)")
-    ap.add_argument("--mesh", default=None, help="mesh to shade in the last column (PLY/OBJ)")
+    ap.add_argument("--mesh", default=None, help="mesh to shade in the last column, PLY or OBJ (default: none, no mesh column)")
     ap.add_argument("--views", type=int, default=3, help="number of views (rows); test views first")
-    ap.add_argument("--out", default=None, help="output folder (default RUN/pictures)")
+    ap.add_argument("--out", default=None, help="output folder (default: RUN/pictures)")
     ap.add_argument("--scene", default=None, help="scene folder for cameras and photos (default: found from the run)")
     ap.add_argument("--device", default="auto", help="cpu, cuda or auto")
-    ap.add_argument("--quiet", action="store_true")
+    ap.add_argument("--quiet", action="store_true", help="no log lines (errors and warnings still shown)")
     a = ap.parse_args(argv)
     configure_output(a.quiet)
 

@@ -23,12 +23,26 @@ import shlex
 import sys
 from pathlib import Path
 
-from .common import configure_output, run_command
+from .common import HelpFormatter, configure_output, run_command
 from ..core.errors import GofError
 from ..training.presets import PRESETS, preset_path, resolve_config  # noqa: F401 - public here since session 1
 from ..core.progress import TrainingProgress
 
 log = logging.getLogger("gof_warp.train")
+
+DESCRIPTION = """\
+Train Gaussian Opacity Fields on a scene folder (COLMAP, Blender, instant-ngp or NeuS/DTU layout).
+With no SCENE it trains the built-in default: a small synthetic scene is generated into RUN/scene and
+trained with the quick preset, which finishes on a 2-core CPU in minutes."""
+EPILOG = """\
+Overrides are section.key=value pairs applied on top of the preset, for example
+  loss.lambda_normal=0.1 densify.max_gaussians=200000
+Their values are YAML data (never evaluated).
+
+Progress: a bar with loss, PSNR, Gaussian count and ETA in a terminal, a plain line every few
+seconds otherwise (logs, CI); --quiet: neither. At the end: RUN/pictures/views.png and
+RUN/pictures/curves.png, and RUN/pictures/views_it<N>.png at each snapshot iteration."""
+
 
 def pick_device(name: str) -> str:
     """``--device`` (cpu, cuda, cuda:N or auto) under the one rule of :mod:`gof_warp.devices`."""
@@ -38,26 +52,31 @@ def pick_device(name: str) -> str:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m gof_warp.train", description=__doc__.split("\n\n")[1],
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("args", nargs="*", metavar="SCENE | key=value", help="scene folder, then config overrides")
-    ap.add_argument("--out", default=None, help="run folder (default runs/<scene name>)")
+    ap = argparse.ArgumentParser(prog="python -m gof_warp.train", description=DESCRIPTION, epilog=EPILOG,
+                                 formatter_class=HelpFormatter)
+    ap.add_argument("args", nargs="*", metavar="SCENE | key=value",
+                    help="scene folder (none: the built-in synthetic scene), then config overrides")
+    ap.add_argument("--out", default=None, help="run folder (default: runs/<scene name>, runs/default for the "
+                                                "built-in scene)")
     ap.add_argument("--config", default=None, help=f"preset ({', '.join(PRESETS)}) or YAML path (default: quick "
                                                    "for the built-in scene, else auto: chosen from the scene "
                                                    "folder, printed with its reason)")
-    ap.add_argument("--iterations", type=int, default=None)
-    ap.add_argument("--device", default="auto", help="cpu, cuda or auto")
+    ap.add_argument("--iterations", type=int, default=None,
+                    help="training iterations (default: the config's)")
+    ap.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto")
     ap.add_argument("--resume", action="store_true", help="continue from the newest checkpoint in --out")
     ap.add_argument("--no-pictures", action="store_true", help="do not write RUN/pictures/views.png (photo | render "
                                                                "| depth | normal of a few views) and curves.png "
                                                                "(loss, PSNR, Gaussians) at the end, nor "
                                                                "views_it<N>.png at snapshots")
     ap.add_argument("--quiet", action="store_true", help="no progress bar or log lines (errors and warnings still shown)")
-    ap.add_argument("--viewer", action="store_true", help="serve the live web viewer during training (needs "
-                    "pip install 'gof_warp[viewer]'); it stays up after training until Ctrl-C")
-    ap.add_argument("--viewer-port", type=int, default=8080, help="port of the viewer page (default 8080)")
-    ap.add_argument("--viewer-host", default="0.0.0.0", help="interface the viewer listens on (default all)")
-    ap.add_argument("--viewer-every", type=int, default=100, metavar="N", help="show the model every N iterations")
+    viewer = ap.add_argument_group("live viewer")
+    viewer.add_argument("--viewer", action="store_true", help="serve the live web viewer during training (needs "
+                        "pip install 'gof_warp[viewer]'); it stays up after training until Ctrl-C")
+    viewer.add_argument("--viewer-port", type=int, default=8080, help="port of the viewer page")
+    viewer.add_argument("--viewer-host", default="0.0.0.0", help="interface the viewer listens on (default: "
+                                                                 "0.0.0.0, all)")
+    viewer.add_argument("--viewer-every", type=int, default=100, metavar="N", help="show the model every N iterations")
     a = ap.parse_intermixed_args(argv)
     configure_output(a.quiet)
     return run_command(lambda: _run(a), lambda e: _interrupted_note(a, e))

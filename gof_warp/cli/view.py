@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .common import configure_output, run_command
+from .common import HelpFormatter, configure_output, run_command
 from ..core.errors import GofError
 from ..viz.viewer import FRUSTUM_COLOR
 
@@ -228,20 +228,31 @@ def shows_frame(page, frame) -> bool:
     return diff.size > 0.5 * frame.shape[0] * frame.shape[1] and float(np.median(diff)) < PAGE_MATCH_LEVELS
 
 
+DESCRIPTION = """\
+A live web viewer of a training run: open the printed address in a browser to fly around the
+Gaussians rendered by gof_warp's own renderer (render, depth, normal, opacity-field slice), with the
+training cameras and the run's newest mesh (RUN/mesh_*.ply)."""
+EPILOG = """\
+On a remote GPU machine, start it there and forward the port from your computer:
+  ssh -L 8080:localhost:8080 user@gpu-host
+then open http://localhost:8080. --screenshot PNG takes a picture of the page with a headless
+Chromium (no display needed) and exits. Needs the optional extra: pip install 'gof_warp[viewer]'."""
+
+
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m gof_warp.view", description=__doc__.split("\n\n")[1],
-                                 epilog=__doc__.split("\n\n")[2], formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(prog="python -m gof_warp.view", description=DESCRIPTION, epilog=EPILOG,
+                                 formatter_class=HelpFormatter)
     ap.add_argument("run", help="training output folder (point_cloud.ply, cameras.json)")
-    ap.add_argument("--port", type=int, default=8080, help="port of the web page (a busy one: the next free)")
-    ap.add_argument("--host", default="0.0.0.0", help="interface to listen on (127.0.0.1: this machine only)")
-    ap.add_argument("--device", default="auto", help="cpu, cuda or auto")
+    ap.add_argument("--port", type=int, default=8080, help="port of the web page (a busy one: the next free one)")
+    ap.add_argument("--host", default="0.0.0.0", help="interface to listen on (0.0.0.0: all; 127.0.0.1: this machine only)")
+    ap.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto")
     ap.add_argument("--max-size", type=int, default=None, help="render size, long side in pixels (default 256 on "
                                                                 "CPU, 1024 on GPU; also a slider in the page)")
     ap.add_argument("--mesh", default=None, help="mesh to show (default: the run's newest mesh_*.ply)")
     ap.add_argument("--no-mesh", action="store_true", help="show no mesh")
     ap.add_argument("--screenshot", default=None, metavar="PNG", help="write a screenshot of the page (headless "
-                                                                       "Chromium) and exit")
-    ap.add_argument("--quiet", action="store_true")
+                                                                       "Chromium) and exit (default: serve until Ctrl-C)")
+    ap.add_argument("--quiet", action="store_true", help="no log lines (errors and warnings still shown)")
     a = ap.parse_args(argv)
     configure_output(a.quiet)
     quiet_websockets()
