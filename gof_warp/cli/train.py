@@ -25,7 +25,7 @@ from pathlib import Path
 
 from .common import HelpFormatter, configure_output, run_command
 from ..core.errors import GofError
-from ..training.presets import PRESETS, preset_path, resolve_config  # noqa: F401 - public here since session 1
+from ..training.presets import PRESETS, preset_path, resolve_config  # noqa: F401 - importable from the command too
 from ..core.progress import TrainingProgress
 
 log = logging.getLogger("gof_warp.train")
