@@ -39,7 +39,7 @@ def main(argv=None) -> dict:
 
 
 def quickstart(folder: Path, iterations: int, views: int, size: int, device: str, eval_density=None) -> dict:
-    # --- the README's example, from here (the README writes iterations=300 and its schedule as numbers) ---
+    # --- the README's example, from here (the README writes its defaults as numbers) ---
     scene_dir = gof_warp.make_scene("default", folder / "scene", views=views, resolution=(size, size),
                                     device=device, force=True)  # or your own folder: COLMAP, Blender, DTU ...
     scene = gof_warp.load_scene(scene_dir)
