@@ -145,7 +145,7 @@ def test_architecture_note_names_every_module_and_no_missing_one():
 
 def test_readme_layout_names_the_folders_that_exist():
     readme = (ROOT / "README.md").read_text()
-    block = readme[readme.index("## Layout"):]
+    block = readme[readme.index("## Conventions and layout"):]
     block = block[block.index("```") + 3:]
     block = block[:block.index("```")]
     folders = {line.split("/")[0] for line in block.splitlines() if re.match(r"^\w+/", line)}
