@@ -28,7 +28,7 @@ from ..core.errors import GofError
 from ..training.presets import PRESETS, preset_path, resolve_config  # noqa: F401 - importable from the command too
 from ..core.progress import TrainingProgress
 
-log = logging.getLogger("gof_warp.train")
+log = logging.getLogger(__name__)
 
 DESCRIPTION = """\
 Train Gaussian Opacity Fields on a scene folder (COLMAP, Blender, instant-ngp or NeuS/DTU layout).
