@@ -38,7 +38,8 @@ def _run(cli_in_process, tmp_path, *args):
 
 @pytest.mark.parametrize("flag,value", BAD)
 def test_a_nonsense_value_is_an_error_naming_the_flag(flag, value, tmp_path, cli_in_process):
-    rc, err = _run(cli_in_process, tmp_path, flag, value)
+    grid = ["--grid", "delaunay"] if flag in ("--corner-min-extent", "--delaunay-workers") else []  # its grid
+    rc, err = _run(cli_in_process, tmp_path, *grid, flag, value)
     lines = [ln for ln in err.splitlines() if ln.startswith("error: ")]
     assert rc == 2 and len(lines) == 1 and flag in lines[0] and "Traceback" not in err, err
     assert "neither a run folder" not in err  # refused before the run folder is read
