@@ -20,11 +20,14 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import sys
+
+import numpy as np
 
 from .common import HelpFormatter, run_command
 from ..core.errors import GofError
-from ..eval.geometry_metrics import evaluate_mesh
+from ..eval.geometry_metrics import evaluate_mesh, load_geometry
 from ..eval.region_metrics import PATCH_SIZE, evaluate_region
 from ..core.io_utils import write_json_atomic
 
@@ -185,22 +188,67 @@ def format_report(report: dict) -> str:
     return "\n".join(lines)
 
 
+def check_args(args: argparse.Namespace) -> None:
+    """The options' values, before any file is read: a value that means nothing is a :class:`GofError` naming its
+    flag."""
+    for t in args.tau or ():
+        if not (math.isfinite(t) and t > 0):
+            raise GofError(f"--tau must be distances > 0, got {t:g}")
+    if args.density is not None and not (math.isfinite(args.density) and args.density > 0):
+        raise GofError(f"--density (sample spacing) must be a distance > 0, got {args.density:g}")
+    if args.max_dist is not None and not args.max_dist > 0:  # inf: no truncation
+        raise GofError(f"--max-dist must be a distance > 0 (inf: none), got {args.max_dist:g}")
+    if args.crop is not None:
+        lo, hi = args.crop[:3], args.crop[3:]
+        if not all(math.isfinite(x) for x in args.crop) or any(a > b for a, b in zip(lo, hi)):
+            raise GofError(f"--crop must be finite XMIN YMIN ZMIN XMAX YMAX ZMAX with each min <= max, got "
+                           f"{' '.join(f'{x:g}' for x in args.crop)}")
+    if not (math.isfinite(args.patch) and args.patch > 0):
+        raise GofError(f"--patch must be a length > 0, got {args.patch:g}")
+    if args.supersample < 1:
+        raise GofError(f"--supersample must be an integer >= 1, got {args.supersample}")
+    if args.min_views < 1:
+        raise GofError(f"--min-views must be an integer >= 1, got {args.min_views}")
+    if args.min_views != 1 and not args.scene:
+        raise GofError("--min-views needs --scene (the training cameras decide what is seen)")
+
+
+def load_inputs(mesh_path, gt_path):
+    """The reconstruction (a mesh: it must have faces) and the ground truth (a mesh or a point cloud: it must have
+    points), both with finite vertices, else a :class:`GofError` naming the file."""
+    loaded = []
+    for flag, path in (("--mesh", mesh_path), ("--gt", gt_path)):
+        geom = load_geometry(path)
+        v = np.asarray(geom.vertices)
+        if len(v) and not np.isfinite(v).all():
+            raise GofError(f"{flag} {path} has {int((~np.isfinite(v).all(axis=1)).sum())} vertices with NaN/inf "
+                           "coordinates")
+        loaded.append(geom)
+    mesh, gt = loaded
+    if len(getattr(mesh, "faces", ())) == 0:
+        raise GofError(f"--mesh {mesh_path} has no faces: the reconstruction must be a triangle mesh")
+    if len(gt.vertices) == 0:
+        raise GofError(f"--gt {gt_path} has no faces and no points: nothing to score against")
+    return mesh, gt
+
+
 def main(argv=None) -> int:
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s: %(message)s")
 
     def body():
         crop = None if args.crop is None else (args.crop[:3], args.crop[3:])
-        if args.min_views != 1 and not args.scene:
-            raise GofError("--min-views needs --scene (the training cameras decide what is seen)")
+        check_args(args)
+        mesh, gt = load_inputs(args.mesh, args.gt)
         if args.scene:
-            report = evaluate_region(args.mesh, args.gt, args.scene, tau=args.tau, density=args.density,
+            report = evaluate_region(mesh, gt, args.scene, tau=args.tau, density=args.density,
                                      max_dist=args.max_dist, bbox=crop, truncate=args.truncate, seed=args.seed,
                                      patch=args.patch, supersample=args.supersample,
                                      min_views=args.min_views)
         else:
-            report = evaluate_mesh(args.mesh, args.gt, tau=args.tau, density=args.density, max_dist=args.max_dist,
+            report = evaluate_mesh(mesh, gt, tau=args.tau, density=args.density, max_dist=args.max_dist,
                                    crop=crop, truncate=args.truncate, method=args.method, seed=args.seed)
+        report["mesh"], report["gt"] = str(args.mesh), str(args.gt)
         report["metrics"]["tau_fraction_of_diagonal"] = tau_fractions(report)
         print(format_report(report))
         if args.json:

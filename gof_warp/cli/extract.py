@@ -12,19 +12,24 @@ memory. An empty mesh is an error (exit 2) and writes nothing; Gaussians whose s
 from __future__ import annotations
 
 import argparse
+import logging
+import math
 import sys
 import time
 from pathlib import Path
 
 from .common import HelpFormatter, configure_output, run_command
 from ..core.errors import GofError
-from ..mesh.extraction import (METHODS, MeshConfig, StageTimer, empty_mesh_message, extract_mesh, meshable,  # noqa: F401
-                         save_mesh)
+from ..mesh.extraction import (MAX_RESOLUTION, METHODS, MIN_RESOLUTION, MeshConfig, StageTimer,  # noqa: F401
+                               empty_mesh_message, extract_mesh, level_name_clash, meshable, save_mesh)
+from ..mesh.marching_inputs import MAX_BINARY_STEPS, MAX_STEPS_PER_CALL
 from ..core.io_utils import write_json_atomic
 from ..training.run_folder import cameras_from_json, load_run  # noqa: F401 - re-exported: extract.load_run is public
 from ..mesh.octree_tets import DEFAULT_CELL_FACTOR, SMALL_CELL_FACTOR, OctreeConfig
 from ..rendering.opacity_field import OpacityFieldConfig
 from ..mesh.tetra import GRIDS, TetraConfig
+
+log = logging.getLogger("gof_warp.extract")
 
 
 DESCRIPTION = """\
@@ -128,7 +133,116 @@ def parse_args(argv=None) -> argparse.Namespace:
                              "Gaussians / 4)")
     volume.add_argument("--volume-band", type=int, default=4,
                         help="--volume: voxels kept on each side of the 0.5 level")
-    return ap.parse_args(argv)
+    a = ap.parse_args(argv)
+    a.given = given_options(ap, argv)
+    return a
+
+
+class _Unset:
+    """The value every option starts from in :func:`given_options`' second parse."""
+
+
+def given_options(ap: argparse.ArgumentParser, argv=None) -> frozenset[str]:
+    """The ``dest`` of every option the command line sets (abbreviated or not), whatever its value: argparse fills
+    in a default only where the namespace has none, so what still holds the marker was not given."""
+    unset = _Unset()
+    seen = ap.parse_args(argv, namespace=argparse.Namespace(
+        **{act.dest: unset for act in ap._actions if act.dest is not argparse.SUPPRESS}))
+    return frozenset(k for k, v in vars(seen).items() if v is not unset)
+
+
+INT_LIMIT = 2**31 - 1  # the largest count a flag takes: beyond it no mesh's faces or tetrahedra reach
+MAX_VOLUME_BAND = 64  # voxels on each side of the level: eight bricks
+MAX_DELAUNAY_WORKERS = 1024
+# flags that only a mesh uses, and those only the tetra method uses: given where they do nothing, a warning
+MESH_ONLY = ("method", "max_faces", "max_error", "levels", "keep_hidden", "min_views", "grid", "cell_factor",
+             "binary_steps", "resolution", "opacity_min", "corner_min_extent", "min_component_faces", "reach_filter",
+             "band", "search_steps_per_call", "piece_tets", "delaunay", "delaunay_workers", "delaunay_processes")
+TETRA_ONLY = ("grid", "cell_factor", "opacity_min", "corner_min_extent", "reach_filter", "band",
+              "search_steps_per_call", "piece_tets", "delaunay", "delaunay_workers", "delaunay_processes")
+
+
+def _flag(dest: str) -> str:
+    return "--" + dest.replace("_", "-")
+
+
+def _check_range(dest: str, value, lo=None, hi=None, *, above: bool = False, why: str = "") -> None:
+    """``value`` (None: not set) is finite, ``>= lo`` (``> lo`` when ``above``) and ``<= hi``, else a
+    :class:`GofError` naming the flag."""
+    if value is None:
+        return
+    if math.isfinite(value) and (lo is None or (value > lo if above else value >= lo)) and (hi is None or value <= hi):
+        return
+    kind = "an integer" if isinstance(value, int) else "a number"
+
+    def num(x):
+        return str(x) if isinstance(x, int) else f"{x:g}"
+
+    if lo is not None and hi is not None:
+        bound = f"in {'(' if above else '['}{num(lo)}, {num(hi)}]"
+    elif lo is not None:
+        bound = f"{'>' if above else '>='} {num(lo)}"
+    else:
+        bound = f"<= {num(hi)}"
+    raise GofError(f"{_flag(dest)} must be {kind} {bound}{why}, got {num(value)}")
+
+
+def check_args(a: argparse.Namespace) -> None:
+    """Every option's value and the options' combination, before any work: a value that means nothing is a
+    :class:`GofError` naming its flag; a flag the chosen output or method does not use, a warning naming it (a
+    script may pass one set of flags to every method). ``a.given``: the options the command line set
+    (:func:`given_options`; all of them when absent)."""
+    given = getattr(a, "given", None)
+    given = set(vars(a)) if given is None else set(given)
+    _check_range("binary_steps", a.binary_steps, 0, MAX_BINARY_STEPS,
+                 why=f": each step halves the bracket around a vertex, and after {MAX_BINARY_STEPS} (float32's "
+                     "significand bits) it is below the coordinates' precision")
+    _check_range("resolution", a.resolution, MIN_RESOLUTION, MAX_RESOLUTION,
+                 why=f": grid nodes along the longest side; marching cubes needs {MIN_RESOLUTION}, and "
+                     f"{MAX_RESOLUTION}^3 dense nodes are already 8.6e9 values")
+    for level in a.levels:
+        if not 0.0 < level < 1.0:
+            raise GofError(f"--levels must be opacities in (0, 1), got {level:g}")
+    twice = level_name_clash(a.levels)
+    if twice:
+        same = f"{twice[0]:g} twice" if twice[0] == twice[1] else f"{twice[0]!r} and {twice[1]!r} (one file name)"
+        raise GofError(f"--levels has {same}: each level writes one mesh file, give each once")
+    _check_range("max_faces", a.max_faces, 4, INT_LIMIT)
+    _check_range("max_error", a.max_error, 0.0, above=True, why=" (world units)")
+    _check_range("min_views", a.min_views, 1, INT_LIMIT)
+    _check_range("cell_factor", a.cell_factor, 0.0, above=True)
+    _check_range("piece_tets", a.piece_tets, 1, INT_LIMIT)
+    _check_range("opacity_min", a.opacity_min, 0.0, 1.0, why=" (1 would leave out every Gaussian)")
+    if a.opacity_min is not None and a.opacity_min == 1.0:
+        raise GofError("--opacity-min must be below 1: opacities lie in (0, 1), so 1 leaves out every Gaussian")
+    _check_range("corner_min_extent", a.corner_min_extent, 0.0, why=" (world units)")
+    _check_range("min_component_faces", a.min_component_faces, 0, INT_LIMIT)
+    _check_range("search_steps_per_call", a.search_steps_per_call, 0, MAX_STEPS_PER_CALL, why=" (0: automatic)")
+    _check_range("delaunay_workers", a.delaunay_workers, 0, MAX_DELAUNAY_WORKERS, why=" (0: every CPU)")
+    _check_range("voxel_size", a.voxel_size, 0.0, above=True, why=" (world units)")
+    _check_range("volume_band", a.volume_band, 0, MAX_VOLUME_BAND, why=" (voxels on each side of the level)")
+
+    def ignored(dests, why):
+        names = [_flag(d) for d in dests if d in given]
+        if names:
+            log.warning("warning: %s ignored: %s", ", ".join(names), why)
+
+    if a.volume:
+        if "method" in given:
+            raise GofError(f"--volume writes a NanoVDB opacity volume (.nvdb), not a mesh: it takes no --method "
+                           f"(got --method {a.method})")
+        if a.out is not None and Path(a.out).suffix.lower() != ".nvdb":
+            raise GofError(f"--volume writes a NanoVDB volume: --out must end in .nvdb, got {a.out}")
+        ignored(MESH_ONLY, "--volume bakes the opacity field, and these are mesh settings")
+        return
+    ignored(("voxel_size", "volume_band"), "they are --volume settings, and no --volume was given")
+    if a.method != "tetra":
+        ignored(TETRA_ONLY, f"tetra settings, and the method is {a.method}")
+    if a.method == "tetra":
+        ignored(("resolution",), "--method tetra has no dense grid (its grid: --grid, --cell-factor)")
+    if a.method == "tsdf":
+        ignored(("levels",), "--method tsdf meshes the fused depths' zero distance, not an opacity level")
+        ignored(("min_views",), "--method tsdf fuses depth maps and evaluates no opacity field")
 
 
 def main(argv=None) -> int:
@@ -136,6 +250,7 @@ def main(argv=None) -> int:
     configure_output(a.quiet)
 
     def body():
+        check_args(a)  # before the device, the ranks and the model: a bad flag costs no time
         from ..core.devices import resolve_device as pick_device
         from ..training.distributed import rank_device, ranks_from_environment
 
@@ -174,12 +289,15 @@ def extract_run(a, ranks, device) -> None:
                                                                                 ("piece_tets", a.piece_tets),
                                                                                 ("reach_filter", a.reach_filter))
                                                               if v is not None})))
-    if a.resolution:
+    if a.resolution is not None:
         cfg.cubes_resolution = a.resolution
         cfg.tsdf.resolution = a.resolution
     cfg.validate()
     t_load = time.perf_counter()
     gaussians, cameras, views, render_config = load_run(run, a.scene, device)
+    if a.method != "tsdf" and a.min_views > len(cameras):
+        raise GofError(f"--min-views {a.min_views}, but the run has {len(cameras)} training views: no space would be "
+                       "meshed")
     command = {"load_s": round(time.perf_counter() - t_load, 3)}
     from ..core.progress import Stages
 

@@ -86,6 +86,8 @@ def _parts(geom) -> tuple[np.ndarray, np.ndarray]:
     v = v.reshape(-1, 3) if v.size == 0 else v
     if v.ndim != 2 or v.shape[1] != 3:
         raise GofError(f"expected a mesh, a point cloud or [N, 3] points, got an array of shape {v.shape}")
+    if v.size and not np.isfinite(v).all():
+        raise GofError(f"{int((~np.isfinite(v).all(axis=1)).sum())} vertices have NaN/inf coordinates")
     f = np.zeros((0, 3), np.int64) if f is None else f.reshape(-1, 3)
     if f.size and (f.min() < 0 or f.max() >= len(v)):
         raise GofError(f"mesh faces index vertices outside [0, {len(v)})")

@@ -33,7 +33,7 @@ from ..core.camera import Camera
 from ..training.distributed import Ranks
 from ..core.errors import GofError, ModelError
 from .marching import compact_mesh, marching_tetrahedra, merge_keyed_pieces, search_edges
-from .marching_inputs import MAX_STEPS_PER_CALL
+from .marching_inputs import MAX_BINARY_STEPS, MAX_STEPS_PER_CALL
 from ..rendering.opacity_field import OpacityFieldConfig, opacity_field
 from ..rendering.render import RenderConfig
 from .tetra import TetraConfig, grid_points, level_band, octree_tets_from_gaussians, tetrahedralize
@@ -43,6 +43,8 @@ from .visibility import faces_seen
 log = logging.getLogger("gof_warp.extract")  # one logger name for the stage and its CLI
 METHODS = ("tetra", "cubes", "tsdf")
 UNSEEN_MARK = -1.0  # field value marking the points no view sees (the field itself lies in [0, 1])
+# grid nodes along the longest side (cubes, tsdf): marching cubes needs 2; 2048³ dense nodes are already 8.6e9 values
+MIN_RESOLUTION, MAX_RESOLUTION = 2, 2048
 
 
 @dataclass
@@ -72,8 +74,21 @@ class MeshConfig:
             raise GofError(f"mesh method must be one of {METHODS}, got {self.method!r}")
         if not self.levels or not all(0.0 < float(v) < 1.0 for v in self.levels):
             raise GofError(f"levels must be opacities in (0, 1), got {self.levels}")
-        if self.binary_steps < 0:
-            raise GofError(f"binary_steps must be >= 0, got {self.binary_steps}")
+        twice = level_name_clash(self.levels)
+        if twice:
+            raise GofError(f"levels {twice[0]:g} and {twice[1]:g} name the same mesh (each level writes one): give "
+                           "each level once")
+        if isinstance(self.binary_steps, bool) or not isinstance(self.binary_steps, (int, np.integer)) \
+                or not 0 <= self.binary_steps <= MAX_BINARY_STEPS:
+            raise GofError(f"binary_steps must be an integer in [0, {MAX_BINARY_STEPS}] (each step halves the "
+                           f"bracket; float32 has 24 significand bits), got {self.binary_steps!r}")
+        for name, res in (("cubes_resolution", self.cubes_resolution), ("tsdf.resolution", self.tsdf.resolution)):
+            if isinstance(res, bool) or not isinstance(res, (int, np.integer)) or not MIN_RESOLUTION <= res <= MAX_RESOLUTION:
+                raise GofError(f"{name} must be an integer in [{MIN_RESOLUTION}, {MAX_RESOLUTION}] (grid nodes along "
+                               f"the longest side), got {res!r}")
+        if isinstance(self.min_component_faces, bool) or not isinstance(self.min_component_faces, (int, np.integer)) \
+                or self.min_component_faces < 0:
+            raise GofError(f"min_component_faces must be an integer >= 0, got {self.min_component_faces!r}")
         if self.max_faces is not None and not self.max_faces >= 4:
             raise GofError(f"max_faces must be >= 4, got {self.max_faces}")
         if isinstance(self.search_steps_per_call, bool) or not isinstance(self.search_steps_per_call, int) \
@@ -84,6 +99,17 @@ class MeshConfig:
             raise GofError(f"max_error must be > 0 (world units), got {self.max_error}")
         self.field.validate()
         self.tetra.validate()
+
+
+def level_name_clash(levels) -> tuple[float, float] | None:
+    """The first two of ``levels`` whose mesh files would have one name (``<stem>_<level:g>``), or None."""
+    seen = {}
+    for level in levels:
+        key = f"{float(level):g}"
+        if key in seen:
+            return seen[key], float(level)
+        seen[key] = float(level)
+    return None
 
 
 class StageTimer:

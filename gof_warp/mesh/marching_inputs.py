@@ -182,9 +182,15 @@ def check_steps_per_call(d) -> int:
     return int(d)
 
 
+# each bisection step halves the bracket around a vertex: past 24 (float32's significand bits) it is below the
+# coordinates' precision and a step only costs a field call
+MAX_BINARY_STEPS = 24
+
+
 def check_steps(binary_steps) -> int:
-    if int(binary_steps) != binary_steps or binary_steps < 0:
-        raise GofError(f"binary_steps must be an integer >= 0, got {binary_steps!r}")
+    if int(binary_steps) != binary_steps or not 0 <= binary_steps <= MAX_BINARY_STEPS:
+        raise GofError(f"binary_steps must be an integer in [0, {MAX_BINARY_STEPS}] (each step halves the bracket; "
+                       f"float32 has 24 significand bits), got {binary_steps!r}")
     return int(binary_steps)
 
 
