@@ -220,7 +220,8 @@ def test_train_with_viewer_serves_the_page_and_updates_the_model(tiny_run, tmp_p
                        "--device", "cpu", "--quiet", "--no-pictures", "--viewer", "--viewer-host", "127.0.0.1",
                        "--viewer-port", str(port), "--viewer-every", "2", *overrides]) == 0
     out = capsys.readouterr().out
-    assert f"viewer at http://127.0.0.1:{port}" in out and f"ssh -L {port}:localhost:{port}" in out
+    assert f"viewer at http://127.0.0.1:{port}/?websocket=ws://127.0.0.1:{port}/?token=" in out
+    assert f"ssh -L {port}:127.0.0.1:{port}" in out
     assert shown == [2, 4, 6, 6], "every 2 iterations, and the final model"
     assert served["status"] == 200 and "<html" in served["html"].lower()
 

@@ -74,8 +74,9 @@ def main(argv=None) -> int:
     viewer.add_argument("--viewer", action="store_true", help="serve the live web viewer during training (needs "
                         "pip install 'gof_warp[viewer]'); it stays up after training until Ctrl-C")
     viewer.add_argument("--viewer-port", type=int, default=8080, help="port of the viewer page")
-    viewer.add_argument("--viewer-host", default="0.0.0.0", help="interface the viewer listens on (default: "
-                                                                 "0.0.0.0, all)")
+    viewer.add_argument("--viewer-host", default="127.0.0.1", help="interface the viewer listens on: 127.0.0.1 is "
+                        "this machine only (from another, SSH port forwarding); 0.0.0.0 is every interface, with a "
+                        "warning: anyone who reaches the port and has the printed address (its token) sees the model")
     viewer.add_argument("--viewer-every", type=int, default=100, metavar="N", help="show the model every N iterations")
     a = ap.parse_intermixed_args(argv)
     configure_output(a.quiet)
@@ -98,7 +99,7 @@ def resume_command(a) -> str:
         words += ["--device", a.device]
     words += [flag for flag, on in (("--no-pictures", a.no_pictures), ("--quiet", a.quiet), ("--viewer", a.viewer)) if on]
     if a.viewer:
-        words += [f"--viewer-{k}={v}" for k, v, default in (("port", a.viewer_port, 8080), ("host", a.viewer_host, "0.0.0.0"),
+        words += [f"--viewer-{k}={v}" for k, v, default in (("port", a.viewer_port, 8080), ("host", a.viewer_host, "127.0.0.1"),
                                                              ("every", a.viewer_every, 100)) if v != default]
     return shlex.join(words + ["--resume"])
 

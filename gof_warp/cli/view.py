@@ -1,12 +1,14 @@
-"""``python -m gof_warp.view RUN [--port 8080] [--host 0.0.0.0] [--device D] [--max-size PX] [--mesh M.ply | --no-mesh]
+"""``python -m gof_warp.view RUN [--port 8080] [--host 127.0.0.1] [--device D] [--max-size PX] [--mesh M.ply | --no-mesh]
 [--screenshot PNG]``
 
 A live web viewer of a training run: open the printed address in a browser to fly around the Gaussians
 rendered by gof_warp's own renderer (render / depth / normal / opacity-field slice), with the training
 cameras and the run's newest mesh (``RUN/mesh_*.ply``). See :mod:`gof_warp.viewer`.
 
-On a remote GPU machine, start it there and forward the port from your computer:
-``ssh -L 8080:localhost:8080 user@gpu-host``, then open http://localhost:8080. ``--screenshot PNG`` takes a
+It listens on 127.0.0.1 (this machine only) and prints its address, which carries a random access token: the
+page's WebSocket must present it (see :mod:`gof_warp.viz.viewer`). On a remote GPU machine, start it there and
+forward the port from your computer: ``ssh -L 8080:127.0.0.1:8080 user@gpu-host``, then open the printed
+address on your computer. ``--host 0.0.0.0`` serves every interface (with a warning). ``--screenshot PNG`` takes a
 picture of the page with a headless Chromium (no display needed) and exits. Needs the optional extra:
 ``pip install 'gof_warp[viewer]'``.
 """
@@ -16,6 +18,7 @@ from __future__ import annotations
 import argparse
 import base64
 import json
+import logging
 import math
 import os
 import re
@@ -33,6 +36,8 @@ from .common import HelpFormatter, configure_output, run_command
 from ..core.errors import GofError
 from ..viz.viewer import FRUSTUM_COLOR
 
+log = logging.getLogger(__name__)
+
 GUI_PANEL_PX = (340, 250)  # viser's GUI panel: width and height (pixels) at the top right of the page
 PAGE_MATCH_LEVELS = 12.0  # shows_frame: median difference (of 255) of a page that shows the frame
 #: JavaScript that hides viser's pop-up notifications (e.g. "software WebGL") before a screenshot.
@@ -41,7 +46,7 @@ HIDE_NOTIFICATIONS_JS = ("(() => { const s = document.createElement('style'); "
                          "document.head.appendChild(s); return true; })()")
 CHROMIUM_NAMES = ("chromium-headless-shell", "chromium", "chromium-browser", "google-chrome", "google-chrome-stable",
                   "headless_shell")
-CHROMIUM_FLAGS = ("--headless", "--no-sandbox", "--no-first-run", "--disable-dev-shm-usage", "--hide-scrollbars",
+CHROMIUM_FLAGS = ("--headless", "--no-first-run", "--disable-dev-shm-usage", "--hide-scrollbars",
                   "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--mute-audio")
 
 
@@ -50,6 +55,20 @@ def quiet_websockets() -> None:
     import logging
 
     logging.getLogger("websockets").setLevel(logging.WARNING)
+
+
+def chromium_flags() -> list[str]:
+    """:data:`CHROMIUM_FLAGS`, plus ``--no-sandbox`` only where Chromium cannot start with its sandbox: as root
+    (Chromium refuses to), or when ``GOF_WARP_CHROMIUM_NO_SANDBOX=1`` says so (e.g. a container without user
+    namespaces). The reason is logged."""
+    flags = list(CHROMIUM_FLAGS)
+    if os.geteuid() == 0:
+        log.info("screenshot browser: running as root, where Chromium refuses its sandbox: --no-sandbox")
+        flags.append("--no-sandbox")
+    elif os.environ.get("GOF_WARP_CHROMIUM_NO_SANDBOX") == "1":
+        log.info("screenshot browser: GOF_WARP_CHROMIUM_NO_SANDBOX=1: --no-sandbox")
+        flags.append("--no-sandbox")
+    return flags
 
 
 def find_chromium() -> str | None:
@@ -108,7 +127,7 @@ def screenshot(url: str, path, *, width: int = 1200, height: int = 800, ready=No
         raise GofError("no Chromium found for the screenshot: apt-get install chromium-headless-shell (or chromium), "
                        "or set GOF_WARP_CHROMIUM to a Chrome/Chromium binary")
     with tempfile.TemporaryDirectory(prefix="gof_warp_chromium_") as profile:
-        proc = subprocess.Popen([binary, *CHROMIUM_FLAGS, "--remote-debugging-port=0", f"--user-data-dir={profile}",
+        proc = subprocess.Popen([binary, *chromium_flags(), "--remote-debugging-port=0", f"--user-data-dir={profile}",
                                  f"--window-size={width},{height}", "about:blank"],
                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                                 start_new_session=True)  # its own process group: ended whole below
@@ -233,9 +252,12 @@ A live web viewer of a training run: open the printed address in a browser to fl
 Gaussians rendered by gof_warp's own renderer (render, depth, normal, opacity-field slice), with the
 training cameras and the run's newest mesh (RUN/mesh_*.ply)."""
 EPILOG = """\
-On a remote GPU machine, start it there and forward the port from your computer:
-  ssh -L 8080:localhost:8080 user@gpu-host
-then open http://localhost:8080. --screenshot PNG takes a picture of the page with a headless
+It listens on 127.0.0.1 (this machine only) and prints its address, with a random access token that
+the page's connection must present. On a remote GPU machine, start it there and forward the port
+from your computer:
+  ssh -L 8080:127.0.0.1:8080 user@gpu-host
+then open the printed address on your computer. --host 0.0.0.0 serves every interface (with a
+warning: anyone who reaches the port and has the address sees the model). --screenshot PNG takes a picture of the page with a headless
 Chromium (no display needed) and exits. Needs the optional extra: pip install 'gof_warp[viewer]'."""
 
 
@@ -244,7 +266,8 @@ def main(argv=None) -> int:
                                  formatter_class=HelpFormatter)
     ap.add_argument("run", help="training output folder (point_cloud.ply, cameras.json)")
     ap.add_argument("--port", type=int, default=8080, help="port of the web page (a busy one: the next free one)")
-    ap.add_argument("--host", default="0.0.0.0", help="interface to listen on (0.0.0.0: all; 127.0.0.1: this machine only)")
+    ap.add_argument("--host", default="127.0.0.1", help="interface to listen on (127.0.0.1: this machine only; "
+                                                        "0.0.0.0: every interface, with a warning)")
     ap.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto")
     ap.add_argument("--max-size", type=int, default=None, help="render size, long side in pixels (default 256 on "
                                                                 "CPU, 1024 on GPU; also a slider in the page)")

@@ -16,6 +16,13 @@ slider changes it) and run in one worker thread, newest camera first: a browser 
 the renderer skips the stale poses. While training, :meth:`Viewer.update` hands the viewer a copy of the
 Gaussians every few hundred iterations (``train --viewer-every``).
 
+Access: the server listens on 127.0.0.1 by default; every WebSocket (the page's channel, which carries the
+model, poses and renders) must present the viewer's random access token (``?token=`` in its address) and, when
+a browser opens it, come from a page of the same host and port (its ``Origin``); others are closed before any
+scene data is sent (:func:`access_refusal`). The printed address carries the token to viser's page through its
+``?websocket=`` parameter (the page connects to that address). Every value a browser sets in the GUI is clamped
+to the range the GUI declares before it is used (:meth:`Viewer.render_settings`).
+
 viser is an optional dependency (``pip install 'gof_warp[viewer]'``), imported only when a viewer starts.
 Cameras: ours are world-to-camera with OpenCV axes; viser's are camera-to-world with OpenCV axes
 (``P_world = R_c2w p_cam + position``), vertical field of view in radians, quaternions wxyz.
@@ -23,11 +30,14 @@ Cameras: ours are world-to-camera with OpenCV axes; viser's are camera-to-world 
 
 from __future__ import annotations
 
+import ipaddress
 import logging
 import math
+import secrets
 import threading
 import time
 from pathlib import Path
+from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
@@ -39,6 +49,9 @@ log = logging.getLogger(__name__)
 MODES = ("render", "depth", "normal", "opacity slice")
 CPU_MAX_SIZE, GPU_MAX_SIZE = 256, 1024  # default render size (long side, pixels)
 MIN_SIZE, MAX_SIZE = 32, 2048
+MIN_SLICE_DEPTH = 0.01
+DEFAULT_HOST = "127.0.0.1"
+REFUSED = 1008  # WebSocket close code "policy violation": a connection the access check refuses
 JPEG_QUALITY = 90
 UNSEEN_COLOR = (200, 40, 40)  # opacity slice: points no training view sees
 MESH_COLOR = (200, 200, 190)
@@ -55,6 +68,113 @@ def require_viser():
     except ImportError:
         raise GofError("the web viewer needs viser, an optional dependency: pip install 'gof_warp[viewer]'") from None
     return viser
+
+
+# ------------------------------------------------------------------------------------------ access
+def is_loopback(host: str) -> bool:
+    """Whether listening on ``host`` keeps the viewer to this machine (``localhost``, ``127.0.0.0/8``, ``::1``)."""
+    if host.lower() in ("localhost", "localhost."):
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False
+
+
+def _host_port(netloc: str, default_port: int) -> tuple[str, int] | None:
+    """``("host", port)`` of a ``host[:port]`` (lower case, ``[]`` stripped), None when unreadable."""
+    try:
+        parts = urlsplit("//" + netloc)
+        return (parts.hostname or "").lower(), parts.port or default_port
+    except ValueError:
+        return None
+
+
+def access_refusal(path: str, headers, token: str) -> str | None:
+    """Why a WebSocket opening request is refused, or None when it may connect.
+
+    Args:
+        path: the request target (``/?token=...``); headers: its HTTP headers (a mapping: ``Host``, ``Origin``).
+        token: the viewer's access token.
+    Rules: the query's ``token`` must equal ``token`` (compared in constant time); an ``Origin`` header (sent by
+    every browser) must name an http(s) page at the request's own ``Host`` and port, loopback names
+    (``localhost``, ``127.0.0.1``, ``::1``) counting as one host. A request without ``Origin`` is not from a
+    browser page; the token alone decides.
+    """
+    given = parse_qs(urlsplit(path).query).get("token", [""])[0]
+    if not token or not secrets.compare_digest(given.encode(), token.encode()):
+        return "missing or wrong access token"
+    origin = headers.get("Origin")
+    if origin is None:
+        return None
+    o = urlsplit(origin)
+    if o.scheme not in ("http", "https"):
+        return f"foreign origin {origin!r}"
+    page = _host_port(o.netloc, 443 if o.scheme == "https" else 80)
+    own = _host_port(headers.get("Host", ""), 80)
+    if page is None or own is None:
+        return f"foreign origin {origin!r}"
+    same_host = page[0] == own[0] or (is_loopback(page[0]) and is_loopback(own[0]))
+    return None if same_host and page[1] == own[1] else f"foreign origin {origin!r}"
+
+
+def _guard_connections(server, token: str) -> None:
+    """Close every WebSocket of the viser ``server`` that :func:`access_refusal` refuses, before it gets data.
+
+    viser has no hook on its WebSocket handshake (its ``process_request`` is a closure inside
+    ``viser.infra.WebsockServer``). The narrowest point is its infra-level ``on_client_connect``: viser runs
+    those callbacks for every new connection after the handshake and before it starts sending (the scene
+    backlog, renders) or reading messages, and its raw connection (request path and headers) is in the infra
+    server's ``_live_connections`` by then. The callback closes a refused connection (code :data:`REFUSED`),
+    so viser's senders find it closed and send nothing. Connections opened between the server's start and
+    this hook (before any scene exists) are dropped so that they reconnect through the check.
+    """
+    infra = getattr(server, "_websock_server", None)
+    live = getattr(infra, "_live_connections", None)
+    if infra is None or not isinstance(live, dict):
+        raise GofError("this viser version gives the viewer no way to check connections; install viser 1.1")
+
+    async def check(conn) -> None:
+        ws = live.get(conn.client_id)
+        if ws is None:  # cannot read the request: refuse (viser closes the connection on the error)
+            raise PermissionError("viewer: a connection without a readable request")
+        reason = access_refusal(ws.request.path, ws.request.headers, token)
+        if reason is not None:
+            log.warning("viewer: refused a connection from %s: %s", ws.remote_address, reason)
+            await ws.close(REFUSED, "refused: " + reason)
+
+    infra.on_client_connect(check)
+    infra.disconnect_all_clients()
+
+
+def clamp_number(value, lo: float, hi: float, default: float) -> float:
+    """``value`` as a float in ``[lo, hi]``; ``default`` when it is not a number (or NaN)."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError, OverflowError):
+        return default
+    return default if v != v else min(max(v, lo), hi)
+
+
+def _accept_only_values(server) -> None:
+    """Let browsers change only the ``value`` of a GUI input.
+
+    viser applies every key of a client's ``GuiUpdateMessage`` to the input's server-side state (its props such
+    as a slider's ``min``/``max``, its callbacks, ``removed``); its page only ever sends ``value``. The GUI's
+    handler is swapped, through the infra server's public ``register_handler``/``unregister_handler``, for one
+    that passes the ``value`` key on and drops the rest."""
+    from viser import _messages
+
+    infra, gui = server._websock_server, server.gui
+    original = gui._handle_gui_updates
+
+    async def values_only(client_id, message) -> None:
+        updates = {k: v for k, v in message.updates.items() if k == "value"}
+        if updates:
+            await original(client_id, _messages.GuiUpdateMessage(message.uuid, updates))
+
+    infra.unregister_handler(_messages.GuiUpdateMessage, original)
+    infra.register_handler(_messages.GuiUpdateMessage, values_only)
 
 
 # ------------------------------------------------------------------------------------------ cameras
@@ -205,14 +325,16 @@ class Viewer:
         cameras: the training cameras (frustums, the initial view, the opacity field).
         render_config: :class:`~gof_warp.render.RenderConfig` of the run (background, near plane, ...).
         mesh: ``(vertices [V, 3], faces [F, 3])`` to show (toggle in the GUI), or None.
-        host, port: where to listen (``0.0.0.0`` for every interface; a busy port → the next free one).
+        host, port: where to listen (default ``127.0.0.1``, this machine only; ``0.0.0.0``: every interface, with
+            a warning; a busy port → the next free one).
         max_size: render size, long side in pixels (default 256 on CPU, 1024 on CUDA).
         title: label of the GUI panel.
+        token: the access token every WebSocket must present (default: a random one, ``secrets.token_urlsafe``).
     Call :meth:`start` (or use ``with``), then :meth:`stop`.
     """
 
-    def __init__(self, gaussians, cameras: list[Camera], *, render_config=None, mesh=None, host: str = "0.0.0.0",
-                 port: int = 8080, max_size: int | None = None, title: str = "gof_warp"):
+    def __init__(self, gaussians, cameras: list[Camera], *, render_config=None, mesh=None, host: str = DEFAULT_HOST,
+                 port: int = 8080, max_size: int | None = None, title: str = "gof_warp", token: str | None = None):
         if not cameras:
             raise GofError("the viewer needs at least one camera (the run's cameras.json)")
         if max_size is not None and not MIN_SIZE <= int(max_size) <= MAX_SIZE:
@@ -221,6 +343,7 @@ class Viewer:
             raise GofError(f"--port must be in [0, 65535], got {port}")
         self.cameras, self.render_config, self.mesh = list(cameras), render_config, mesh
         self.host, self.port, self.title = host, int(port), title
+        self.token = token or secrets.token_urlsafe(24)
         on_gpu = gaussians.device.type == "cuda"
         self.max_size = int(max_size or (GPU_MAX_SIZE if on_gpu else CPU_MAX_SIZE))
         self._gaussians = gaussians.clone()
@@ -243,8 +366,13 @@ class Viewer:
     def start(self) -> "Viewer":
         """Start the server and the render thread; returns self."""
         viser = require_viser()
+        warning = self.exposure_warning()
+        if warning:
+            log.warning("%s", warning)
         self.server = viser.ViserServer(host=self.host, port=self.port, label=self.title, verbose=False)
         self.port = int(self.server.get_port())
+        _guard_connections(self.server, self.token)  # before the scene exists
+        _accept_only_values(self.server)
         self._build_scene()
         self._build_gui()
         self.server.on_client_connect(self._on_connect)
@@ -270,17 +398,35 @@ class Viewer:
     def __exit__(self, *exc) -> None:
         self.stop()
 
+    def url_at(self, host: str, port: int | None = None) -> str:
+        """The page's address as a browser reaches the server at ``host:port`` (default: the server's port),
+        with the access token: viser's page opens its WebSocket at the address in its ``websocket`` parameter."""
+        netloc = f"[{host}]:{port or self.port}" if ":" in host else f"{host}:{port or self.port}"
+        return f"http://{netloc}/?websocket=ws://{netloc}/?token={self.token}"
+
     @property
     def url(self) -> str:
-        """The page's address on this machine."""
-        host = "localhost" if self.host in ("0.0.0.0", "::", "") else self.host
-        return f"http://{host}:{self.port}"
+        """The page's address on this machine, with the access token."""
+        host = DEFAULT_HOST if self.host in ("0.0.0.0", "::", "") else self.host
+        return self.url_at(host)
+
+    def exposure_warning(self) -> str | None:
+        """A warning when the server listens beyond this machine (a non-loopback ``host``), else None."""
+        if is_loopback(self.host):
+            return None
+        return (f"the viewer listens on {self.host or 'every interface'}: anyone who can reach port {self.port} "
+                f"of this machine and knows the access token can see the model; keep the token (in the address) "
+                f"private, or listen on 127.0.0.1 (the default) and use SSH port forwarding")
 
     def how_to_open(self) -> str:
         """Where to point a browser, here and from another machine through SSH port forwarding."""
-        return (f"viewer at {self.url}\n"
-                f"  on a remote machine (e.g. a GPU server): ssh -L {self.port}:localhost:{self.port} user@gpu-host, "
-                f"then open http://localhost:{self.port} on your computer")
+        target = DEFAULT_HOST if self.host in ("0.0.0.0", "::", "") else self.host
+        lines = [f"viewer at {self.url}",
+                 f"  from another computer: ssh -L {self.port}:{target}:{self.port} user@this-host, then "
+                         f"open {self.url_at(DEFAULT_HOST)} there (the same address)"]
+        if not is_loopback(self.host):
+            lines.append(f"  or directly: {self.url_at('THIS-HOST')} (THIS-HOST: this machine's name or address)")
+        return "\n".join(lines)
 
     @property
     def iteration(self) -> int | None:
@@ -347,20 +493,41 @@ class Viewer:
 
     def _build_gui(self) -> None:
         g = self.server.gui
+        # The ranges declared here are the server's own: a browser's values are clamped to them when used
+        # (render_settings), whatever it sends, and written back to the GUI.
+        self._slice_range = (MIN_SLICE_DEPTH, max(round(4 * self.scene_size, 2), MIN_SLICE_DEPTH))
+        self._slice_default = clamp_number(round(self._look_distance(self.cameras[0]), 2), *self._slice_range, 1.0)
         self._mode = g.add_dropdown("show", MODES, initial_value="render")
-        self._slice = g.add_slider("slice depth", min=0.01, max=round(4 * self.scene_size, 2),
-                                   step=round(self.scene_size / 100, 4) or 0.01,
-                                   initial_value=round(self._look_distance(self.cameras[0]), 2))
+        self._slice = g.add_slider("slice depth", min=self._slice_range[0], max=self._slice_range[1],
+                                   step=round(self.scene_size / 100, 4) or 0.01, initial_value=self._slice_default)
         self._size = g.add_slider("max size (px)", min=MIN_SIZE, max=MAX_SIZE, step=32, initial_value=self.max_size)
         self._show_cams = g.add_checkbox("training cameras", initial_value=True)
         self._show_mesh = g.add_checkbox("mesh", initial_value=False, disabled=self.mesh is None)
         self._info = g.add_markdown("")
         for handle in (self._mode, self._slice, self._size):
-            handle.on_update(lambda _: self.rerender())
-        self._show_cams.on_update(lambda _: [setattr(f, "visible", self._show_cams.value) for f in self._frustums])
+            handle.on_update(lambda _: self._settings_changed())
+        self._show_cams.on_update(lambda _: [setattr(f, "visible", self._show_cams.value is True)
+                                             for f in self._frustums])
         if self._mesh_handle is not None:
-            self._show_mesh.on_update(lambda _: setattr(self._mesh_handle, "visible", self._show_mesh.value))
+            self._show_mesh.on_update(lambda _: setattr(self._mesh_handle, "visible", self._show_mesh.value is True))
         self._refresh_info()
+
+    def render_settings(self) -> tuple[str, int, float]:
+        """``(mode, max_size, slice_depth)`` from the GUI, each within the range the GUI declares: a mode not in
+        :data:`MODES` → ``render``; sizes clamped to [:data:`MIN_SIZE`, :data:`MAX_SIZE`], the slice depth to
+        its slider's range; values that are not numbers → the defaults."""
+        mode = self._mode.value if self._mode.value in MODES else "render"
+        size = int(round(clamp_number(self._size.value, MIN_SIZE, MAX_SIZE, self.max_size)))
+        depth = clamp_number(self._slice.value, *self._slice_range, self._slice_default)
+        return mode, size, depth
+
+    def _settings_changed(self) -> None:
+        """A browser changed the mode, size or slice depth: show the clamped values in every GUI, render again."""
+        mode, size, depth = self.render_settings()
+        for handle, value in ((self._mode, mode), (self._size, size), (self._slice, depth)):
+            if handle.value != value:
+                handle.value = value
+        self.rerender()
 
     def _refresh_info(self) -> None:
         if self.server is None:
@@ -416,13 +583,13 @@ class Viewer:
             position, wxyz, fov, aspect = cam.position, cam.wxyz, cam.fov, cam.aspect
         except (AssertionError, ZeroDivisionError):  # the browser has not sent its camera yet
             return
-        size = int(self._size.value)
+        mode, size, slice_depth = self.render_settings()
         camera = camera_from_viewer(position, wxyz, fov, aspect, size)
         with self._lock:
             gaussians = self._gaussians
         t0 = time.perf_counter()
-        image, depth = render_mode(gaussians, camera, self._mode.value, render_config=self.render_config,
-                                   train_cameras=self.cameras, slice_depth=float(self._slice.value))
+        image, depth = render_mode(gaussians, camera, mode, render_config=self.render_config,
+                                   train_cameras=self.cameras, slice_depth=slice_depth)
         self.last_render_s = time.perf_counter() - t0
         client.scene.set_background_image(image, format="jpeg", jpeg_quality=JPEG_QUALITY, depth=depth)
         self.last_frame = image
