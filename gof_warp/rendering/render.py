@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -75,10 +75,10 @@ class RenderConfig:
     k_max: float = math.sqrt(2.0 * math.log(255.0))
     tile_size: int = 16
     background: tuple = (0.0, 0.0, 0.0)
-    distortion: str = "gof"
+    distortion: str = field(default="gof", metadata={"set_by": "experimental.distortion"})
     far: float = 100.0
-    tile_cull: bool = True
-    distortion_linear_from: float = 0.0
+    tile_cull: bool = field(default=True, metadata={"set_by": "experimental.tile_cull"})
+    distortion_linear_from: float = field(default=0.0, metadata={"set_by": "experimental.distortion_linear_from"})
     near_from_points: float = 0.0
 
     def clip_near(self, camera: Camera) -> float:

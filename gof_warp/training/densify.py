@@ -80,17 +80,18 @@ class DensifyConfig:
     start_iter: int = 500  # densify when it > start_iter ...
     stop_iter: int = 15_000  # ... and it < stop_iter (statistics are gathered while it < stop_iter)
     interval: int = 100
-    metric: str = "gof"  # "gof" | "paper" | "standard" (module docstring)
+    metric: str = field(default="gof", metadata={"set_by": "experimental.densify_metric"})  # "gof" | "paper" | "standard"
     grad_threshold: float = 2e-4  # τ on ḡ, NDC units
-    abs_grad_threshold: float = 2e-4  # τ_M on M̄, metric="paper" only
+    abs_grad_threshold: float = field(default=2e-4, metadata={"set_by": "experimental.abs_grad_threshold"})  # τ_M
     percent_dense: float = 0.01  # clone if max scale <= percent_dense·E, else split
     split_children: int = 2
     split_scale_divisor: float = 1.6  # GOF: 0.8 · split_children
     min_opacity: float = 0.05
     prune_big_after: int = 3000  # size prunes when it > prune_big_after (GOF: opacity_reset_interval)
     max_world_scale: float = 0.1  # × extent
-    prune_screen_size: bool = False  # GOF's code: the 3DGS test is dead (module docstring: measured why)
-    max_screen_radius: float = 20.0  # pixels
+    # GOF's code: the 3DGS test is dead (module docstring)
+    prune_screen_size: bool = field(default=False, metadata={"set_by": "experimental.prune_screen_size"})
+    max_screen_radius: float = field(default=20.0, metadata={"set_by": "experimental.max_screen_radius"})  # pixels
     opacity_reset_interval: int = 3000
     opacity_reset_value: float = 0.01
     reset_opacity_at_start: bool = False  # GOF does it at it == start_iter with a white background
@@ -98,7 +99,7 @@ class DensifyConfig:
     max_gaussians: int | None = None  # budget; None = unbounded
     filter_3d_interval: int = 100  # recompute φ every this many it for stop_iter < it < filter_3d_until_iter
     filter_3d_until_iter: int = 29_900  # GOF: iterations − 100
-    seed: int = 0  # clone/split sampling
+    seed: int = field(default=0, metadata={"set_by": "seed"})  # clone/split sampling; TrainConfig.seed
     # after densification (it >= stop_iter) GOF never prunes again; > 0: every this many iterations (while
     # it < filter_3d_until_iter) prune as densification does, σ(o) < min_opacity or max scale > max_world_scale·E
     late_prune_interval: int = 0

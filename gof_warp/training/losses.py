@@ -57,10 +57,11 @@ class LossConfig:
     lambda_distortion: float = 1000.0
     lambda_normal: float = 0.05
     regularization_from_iter: int = 15_000
-    normal_form: str = "paper"  # "paper": Σ ω_i(1 − n_iᵀN); "gof": 1 − normalize(Σ ω_i n_i)ᵀN
+    # "paper": Σ ω_i(1 − n_iᵀN); "gof": 1 − normalize(Σ ω_i n_i)ᵀN
+    normal_form: str = field(default="paper", metadata={"set_by": "experimental.normal_form"})
     # a neighbouring photo's patches through the rendered planes (not GOF's; off unless multiview.weight > 0):
     # gof_warp.multiview, added by the trainer outside the (compiled) terms above
-    multiview: MultiViewConfig = field(default_factory=MultiViewConfig)
+    multiview: MultiViewConfig = field(default_factory=MultiViewConfig, metadata={"set_by": "experimental.multiview"})
 
     def __post_init__(self):
         if self.normal_form not in NORMAL_FORMS:

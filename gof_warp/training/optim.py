@@ -27,11 +27,12 @@ in 3DGS/GOF.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 
 from ..core.devices import StreamWrappers, warp_device
+from ..core.config import ConfigError
 from ..core.errors import GofError
 from ..core.model import PARAM_NAMES, Gaussians
 
@@ -45,8 +46,8 @@ class OptimConfig:
 
     means_lr_init: float = 1.6e-4  # × scene extent
     means_lr_final: float = 1.6e-6  # × scene extent
-    means_lr_delay_steps: int = 0  # 3DGS "delay": inactive in GOF
-    means_lr_delay_mult: float = 0.01
+    means_lr_delay_steps: int = field(default=0, metadata={"set_by": "experimental.means_lr_delay_steps"})  # 3DGS
+    means_lr_delay_mult: float = field(default=0.01, metadata={"set_by": "experimental.means_lr_delay_mult"})
     means_lr_max_steps: int = 30_000  # the schedule reaches means_lr_final here
     sh_dc_lr: float = 2.5e-3
     sh_rest_lr: float = 2.5e-3 / 20.0
@@ -57,13 +58,12 @@ class OptimConfig:
     appearance_network_lr: float = 1e-3
     eps: float = 1e-15
     betas: tuple[float, float] = (0.9, 0.999)
-    fused: bool | None = None  # torch's one-kernel Adam; None: on CUDA yes, on the CPU no (the loop version)
-    # the Gaussians' Adam: "torch" (torch's, fused as above), "warp" (WarpAdam: one Warp kernel a parameter, four floats
-    # a thread, doing torch's fused CUDA arithmetic float for float: on a GPU the same bits as "torch", 0.3 ms less GPU
-    # time a DTU step on an H200) or "auto" (the default): "warp" on CUDA, "torch" on the CPU (where torch's Adam is
-    # its loop version, whose arithmetic WarpAdam does not copy). The appearance network's Adam is always torch's.
-    # Measured in benchmarks/train/README.md, sessions 36-38
-    adam: str = "auto"
+    # torch's one-kernel Adam; None: on CUDA yes, on the CPU no (the loop version). Set from performance.adam
+    fused: bool | None = field(default=None, metadata={"set_by": "performance.adam"})
+    # the Gaussians' Adam: "torch" (torch's, fused as above), "warp" (WarpAdam: torch's fused CUDA arithmetic float for
+    # float, one Warp kernel a parameter) or "auto": "warp" on CUDA, "torch" on the CPU. The appearance network's Adam
+    # is always torch's. Set from performance.adam (training.settings.PerformanceConfig)
+    adam: str = field(default="auto", metadata={"set_by": "performance.adam"})
 
     def __post_init__(self):
         if self.adam not in ADAM_KINDS:
