@@ -17,6 +17,7 @@ import torch
 import warp as wp
 
 from ..core.camera import Camera
+from ..core.config import ConfigError
 from ..core.devices import StreamWrappers
 from ..kernels.render_types import camera_params_from, make_camera_params, make_raster_settings
 from ..kernels.binning import TileListSizer
@@ -86,31 +87,36 @@ class RenderConfig:
         (:attr:`Camera.near`; 0 when it has none)."""
         return max(self.near, getattr(camera, "near", 0.0))
 
+    def __post_init__(self):
+        self.validate()
+
     def validate(self) -> None:
+        """Raise :class:`ConfigError` naming the key (``render.near``) and its allowed range."""
         if not self.near > 0:
-            raise ValueError(f"RenderConfig.near must be > 0, got {self.near}")
+            raise ConfigError(f"render.near must be > 0, got {self.near}")
         if not 0 <= self.near_from_points < 1:
-            raise ValueError(f"RenderConfig.near_from_points must be in [0, 1) (0: off), got {self.near_from_points}")
+            raise ConfigError(f"render.near_from_points must be in [0, 1) (0: off), got {self.near_from_points}")
         if not 0 <= self.alpha_min <= self.alpha_max < 1:
-            raise ValueError(f"RenderConfig needs 0 <= alpha_min <= alpha_max < 1, got {self.alpha_min}, {self.alpha_max}")
+            raise ConfigError(f"render.alpha_min, render.alpha_max: need 0 <= alpha_min <= alpha_max < 1, got "
+                              f"{self.alpha_min}, {self.alpha_max}")
         if not 0 <= self.transmittance_min < 1:
-            raise ValueError(f"RenderConfig.transmittance_min must be in [0, 1), got {self.transmittance_min}")
+            raise ConfigError(f"render.transmittance_min must be in [0, 1), got {self.transmittance_min}")
         if not self.k_max > 0 or not math.isfinite(self.k_max):
-            raise ValueError(f"RenderConfig.k_max must be finite and > 0, got {self.k_max}")
+            raise ConfigError(f"render.k_max must be finite and > 0, got {self.k_max}")
         if int(self.tile_size) != self.tile_size or not 1 <= self.tile_size <= 32:
-            raise ValueError(f"RenderConfig.tile_size must be an integer in [1, 32], got {self.tile_size}")
+            raise ConfigError(f"render.tile_size must be an integer in [1, 32], got {self.tile_size}")
         if self.distortion not in ("gof", "paper"):
-            raise ValueError(f"RenderConfig.distortion must be 'gof' or 'paper', got {self.distortion!r}")
+            raise ConfigError(f"experimental.distortion must be 'gof' or 'paper', got {self.distortion!r}")
         if not self.far > self.near:
-            raise ValueError(f"RenderConfig.far must be > near, got {self.far}")
+            raise ConfigError(f"render.far must be > near, got {self.far}")
         if not (self.distortion_linear_from == 0 or self.distortion_linear_from > self.near):
-            raise ValueError("RenderConfig.distortion_linear_from must be 0 (off) or a depth beyond near "
+            raise ConfigError("experimental.distortion_linear_from must be 0 (off) or a depth beyond near "
                              f"({self.near}), got {self.distortion_linear_from}")
         if self.distortion_linear_from and self.distortion != "gof":
-            raise ValueError("RenderConfig.distortion_linear_from applies to the 'gof' distortion only, "
+            raise ConfigError("experimental.distortion_linear_from applies to the 'gof' distortion only, "
                              f"got distortion={self.distortion!r}")
         if len(self.background) != 3:
-            raise ValueError(f"RenderConfig.background must have 3 entries, got {self.background}")
+            raise ConfigError(f"render.background must have 3 entries, got {self.background}")
 
 
 def raster_settings_for(camera: Camera, config: RenderConfig, pixel_pad: float = 0.0):

@@ -66,6 +66,7 @@ from dataclasses import asdict, dataclass, field
 import torch
 
 from ..core.devices import StreamWrappers, warp_device
+from ..core.config import ConfigError
 from ..core.errors import GofError
 from ..core.model import Gaussians, quat_to_rotmat
 from .optim import replace_params
@@ -120,28 +121,29 @@ class DensifyConfig:
 
     def __post_init__(self):
         if self.metric not in METRICS:
-            raise GofError(f"DensifyConfig.metric must be one of {METRICS}, got {self.metric!r}")
+            raise ConfigError(f"experimental.densify_metric must be one of {METRICS}, got {self.metric!r}")
         if self.max_gaussians is not None and self.max_gaussians < 1:
-            raise GofError(f"DensifyConfig.max_gaussians must be positive or None, got {self.max_gaussians}")
+            raise ConfigError(f"densify.max_gaussians must be positive or None, got {self.max_gaussians}")
         if self.interval < 1 or self.opacity_reset_interval < 1 or self.sh_degree_interval < 1:
-            raise GofError("DensifyConfig: intervals must be >= 1")
+            raise ConfigError(f"densify.interval, densify.opacity_reset_interval and densify.sh_degree_interval must be >= 1, got "
+                              f"{self.interval}, {self.opacity_reset_interval}, {self.sh_degree_interval}")
         if self.split_children < 1 or self.split_scale_divisor <= 0:
-            raise GofError("DensifyConfig: split_children must be >= 1 and split_scale_divisor > 0")
+            raise ConfigError("densify.split_children must be >= 1 and densify.split_scale_divisor > 0")
         if self.late_prune_interval < 0:
-            raise GofError(f"DensifyConfig.late_prune_interval must be >= 0 (0: off), got {self.late_prune_interval}")
+            raise ConfigError(f"densify.late_prune_interval must be >= 0 (0: off), got {self.late_prune_interval}")
         if not 0.0 <= self.near_camera_fraction < 1.0:
-            raise GofError("DensifyConfig.near_camera_fraction must be in [0, 1) (0: off), got "
+            raise ConfigError("densify.near_camera_fraction must be in [0, 1) (0: off), got "
                            f"{self.near_camera_fraction}")
         if self.near_camera_fraction > 0 and self.late_prune_interval == 0:
-            raise GofError("DensifyConfig.near_camera_fraction acts at the late prunes: set late_prune_interval > 0")
+            raise ConfigError("densify.near_camera_fraction acts at the late prunes: set late_prune_interval > 0")
         if any(int(i) != i or i < 1 for i in self.hidden_prune_iters):
-            raise GofError(f"DensifyConfig.hidden_prune_iters must be iterations >= 1, got {self.hidden_prune_iters}")
+            raise ConfigError(f"densify.hidden_prune_iters must be iterations >= 1, got {self.hidden_prune_iters}")
         if not self.hidden_margin > 0:
-            raise GofError(f"DensifyConfig.hidden_margin must be > 0, got {self.hidden_margin}")
+            raise ConfigError(f"densify.hidden_margin must be > 0, got {self.hidden_margin}")
         if self.hidden_max_visible is not None and not 0.0 < self.hidden_max_visible <= 1.0:
-            raise GofError(f"DensifyConfig.hidden_max_visible must be in (0, 1] or None, got {self.hidden_max_visible}")
+            raise ConfigError(f"densify.hidden_max_visible must be in (0, 1] or None, got {self.hidden_max_visible}")
         if self.hidden_min_tail is not None and not 0.0 <= self.hidden_min_tail < 1.0:
-            raise GofError(f"DensifyConfig.hidden_min_tail must be in [0, 1) or None, got {self.hidden_min_tail}")
+            raise ConfigError(f"densify.hidden_min_tail must be in [0, 1) or None, got {self.hidden_min_tail}")
 
 
 @dataclass

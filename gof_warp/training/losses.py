@@ -32,6 +32,7 @@ import torch
 
 from .appearance import DOWNSAMPLE
 from ..core.camera import Camera
+from ..core.config import ConfigError
 from ..core.errors import GofError, error_summary
 from ..eval.image_metrics import ssim
 from .multiview import MultiViewConfig
@@ -65,11 +66,11 @@ class LossConfig:
 
     def __post_init__(self):
         if self.normal_form not in NORMAL_FORMS:
-            raise GofError(f"LossConfig.normal_form must be one of {NORMAL_FORMS}, got {self.normal_form!r}")
+            raise ConfigError(f"experimental.normal_form must be one of {NORMAL_FORMS}, got {self.normal_form!r}")
         if not 0.0 <= self.lambda_dssim <= 1.0:
-            raise GofError(f"LossConfig.lambda_dssim must be in [0, 1], got {self.lambda_dssim}")
+            raise ConfigError(f"loss.lambda_dssim must be in [0, 1], got {self.lambda_dssim}")
         if self.lambda_distortion < 0 or self.lambda_normal < 0:
-            raise GofError("LossConfig: lambda_distortion and lambda_normal must be >= 0")
+            raise ConfigError("loss.lambda_distortion and loss.lambda_normal must be >= 0")
 
 
 def l1(img: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:

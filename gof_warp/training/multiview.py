@@ -46,6 +46,7 @@ import numpy as np
 import torch
 
 from ..core.camera import Camera
+from ..core.config import ConfigError
 from ..core.errors import GofError, error_summary
 
 log = logging.getLogger(__name__)
@@ -90,18 +91,18 @@ class MultiViewConfig:
 
     def __post_init__(self):
         if not (self.weight >= 0 and math.isfinite(self.weight)):
-            raise GofError(f"loss.multiview.weight must be a finite number >= 0, got {self.weight!r}")
+            raise ConfigError(f"experimental.multiview.weight must be a finite number >= 0, got {self.weight!r}")
         if int(self.patch) != self.patch or self.patch < 3 or self.patch % 2 == 0:
-            raise GofError(f"loss.multiview.patch must be an odd integer >= 3, got {self.patch!r}")
+            raise ConfigError(f"experimental.multiview.patch must be an odd integer >= 3, got {self.patch!r}")
         if self.pixels < 1 or self.neighbours < 1 or self.neighbours_per_step < 1:
-            raise GofError("loss.multiview: pixels, neighbours and neighbours_per_step must be >= 1")
+            raise ConfigError("experimental.multiview: pixels, neighbours and neighbours_per_step must be >= 1")
         if self.neighbours_per_step > self.neighbours:
-            raise GofError(f"loss.multiview.neighbours_per_step ({self.neighbours_per_step}) must be at most "
+            raise ConfigError(f"experimental.multiview.neighbours_per_step ({self.neighbours_per_step}) must be at most "
                            f"neighbours ({self.neighbours})")
         if not 0.0 < self.max_angle_deg <= 180.0:
-            raise GofError(f"loss.multiview.max_angle_deg must be in (0, 180], got {self.max_angle_deg!r}")
+            raise ConfigError(f"experimental.multiview.max_angle_deg must be in (0, 180], got {self.max_angle_deg!r}")
         if self.min_std < 0 or self.occlusion_tolerance < 0 or not 0.0 <= self.alpha_min < 1.0:
-            raise GofError("loss.multiview: min_std and occlusion_tolerance must be >= 0, alpha_min in [0, 1)")
+            raise ConfigError("experimental.multiview: min_std and occlusion_tolerance must be >= 0, alpha_min in [0, 1)")
 
     @property
     def on(self) -> bool:

@@ -67,7 +67,19 @@ class OptimConfig:
 
     def __post_init__(self):
         if self.adam not in ADAM_KINDS:
-            raise GofError(f"optim.adam must be one of {ADAM_KINDS}, got {self.adam!r}")
+            raise ConfigError(f"optim.adam (performance.adam) must be one of {ADAM_KINDS}, got {self.adam!r}")
+        for name in ("means_lr_init", "means_lr_final", "sh_dc_lr", "sh_rest_lr", "opacity_lr", "scaling_lr",
+                     "rotation_lr", "appearance_embedding_lr", "appearance_network_lr", "eps"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ConfigError(f"optim.{name} must be a finite number >= 0, got {v!r}")
+        if isinstance(self.means_lr_max_steps, bool) or self.means_lr_max_steps < 1:
+            raise ConfigError(f"optim.means_lr_max_steps must be an integer >= 1, got {self.means_lr_max_steps!r}")
+        if self.means_lr_delay_steps < 0 or not 0 < self.means_lr_delay_mult <= 1:
+            raise ConfigError("experimental.means_lr_delay_steps must be >= 0 and experimental.means_lr_delay_mult in "
+                              f"(0, 1], got {self.means_lr_delay_steps}, {self.means_lr_delay_mult}")
+        if len(tuple(self.betas)) != 2 or not all(0 <= b < 1 for b in self.betas):
+            raise ConfigError(f"optim.betas must be two numbers in [0, 1), got {self.betas!r}")
 
     def adam_for(self, device) -> str:
         """The Gaussians' Adam on ``device``: ``"torch"`` or ``"warp"`` (``adam="auto"``: warp on CUDA)."""
