@@ -80,23 +80,23 @@ class DensifyConfig:
 
     start_iter: int = 500  # densify when it > start_iter ...
     stop_iter: int = 15_000  # ... and it < stop_iter (statistics are gathered while it < stop_iter)
-    interval: int = 100
+    interval: int = 100  # densify every this many iterations
     metric: str = field(default="gof", metadata={"set_by": "experimental.densify_metric"})  # "gof" | "paper" | "standard"
     grad_threshold: float = 2e-4  # τ on ḡ, NDC units
     abs_grad_threshold: float = field(default=2e-4, metadata={"set_by": "experimental.abs_grad_threshold"})  # τ_M
     percent_dense: float = 0.01  # clone if max scale <= percent_dense·E, else split
-    split_children: int = 2
+    split_children: int = 2  # Gaussians a split makes of one
     split_scale_divisor: float = 1.6  # GOF: 0.8 · split_children
-    min_opacity: float = 0.05
+    min_opacity: float = 0.05  # prune Gaussians less opaque than this
     prune_big_after: int = 3000  # size prunes when it > prune_big_after (GOF: opacity_reset_interval)
     max_world_scale: float = 0.1  # × extent
     # GOF's code: the 3DGS test is dead (module docstring)
     prune_screen_size: bool = field(default=False, metadata={"set_by": "experimental.prune_screen_size"})
     max_screen_radius: float = field(default=20.0, metadata={"set_by": "experimental.max_screen_radius"})  # pixels
-    opacity_reset_interval: int = 3000
-    opacity_reset_value: float = 0.01
+    opacity_reset_interval: int = 3000  # reset every opacity every this many iterations (while densifying)
+    opacity_reset_value: float = 0.01  # the opacity a reset sets
     reset_opacity_at_start: bool = False  # GOF does it at it == start_iter with a white background
-    sh_degree_interval: int = 1000
+    sh_degree_interval: int = 1000  # raise the active SH degree by one every this many iterations
     max_gaussians: int | None = None  # budget; None = unbounded
     filter_3d_interval: int = 100  # recompute φ every this many it for stop_iter < it < filter_3d_until_iter
     filter_3d_until_iter: int = 29_900  # GOF: iterations − 100
@@ -112,8 +112,8 @@ class DensifyConfig:
     # counts in front of that surface; of those, only the ones the photos show less than hidden_max_visible of in
     # their best view (gof_warp.hidden.visible_fraction: ~0 behind an opaque surface; None: the depth test alone)
     hidden_prune_iters: list[int] = field(default_factory=list)
-    hidden_margin: float = 0.01
-    hidden_max_visible: float | None = 0.2
+    hidden_margin: float = 0.01  # hidden prune: behind the surface by more than this fraction of its depth
+    hidden_max_visible: float | None = 0.2  # hidden prune: only those seen less than this in their best view
     # and, unless None, only the ones whose opacity at the rendered surface (gof_warp.hidden.surface_measures' tail:
     # o·exp(-½(Δ/σ_t)²) along the ray, the largest over the views) is above this: what raises GOF's field in front of
     # a surface, not a thin layer under it

@@ -54,10 +54,10 @@ class LossConfig:
     weight (1000, GOF's DTU script); unbounded-scene presets use ``lambda_distortion = 100``.
     """
 
-    lambda_dssim: float = 0.2
-    lambda_distortion: float = 1000.0
-    lambda_normal: float = 0.05
-    regularization_from_iter: int = 15_000
+    lambda_dssim: float = 0.2  # weight of D-SSIM in the colour loss, (1 − λ)·L1 + λ·D-SSIM; in [0, 1]
+    lambda_distortion: float = 1000.0  # λ_d of the depth-distortion term (unbounded presets: 100)
+    lambda_normal: float = 0.05  # λ_n of the depth–normal consistency term
+    regularization_from_iter: int = 15_000  # the distortion and normal terms act from this iteration
     # "paper": Σ ω_i(1 − n_iᵀN); "gof": 1 − normalize(Σ ω_i n_i)ᵀN
     normal_form: str = field(default="paper", metadata={"set_by": "experimental.normal_form"})
     # a neighbouring photo's patches through the rendered planes (not GOF's; off unless multiview.weight > 0):

@@ -49,15 +49,15 @@ class OptimConfig:
     means_lr_delay_steps: int = field(default=0, metadata={"set_by": "experimental.means_lr_delay_steps"})  # 3DGS
     means_lr_delay_mult: float = field(default=0.01, metadata={"set_by": "experimental.means_lr_delay_mult"})
     means_lr_max_steps: int = 30_000  # the schedule reaches means_lr_final here
-    sh_dc_lr: float = 2.5e-3
-    sh_rest_lr: float = 2.5e-3 / 20.0
-    opacity_lr: float = 0.05
-    scaling_lr: float = 5e-3
-    rotation_lr: float = 1e-3
+    sh_dc_lr: float = 2.5e-3  # learning rate of the SH DC colour
+    sh_rest_lr: float = 2.5e-3 / 20.0  # learning rate of the higher SH coefficients
+    opacity_lr: float = 0.05  # learning rate of the opacity logits
+    scaling_lr: float = 5e-3  # learning rate of the log scales
+    rotation_lr: float = 1e-3  # learning rate of the quaternions
     appearance_embedding_lr: float = 1e-3  # used by the trainer's appearance groups
-    appearance_network_lr: float = 1e-3
-    eps: float = 1e-15
-    betas: tuple[float, float] = (0.9, 0.999)
+    appearance_network_lr: float = 1e-3  # learning rate of the appearance network (appearance=true)
+    eps: float = 1e-15  # Adam ε
+    betas: tuple[float, float] = (0.9, 0.999)  # Adam β₁, β₂
     # torch's one-kernel Adam; None: on CUDA yes, on the CPU no (the loop version). Set from performance.adam
     fused: bool | None = field(default=None, metadata={"set_by": "performance.adam"})
     # the Gaussians' Adam: "torch" (torch's, fused as above), "warp" (WarpAdam: torch's fused CUDA arithmetic float for

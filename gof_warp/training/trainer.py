@@ -85,9 +85,9 @@ class ModelConfig:
     cameras look past every initial point — the far background SfM rarely reaches; 0 = none.
     """
 
-    sh_degree: int = 3
-    init: str = "auto"
-    init_opacity: float = 0.1
+    sh_degree: int = 3  # spherical-harmonics degree of the colours (0: view-independent)
+    init: str = "auto"  # "auto" | "sfm" | "random": where the initial points come from (class docstring)
+    init_opacity: float = 0.1  # opacity of every initial Gaussian
     random_init_points: int = 100_000  # used when the scene has no initial points (3DGS Blender: 100k)
     init_box: tuple[float, ...] | None = None  # (xmin, ymin, zmin, xmax, ymax, zmax); None = from cameras
     background_points: int = field(default=0, metadata={"set_by": "experimental.background_points"})
@@ -110,7 +110,7 @@ class TrainConfig:
     Keys of older configs are moved with a warning (:func:`gof_warp.training.settings.upgrade_keys`).
     """
 
-    iterations: int = 30_000
+    iterations: int = 30_000  # training iterations (steps)
     # seeds everything random in the run: view order, initial points, random backgrounds, densification's samples
     seed: int = 0
     appearance: bool = False  # decoupled appearance (GOF: on for DTU and Tanks and Temples)
