@@ -38,6 +38,10 @@ _MISSING = object()
 class RenderConfig:
     """Compositing thresholds (defaults: the official GOF/3DGS rasteriser, ``GOF_REFERENCE.md`` §1–2).
 
+    ``distortion``, ``distortion_linear_from`` and ``tile_cull`` are set in a training config through its
+    ``experimental`` section (:mod:`gof_warp.training.settings`); constructing a RenderConfig checks every value
+    (:class:`~gof_warp.core.config.ConfigError` naming the key).
+
     Attributes:
         near: Gaussians with camera z ≤ near are culled and intersections with t* ≤ near skipped
             (GOF hard-codes 0.2; scale-dependent, hence configurable).
@@ -58,7 +62,7 @@ class RenderConfig:
         distortion_linear_from: 0 (GOF): the ``"gof"`` distortion compares m(t) everywhere, so its weight per unit
             of depth falls as ``near / t²`` and layers far behind the objects cost almost nothing. ``L > near``:
             beyond depth ``L`` m(t) is continued by its tangent at ``L``, so far layers are compressed as hard as
-            layers at ``L`` (an option measured in ``benchmarks/real_captures/README.md``, session 11; not GOF).
+            layers at ``L`` (not GOF; measured: see benchmarks/RESULTS.md).
         tile_cull: bin each Gaussian only into the screen tiles its projected ellipse meets (exact,
             conservative; same images and gradients, fewer list entries); False: every tile of its
             bounding rectangle (as 3DGS/GOF), for comparisons.

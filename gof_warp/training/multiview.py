@@ -58,7 +58,7 @@ GREY_WEIGHTS = (0.299, 0.587, 0.114)  # ITU-R BT.601 luma
 
 @dataclass
 class MultiViewConfig:
-    """Settings of the multi-view photometric term (``loss.multiview`` in a preset). ``weight`` 0 (default) is off.
+    """Settings of the multi-view photometric term (``experimental.multiview`` in a training config). ``weight`` 0 (default) is off.
 
     Attributes:
         weight: λ of the term in the loss (PGSR uses 0.15 for its photometric part).
@@ -69,9 +69,8 @@ class MultiViewConfig:
         neighbours_per_step: how many of them are drawn per view and step (without replacement; at most
             ``neighbours``). Each patch's loss is the mean ``1 − NCC`` over the drawn neighbours that see it, so a
             surface that only one or two of the candidates see (the edge of a capture) is compared at every step
-            where one of those is drawn. 1 (PGSR's choice): one neighbour per step. All 8 moved ``background_full``'s
-            far shell 2.3 cm forward and made its whole seen region worse (F 0.944 → 0.920), at +6.6 ms a step on an
-            H100 (``benchmarks/real_captures``, session 27).
+            where one of those is drawn. 1 (PGSR's choice, the default): one neighbour per step; more cost time a
+            step and moved far surfaces (measured: see benchmarks/RESULTS.md).
         max_angle_deg: neighbours' viewing directions within this angle of the reference's.
         alpha_min: reference alpha at the patch centre below which the patch is left out.
         min_std: reference patches whose grey standard deviation is below this are textureless: left out.
