@@ -18,7 +18,7 @@ from gof_warp.kernels.binning import TileListSizer
 from gof_warp.kernels.renderer import prepare_view
 from gof_warp.kernels.render_types import camera_params_from
 from gof_warp.rendering.render import RenderConfig, raster_settings_for, rasterize
-from gof_warp.training.trainer import TrainConfig
+from gof_warp.training.settings import PerformanceConfig
 
 NAMES = ("means", "quats", "scales", "opacities", "sh")
 
@@ -121,8 +121,8 @@ def test_bad_margins_are_errors():
     with pytest.raises(ValueError, match="margin"):
         TileListSizer(margin=0.9)
     with pytest.raises(ConfigError, match="tile_list_margin"):
-        TrainConfig(tile_list_margin=0.5)
-    assert TrainConfig(tile_list_margin=0).tile_list_margin == 0  # 0: exact sizing
+        PerformanceConfig(tile_list_margin=0.5)
+    assert PerformanceConfig(tile_list_margin=0).tile_list_margin == 0  # 0: exact sizing
     scene, cam, _ = _scene_and_cameras()
     with pytest.raises(TypeError, match="tile_lists"):
         rasterize(*[scene[k] for k in NAMES], cam, tile_lists=1.25)

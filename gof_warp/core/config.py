@@ -24,11 +24,14 @@ class ConfigError(GofError):
 
 
 def to_dict(cfg) -> dict:
-    """Dataclass → nested dict of plain data (tuples become lists)."""
+    """Dataclass → nested dict of plain data (tuples become lists).
+
+    A field whose metadata has ``set_by`` (the dotted key that sets it, e.g. ``experimental.tile_cull``) is left
+    out: it is a copy of a setting that lives elsewhere in the composed config."""
 
     def plain(v):
         if dataclasses.is_dataclass(v):
-            return {f.name: plain(getattr(v, f.name)) for f in dataclasses.fields(v)}
+            return {f.name: plain(getattr(v, f.name)) for f in dataclasses.fields(v) if not f.metadata.get("set_by")}
         if isinstance(v, (list, tuple)):
             return [plain(x) for x in v]
         if isinstance(v, dict):
@@ -87,6 +90,8 @@ def from_dict(cls, data: dict, where: str = "config"):
     """Build dataclass ``cls`` from a (partial) dict; missing keys keep their defaults."""
     if not isinstance(data, dict):
         raise ConfigError(f"{where}: expected a mapping, got {type(data).__name__}")
+    if hasattr(cls, "upgrade_keys"):
+        data = cls.upgrade_keys(data, where)
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(data) - names)
@@ -104,6 +109,8 @@ def merge(cfg, data: dict, where: str = "config"):
     and the valid keys at that level; values are type-checked as :func:`from_dict` does."""
     if not isinstance(data, dict):
         raise ConfigError(f"{where}: overrides must be a mapping, got {type(data).__name__}")
+    if hasattr(type(cfg), "upgrade_keys"):
+        data = type(cfg).upgrade_keys(data, where)
     merged = to_dict(cfg)
 
     def deep(dst, src, prefix):

@@ -25,6 +25,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..core.config import ConfigError
 from ..core.errors import GofError, SceneError
 from ..core.scene import Scene
 from .blender import read_blender
@@ -69,17 +70,17 @@ class DataConfig:
 
     def __post_init__(self):
         if not (isinstance(self.downscale, (int, float)) and math.isfinite(self.downscale) and self.downscale >= 1):
-            raise GofError(f"DataConfig.downscale must be a number >= 1, got {self.downscale!r}")
+            raise ConfigError(f"data.downscale must be a number >= 1, got {self.downscale!r}")
         self.downscale = float(self.downscale)
         if isinstance(self.test_every, bool) or not isinstance(self.test_every, int) or self.test_every < 0:
-            raise GofError(f"DataConfig.test_every must be an integer >= 0, got {self.test_every!r}")
+            raise ConfigError(f"data.test_every must be an integer >= 0, got {self.test_every!r}")
         if len(tuple(self.background)) != 3 or not all(0.0 <= float(c) <= 1.0 for c in self.background):
-            raise GofError(f"DataConfig.background must be 3 values in [0, 1], got {self.background!r}")
+            raise ConfigError(f"data.background must be 3 values in [0, 1], got {self.background!r}")
         self.background = tuple(float(c) for c in self.background)
         if not self.image_memory_budget_gb > 0:
-            raise GofError(f"DataConfig.image_memory_budget_gb must be > 0, got {self.image_memory_budget_gb!r}")
+            raise ConfigError(f"data.image_memory_budget_gb must be > 0, got {self.image_memory_budget_gb!r}")
         if self.undistort not in UNDISTORT_MODES:
-            raise GofError(f"DataConfig.undistort must be one of {UNDISTORT_MODES}, got {self.undistort!r}")
+            raise ConfigError(f"data.undistort must be one of {UNDISTORT_MODES}, got {self.undistort!r}")
 
 
 def _scene_root(path) -> Path:

@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
 import warp as wp
 
 from ..core.camera import Camera
+from ..core.config import ConfigError
 from ..core.devices import StreamWrappers
 from ..kernels.render_types import camera_params_from, make_camera_params, make_raster_settings
 from ..kernels.binning import TileListSizer
@@ -36,6 +37,10 @@ _MISSING = object()
 @dataclass
 class RenderConfig:
     """Compositing thresholds (defaults: the official GOF/3DGS rasteriser, ``GOF_REFERENCE.md`` §1–2).
+
+    ``distortion``, ``distortion_linear_from`` and ``tile_cull`` are set in a training config through its
+    ``experimental`` section (:mod:`gof_warp.training.settings`); constructing a RenderConfig checks every value
+    (:class:`~gof_warp.core.config.ConfigError` naming the key).
 
     Attributes:
         near: Gaussians with camera z ≤ near are culled and intersections with t* ≤ near skipped
@@ -57,7 +62,7 @@ class RenderConfig:
         distortion_linear_from: 0 (GOF): the ``"gof"`` distortion compares m(t) everywhere, so its weight per unit
             of depth falls as ``near / t²`` and layers far behind the objects cost almost nothing. ``L > near``:
             beyond depth ``L`` m(t) is continued by its tangent at ``L``, so far layers are compressed as hard as
-            layers at ``L`` (an option measured in ``benchmarks/real_captures/README.md``, session 11; not GOF).
+            layers at ``L`` (not GOF; measured: see benchmarks/RESULTS.md).
         tile_cull: bin each Gaussian only into the screen tiles its projected ellipse meets (exact,
             conservative; same images and gradients, fewer list entries); False: every tile of its
             bounding rectangle (as 3DGS/GOF), for comparisons.
@@ -75,10 +80,10 @@ class RenderConfig:
     k_max: float = math.sqrt(2.0 * math.log(255.0))
     tile_size: int = 16
     background: tuple = (0.0, 0.0, 0.0)
-    distortion: str = "gof"
+    distortion: str = field(default="gof", metadata={"set_by": "experimental.distortion"})
     far: float = 100.0
-    tile_cull: bool = True
-    distortion_linear_from: float = 0.0
+    tile_cull: bool = field(default=True, metadata={"set_by": "experimental.tile_cull"})
+    distortion_linear_from: float = field(default=0.0, metadata={"set_by": "experimental.distortion_linear_from"})
     near_from_points: float = 0.0
 
     def clip_near(self, camera: Camera) -> float:
@@ -86,31 +91,36 @@ class RenderConfig:
         (:attr:`Camera.near`; 0 when it has none)."""
         return max(self.near, getattr(camera, "near", 0.0))
 
+    def __post_init__(self):
+        self.validate()
+
     def validate(self) -> None:
+        """Raise :class:`ConfigError` naming the key (``render.near``) and its allowed range."""
         if not self.near > 0:
-            raise ValueError(f"RenderConfig.near must be > 0, got {self.near}")
+            raise ConfigError(f"render.near must be > 0, got {self.near}")
         if not 0 <= self.near_from_points < 1:
-            raise ValueError(f"RenderConfig.near_from_points must be in [0, 1) (0: off), got {self.near_from_points}")
+            raise ConfigError(f"render.near_from_points must be in [0, 1) (0: off), got {self.near_from_points}")
         if not 0 <= self.alpha_min <= self.alpha_max < 1:
-            raise ValueError(f"RenderConfig needs 0 <= alpha_min <= alpha_max < 1, got {self.alpha_min}, {self.alpha_max}")
+            raise ConfigError(f"render.alpha_min, render.alpha_max: need 0 <= alpha_min <= alpha_max < 1, got "
+                              f"{self.alpha_min}, {self.alpha_max}")
         if not 0 <= self.transmittance_min < 1:
-            raise ValueError(f"RenderConfig.transmittance_min must be in [0, 1), got {self.transmittance_min}")
+            raise ConfigError(f"render.transmittance_min must be in [0, 1), got {self.transmittance_min}")
         if not self.k_max > 0 or not math.isfinite(self.k_max):
-            raise ValueError(f"RenderConfig.k_max must be finite and > 0, got {self.k_max}")
+            raise ConfigError(f"render.k_max must be finite and > 0, got {self.k_max}")
         if int(self.tile_size) != self.tile_size or not 1 <= self.tile_size <= 32:
-            raise ValueError(f"RenderConfig.tile_size must be an integer in [1, 32], got {self.tile_size}")
+            raise ConfigError(f"render.tile_size must be an integer in [1, 32], got {self.tile_size}")
         if self.distortion not in ("gof", "paper"):
-            raise ValueError(f"RenderConfig.distortion must be 'gof' or 'paper', got {self.distortion!r}")
+            raise ConfigError(f"experimental.distortion must be 'gof' or 'paper', got {self.distortion!r}")
         if not self.far > self.near:
-            raise ValueError(f"RenderConfig.far must be > near, got {self.far}")
+            raise ConfigError(f"render.far must be > near, got {self.far}")
         if not (self.distortion_linear_from == 0 or self.distortion_linear_from > self.near):
-            raise ValueError("RenderConfig.distortion_linear_from must be 0 (off) or a depth beyond near "
+            raise ConfigError("experimental.distortion_linear_from must be 0 (off) or a depth beyond near "
                              f"({self.near}), got {self.distortion_linear_from}")
         if self.distortion_linear_from and self.distortion != "gof":
-            raise ValueError("RenderConfig.distortion_linear_from applies to the 'gof' distortion only, "
+            raise ConfigError("experimental.distortion_linear_from applies to the 'gof' distortion only, "
                              f"got distortion={self.distortion!r}")
         if len(self.background) != 3:
-            raise ValueError(f"RenderConfig.background must have 3 entries, got {self.background}")
+            raise ConfigError(f"render.background must have 3 entries, got {self.background}")
 
 
 def raster_settings_for(camera: Camera, config: RenderConfig, pixel_pad: float = 0.0):

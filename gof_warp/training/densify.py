@@ -66,6 +66,7 @@ from dataclasses import asdict, dataclass, field
 import torch
 
 from ..core.devices import StreamWrappers, warp_device
+from ..core.config import ConfigError
 from ..core.errors import GofError
 from ..core.model import Gaussians, quat_to_rotmat
 from .optim import replace_params
@@ -79,26 +80,27 @@ class DensifyConfig:
 
     start_iter: int = 500  # densify when it > start_iter ...
     stop_iter: int = 15_000  # ... and it < stop_iter (statistics are gathered while it < stop_iter)
-    interval: int = 100
-    metric: str = "gof"  # "gof" | "paper" | "standard" (module docstring)
+    interval: int = 100  # densify every this many iterations
+    metric: str = field(default="gof", metadata={"set_by": "experimental.densify_metric"})  # "gof" | "paper" | "standard"
     grad_threshold: float = 2e-4  # τ on ḡ, NDC units
-    abs_grad_threshold: float = 2e-4  # τ_M on M̄, metric="paper" only
+    abs_grad_threshold: float = field(default=2e-4, metadata={"set_by": "experimental.abs_grad_threshold"})  # τ_M
     percent_dense: float = 0.01  # clone if max scale <= percent_dense·E, else split
-    split_children: int = 2
+    split_children: int = 2  # Gaussians a split makes of one
     split_scale_divisor: float = 1.6  # GOF: 0.8 · split_children
-    min_opacity: float = 0.05
+    min_opacity: float = 0.05  # prune Gaussians less opaque than this
     prune_big_after: int = 3000  # size prunes when it > prune_big_after (GOF: opacity_reset_interval)
     max_world_scale: float = 0.1  # × extent
-    prune_screen_size: bool = False  # GOF's code: the 3DGS test is dead (module docstring: measured why)
-    max_screen_radius: float = 20.0  # pixels
-    opacity_reset_interval: int = 3000
-    opacity_reset_value: float = 0.01
+    # GOF's code: the 3DGS test is dead (module docstring)
+    prune_screen_size: bool = field(default=False, metadata={"set_by": "experimental.prune_screen_size"})
+    max_screen_radius: float = field(default=20.0, metadata={"set_by": "experimental.max_screen_radius"})  # pixels
+    opacity_reset_interval: int = 3000  # reset every opacity every this many iterations (while densifying)
+    opacity_reset_value: float = 0.01  # the opacity a reset sets
     reset_opacity_at_start: bool = False  # GOF does it at it == start_iter with a white background
-    sh_degree_interval: int = 1000
+    sh_degree_interval: int = 1000  # raise the active SH degree by one every this many iterations
     max_gaussians: int | None = None  # budget; None = unbounded
     filter_3d_interval: int = 100  # recompute φ every this many it for stop_iter < it < filter_3d_until_iter
     filter_3d_until_iter: int = 29_900  # GOF: iterations − 100
-    seed: int = 0  # clone/split sampling
+    seed: int = field(default=0, metadata={"set_by": "seed"})  # clone/split sampling; TrainConfig.seed
     # after densification (it >= stop_iter) GOF never prunes again; > 0: every this many iterations (while
     # it < filter_3d_until_iter) prune as densification does, σ(o) < min_opacity or max scale > max_world_scale·E
     late_prune_interval: int = 0
@@ -110,8 +112,8 @@ class DensifyConfig:
     # counts in front of that surface; of those, only the ones the photos show less than hidden_max_visible of in
     # their best view (gof_warp.hidden.visible_fraction: ~0 behind an opaque surface; None: the depth test alone)
     hidden_prune_iters: list[int] = field(default_factory=list)
-    hidden_margin: float = 0.01
-    hidden_max_visible: float | None = 0.2
+    hidden_margin: float = 0.01  # hidden prune: behind the surface by more than this fraction of its depth
+    hidden_max_visible: float | None = 0.2  # hidden prune: only those seen less than this in their best view
     # and, unless None, only the ones whose opacity at the rendered surface (gof_warp.hidden.surface_measures' tail:
     # o·exp(-½(Δ/σ_t)²) along the ray, the largest over the views) is above this: what raises GOF's field in front of
     # a surface, not a thin layer under it
@@ -119,28 +121,29 @@ class DensifyConfig:
 
     def __post_init__(self):
         if self.metric not in METRICS:
-            raise GofError(f"DensifyConfig.metric must be one of {METRICS}, got {self.metric!r}")
+            raise ConfigError(f"experimental.densify_metric must be one of {METRICS}, got {self.metric!r}")
         if self.max_gaussians is not None and self.max_gaussians < 1:
-            raise GofError(f"DensifyConfig.max_gaussians must be positive or None, got {self.max_gaussians}")
+            raise ConfigError(f"densify.max_gaussians must be positive or None, got {self.max_gaussians}")
         if self.interval < 1 or self.opacity_reset_interval < 1 or self.sh_degree_interval < 1:
-            raise GofError("DensifyConfig: intervals must be >= 1")
+            raise ConfigError(f"densify.interval, densify.opacity_reset_interval and densify.sh_degree_interval must be >= 1, got "
+                              f"{self.interval}, {self.opacity_reset_interval}, {self.sh_degree_interval}")
         if self.split_children < 1 or self.split_scale_divisor <= 0:
-            raise GofError("DensifyConfig: split_children must be >= 1 and split_scale_divisor > 0")
+            raise ConfigError("densify.split_children must be >= 1 and densify.split_scale_divisor > 0")
         if self.late_prune_interval < 0:
-            raise GofError(f"DensifyConfig.late_prune_interval must be >= 0 (0: off), got {self.late_prune_interval}")
+            raise ConfigError(f"densify.late_prune_interval must be >= 0 (0: off), got {self.late_prune_interval}")
         if not 0.0 <= self.near_camera_fraction < 1.0:
-            raise GofError("DensifyConfig.near_camera_fraction must be in [0, 1) (0: off), got "
+            raise ConfigError("densify.near_camera_fraction must be in [0, 1) (0: off), got "
                            f"{self.near_camera_fraction}")
         if self.near_camera_fraction > 0 and self.late_prune_interval == 0:
-            raise GofError("DensifyConfig.near_camera_fraction acts at the late prunes: set late_prune_interval > 0")
+            raise ConfigError("densify.near_camera_fraction acts at the late prunes: set late_prune_interval > 0")
         if any(int(i) != i or i < 1 for i in self.hidden_prune_iters):
-            raise GofError(f"DensifyConfig.hidden_prune_iters must be iterations >= 1, got {self.hidden_prune_iters}")
+            raise ConfigError(f"densify.hidden_prune_iters must be iterations >= 1, got {self.hidden_prune_iters}")
         if not self.hidden_margin > 0:
-            raise GofError(f"DensifyConfig.hidden_margin must be > 0, got {self.hidden_margin}")
+            raise ConfigError(f"densify.hidden_margin must be > 0, got {self.hidden_margin}")
         if self.hidden_max_visible is not None and not 0.0 < self.hidden_max_visible <= 1.0:
-            raise GofError(f"DensifyConfig.hidden_max_visible must be in (0, 1] or None, got {self.hidden_max_visible}")
+            raise ConfigError(f"densify.hidden_max_visible must be in (0, 1] or None, got {self.hidden_max_visible}")
         if self.hidden_min_tail is not None and not 0.0 <= self.hidden_min_tail < 1.0:
-            raise GofError(f"DensifyConfig.hidden_min_tail must be in [0, 1) or None, got {self.hidden_min_tail}")
+            raise ConfigError(f"densify.hidden_min_tail must be in [0, 1) or None, got {self.hidden_min_tail}")
 
 
 @dataclass

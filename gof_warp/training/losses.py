@@ -32,6 +32,7 @@ import torch
 
 from .appearance import DOWNSAMPLE
 from ..core.camera import Camera
+from ..core.config import ConfigError
 from ..core.errors import GofError, error_summary
 from ..eval.image_metrics import ssim
 from .multiview import MultiViewConfig
@@ -53,22 +54,23 @@ class LossConfig:
     weight (1000, GOF's DTU script); unbounded-scene presets use ``lambda_distortion = 100``.
     """
 
-    lambda_dssim: float = 0.2
-    lambda_distortion: float = 1000.0
-    lambda_normal: float = 0.05
-    regularization_from_iter: int = 15_000
-    normal_form: str = "paper"  # "paper": Σ ω_i(1 − n_iᵀN); "gof": 1 − normalize(Σ ω_i n_i)ᵀN
+    lambda_dssim: float = 0.2  # weight of D-SSIM in the colour loss, (1 − λ)·L1 + λ·D-SSIM; in [0, 1]
+    lambda_distortion: float = 1000.0  # λ_d of the depth-distortion term (unbounded presets: 100)
+    lambda_normal: float = 0.05  # λ_n of the depth–normal consistency term
+    regularization_from_iter: int = 15_000  # the distortion and normal terms act from this iteration
+    # "paper": Σ ω_i(1 − n_iᵀN); "gof": 1 − normalize(Σ ω_i n_i)ᵀN
+    normal_form: str = field(default="paper", metadata={"set_by": "experimental.normal_form"})
     # a neighbouring photo's patches through the rendered planes (not GOF's; off unless multiview.weight > 0):
     # gof_warp.multiview, added by the trainer outside the (compiled) terms above
-    multiview: MultiViewConfig = field(default_factory=MultiViewConfig)
+    multiview: MultiViewConfig = field(default_factory=MultiViewConfig, metadata={"set_by": "experimental.multiview"})
 
     def __post_init__(self):
         if self.normal_form not in NORMAL_FORMS:
-            raise GofError(f"LossConfig.normal_form must be one of {NORMAL_FORMS}, got {self.normal_form!r}")
+            raise ConfigError(f"experimental.normal_form must be one of {NORMAL_FORMS}, got {self.normal_form!r}")
         if not 0.0 <= self.lambda_dssim <= 1.0:
-            raise GofError(f"LossConfig.lambda_dssim must be in [0, 1], got {self.lambda_dssim}")
+            raise ConfigError(f"loss.lambda_dssim must be in [0, 1], got {self.lambda_dssim}")
         if self.lambda_distortion < 0 or self.lambda_normal < 0:
-            raise GofError("LossConfig: lambda_distortion and lambda_normal must be >= 0")
+            raise ConfigError("loss.lambda_distortion and loss.lambda_normal must be >= 0")
 
 
 def l1(img: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:

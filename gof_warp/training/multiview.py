@@ -46,6 +46,7 @@ import numpy as np
 import torch
 
 from ..core.camera import Camera
+from ..core.config import ConfigError
 from ..core.errors import GofError, error_summary
 
 log = logging.getLogger(__name__)
@@ -57,7 +58,7 @@ GREY_WEIGHTS = (0.299, 0.587, 0.114)  # ITU-R BT.601 luma
 
 @dataclass
 class MultiViewConfig:
-    """Settings of the multi-view photometric term (``loss.multiview`` in a preset). ``weight`` 0 (default) is off.
+    """Settings of the multi-view photometric term (``experimental.multiview`` in a training config). ``weight`` 0 (default) is off.
 
     Attributes:
         weight: λ of the term in the loss (PGSR uses 0.15 for its photometric part).
@@ -68,9 +69,8 @@ class MultiViewConfig:
         neighbours_per_step: how many of them are drawn per view and step (without replacement; at most
             ``neighbours``). Each patch's loss is the mean ``1 − NCC`` over the drawn neighbours that see it, so a
             surface that only one or two of the candidates see (the edge of a capture) is compared at every step
-            where one of those is drawn. 1 (PGSR's choice): one neighbour per step. All 8 moved ``background_full``'s
-            far shell 2.3 cm forward and made its whole seen region worse (F 0.920 against 0.944 with one), at +6.6 ms
-            a step on an H100.
+            where one of those is drawn. 1 (PGSR's choice, the default): one neighbour per step; more cost time a
+            step and moved far surfaces (measured: see benchmarks/RESULTS.md).
         max_angle_deg: neighbours' viewing directions within this angle of the reference's.
         alpha_min: reference alpha at the patch centre below which the patch is left out.
         min_std: reference patches whose grey standard deviation is below this are textureless: left out.
@@ -90,18 +90,18 @@ class MultiViewConfig:
 
     def __post_init__(self):
         if not (self.weight >= 0 and math.isfinite(self.weight)):
-            raise GofError(f"loss.multiview.weight must be a finite number >= 0, got {self.weight!r}")
+            raise ConfigError(f"experimental.multiview.weight must be a finite number >= 0, got {self.weight!r}")
         if int(self.patch) != self.patch or self.patch < 3 or self.patch % 2 == 0:
-            raise GofError(f"loss.multiview.patch must be an odd integer >= 3, got {self.patch!r}")
+            raise ConfigError(f"experimental.multiview.patch must be an odd integer >= 3, got {self.patch!r}")
         if self.pixels < 1 or self.neighbours < 1 or self.neighbours_per_step < 1:
-            raise GofError("loss.multiview: pixels, neighbours and neighbours_per_step must be >= 1")
+            raise ConfigError("experimental.multiview: pixels, neighbours and neighbours_per_step must be >= 1")
         if self.neighbours_per_step > self.neighbours:
-            raise GofError(f"loss.multiview.neighbours_per_step ({self.neighbours_per_step}) must be at most "
+            raise ConfigError(f"experimental.multiview.neighbours_per_step ({self.neighbours_per_step}) must be at most "
                            f"neighbours ({self.neighbours})")
         if not 0.0 < self.max_angle_deg <= 180.0:
-            raise GofError(f"loss.multiview.max_angle_deg must be in (0, 180], got {self.max_angle_deg!r}")
+            raise ConfigError(f"experimental.multiview.max_angle_deg must be in (0, 180], got {self.max_angle_deg!r}")
         if self.min_std < 0 or self.occlusion_tolerance < 0 or not 0.0 <= self.alpha_min < 1.0:
-            raise GofError("loss.multiview: min_std and occlusion_tolerance must be >= 0, alpha_min in [0, 1)")
+            raise ConfigError("experimental.multiview: min_std and occlusion_tolerance must be >= 0, alpha_min in [0, 1)")
 
     @property
     def on(self) -> bool:

@@ -27,11 +27,12 @@ in 3DGS/GOF.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 
 from ..core.devices import StreamWrappers, warp_device
+from ..core.config import ConfigError
 from ..core.errors import GofError
 from ..core.model import PARAM_NAMES, Gaussians
 
@@ -45,29 +46,40 @@ class OptimConfig:
 
     means_lr_init: float = 1.6e-4  # × scene extent
     means_lr_final: float = 1.6e-6  # × scene extent
-    means_lr_delay_steps: int = 0  # 3DGS "delay": inactive in GOF
-    means_lr_delay_mult: float = 0.01
+    means_lr_delay_steps: int = field(default=0, metadata={"set_by": "experimental.means_lr_delay_steps"})  # 3DGS
+    means_lr_delay_mult: float = field(default=0.01, metadata={"set_by": "experimental.means_lr_delay_mult"})
     means_lr_max_steps: int = 30_000  # the schedule reaches means_lr_final here
-    sh_dc_lr: float = 2.5e-3
-    sh_rest_lr: float = 2.5e-3 / 20.0
-    opacity_lr: float = 0.05
-    scaling_lr: float = 5e-3
-    rotation_lr: float = 1e-3
+    sh_dc_lr: float = 2.5e-3  # learning rate of the SH DC colour
+    sh_rest_lr: float = 2.5e-3 / 20.0  # learning rate of the higher SH coefficients
+    opacity_lr: float = 0.05  # learning rate of the opacity logits
+    scaling_lr: float = 5e-3  # learning rate of the log scales
+    rotation_lr: float = 1e-3  # learning rate of the quaternions
     appearance_embedding_lr: float = 1e-3  # used by the trainer's appearance groups
-    appearance_network_lr: float = 1e-3
-    eps: float = 1e-15
-    betas: tuple[float, float] = (0.9, 0.999)
-    fused: bool | None = None  # torch's one-kernel Adam; None: on CUDA yes, on the CPU no (the loop version)
-    # the Gaussians' Adam: "torch" (torch's, fused as above), "warp" (WarpAdam: one Warp kernel a parameter, four floats
-    # a thread, doing torch's fused CUDA arithmetic float for float: on a GPU the same bits as "torch", 0.3 ms less GPU
-    # time a DTU step on an H200) or "auto" (the default): "warp" on CUDA, "torch" on the CPU (where torch's Adam is
-    # its loop version, whose arithmetic WarpAdam does not copy). The appearance network's Adam is always torch's.
-    # Timings and the bit-for-bit check: benchmarks/RESULTS.md
-    adam: str = "auto"
+    appearance_network_lr: float = 1e-3  # learning rate of the appearance network (appearance=true)
+    eps: float = 1e-15  # Adam ε
+    betas: tuple[float, float] = (0.9, 0.999)  # Adam β₁, β₂
+    # torch's one-kernel Adam; None: on CUDA yes, on the CPU no (the loop version). Set from performance.adam
+    fused: bool | None = field(default=None, metadata={"set_by": "performance.adam"})
+    # the Gaussians' Adam: "torch" (torch's, fused as above), "warp" (WarpAdam: torch's fused CUDA arithmetic float for
+    # float, one Warp kernel a parameter) or "auto": "warp" on CUDA, "torch" on the CPU. The appearance network's Adam
+    # is always torch's. Set from performance.adam (training.settings.PerformanceConfig)
+    adam: str = field(default="auto", metadata={"set_by": "performance.adam"})
 
     def __post_init__(self):
         if self.adam not in ADAM_KINDS:
-            raise GofError(f"optim.adam must be one of {ADAM_KINDS}, got {self.adam!r}")
+            raise ConfigError(f"optim.adam (performance.adam) must be one of {ADAM_KINDS}, got {self.adam!r}")
+        for name in ("means_lr_init", "means_lr_final", "sh_dc_lr", "sh_rest_lr", "opacity_lr", "scaling_lr",
+                     "rotation_lr", "appearance_embedding_lr", "appearance_network_lr", "eps"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+                raise ConfigError(f"optim.{name} must be a finite number >= 0, got {v!r}")
+        if isinstance(self.means_lr_max_steps, bool) or self.means_lr_max_steps < 1:
+            raise ConfigError(f"optim.means_lr_max_steps must be an integer >= 1, got {self.means_lr_max_steps!r}")
+        if self.means_lr_delay_steps < 0 or not 0 < self.means_lr_delay_mult <= 1:
+            raise ConfigError("experimental.means_lr_delay_steps must be >= 0 and experimental.means_lr_delay_mult in "
+                              f"(0, 1], got {self.means_lr_delay_steps}, {self.means_lr_delay_mult}")
+        if len(tuple(self.betas)) != 2 or not all(0 <= b < 1 for b in self.betas):
+            raise ConfigError(f"optim.betas must be two numbers in [0, 1), got {self.betas!r}")
 
     def adam_for(self, device) -> str:
         """The Gaussians' Adam on ``device``: ``"torch"`` or ``"warp"`` (``adam="auto"``: warp on CUDA)."""

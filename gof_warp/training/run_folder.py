@@ -28,9 +28,10 @@ def load_run(run: Path, scene: str | None, device: str):
             raise GofError(f"{run} has no point_cloud.ply (is it a training output folder?)")
         cfg_file = run / "config.yaml"
         if cfg_file.is_file():
-            from ..core.config import from_dict, load_yaml
+            from ..core.config import load_yaml
+            from .settings import run_render_config
 
-            render_config = from_dict(RenderConfig, load_yaml(cfg_file).get("render", {}), f"{cfg_file}: render")
+            render_config = run_render_config(load_yaml(cfg_file), str(cfg_file))
     elif run.suffix.lower() == ".ply" and run.is_file():
         ply = run
     else:

@@ -47,7 +47,7 @@ from .interrupts import TrainingInterrupted, deferred_interrupt  # noqa: F401 - 
 from ..core.io_utils import ensure_writable_dir, write_json_atomic, write_text_atomic
 from ..kernels.binning import TileListSizer
 from .loss_monitor import LossSpikeMonitor
-from .losses import COMPILE_MODES, LossConfig, TrainingLoss
+from .losses import LossConfig, TrainingLoss
 from ..eval.image_metrics import image_metrics, psnr
 from ..core.model import Activation, Gaussians
 from .multiview import MultiViewTerm
@@ -56,6 +56,7 @@ from .near_camera import (in_front_of_cameras, near_camera_bounds, near_camera_c
 from .optim import LeanAdam, OptimConfig, make_optimizer, update_learning_rate
 from ..rendering.render import DensifyStats, RenderConfig, RenderScratch, render
 from ..core.scene import Scene
+from .settings import EXPERIMENTAL_TARGETS, ExperimentalConfig, PerformanceConfig, upgrade_keys
 from .step_scalars import IterationScalars, PendingScalars
 
 log = logging.getLogger(__name__)
@@ -84,12 +85,12 @@ class ModelConfig:
     cameras look past every initial point — the far background SfM rarely reaches; 0 = none.
     """
 
-    sh_degree: int = 3
-    init: str = "auto"
-    init_opacity: float = 0.1
+    sh_degree: int = 3  # spherical-harmonics degree of the colours (0: view-independent)
+    init: str = "auto"  # "auto" | "sfm" | "random": where the initial points come from (class docstring)
+    init_opacity: float = 0.1  # opacity of every initial Gaussian
     random_init_points: int = 100_000  # used when the scene has no initial points (3DGS Blender: 100k)
     init_box: tuple[float, ...] | None = None  # (xmin, ymin, zmin, xmax, ymax, zmax); None = from cameras
-    background_points: int = 0
+    background_points: int = field(default=0, metadata={"set_by": "experimental.background_points"})
     use_filter_3d: bool = True  # Mip-Splatting 3D smoothing filter, as GOF
 
     def __post_init__(self):
@@ -101,43 +102,26 @@ class ModelConfig:
 
 @dataclass
 class TrainConfig:
-    """Everything a training run needs; presets in ``configs/*.yaml`` are this, serialised."""
+    """Everything a training run needs; presets in ``configs/*.yaml`` are this, serialised.
 
-    iterations: int = 30_000
+    The stage sections (``data``, ``model``, ``render``, ``loss``, ``optim``, ``densify``) hold the settings a
+    preset or a user adjusts; ``experimental`` holds alternatives no preset turns on, ``performance`` overrides of
+    speed decisions (:mod:`gof_warp.training.settings`). Both are copied into the stage configs on construction.
+    Keys of older configs are moved with a warning (:func:`gof_warp.training.settings.upgrade_keys`).
+    """
+
+    iterations: int = 30_000  # training iterations (steps)
+    # seeds everything random in the run: view order, initial points, random backgrounds, densification's samples
     seed: int = 0
     appearance: bool = False  # decoupled appearance (GOF: on for DTU and Tanks and Temples)
-    checkpoint_every: int = 5000
-    checkpoint_keep: int = 2
-    log_every: int = 100
+    checkpoint_every: int = 5000  # iterations between checkpoints; 0 = none
+    checkpoint_keep: int = 2  # newest checkpoints kept in RUN/checkpoints
+    log_every: int = 100  # iterations between log lines
     snapshot_iterations: list[int] = field(default_factory=list)  # save the model at these iterations (module doc)
-    views_per_step: int = 0  # views averaged in one step; 0: one per process (gof_warp.distributed)
-    checksum_every: int = 1000  # with several processes: compare the ranks' models this often
-    # on CUDA, size the tile lists at this margin over earlier renders' counts instead of waiting for each render's
-    # count (kernels.binning.TileListSizer: no host–device synchronisation per iteration); 0: exact sizing
-    tile_list_margin: float = 1.25
-    # the loss through torch.compile (losses.TrainingLoss): "auto" (default) compiles on CUDA for runs of at least
-    # AUTO_COMPILE_MIN_ITERATIONS iterations and falls back to the eager loss if compiling fails; "on"; "off". With the
-    # renderer's kernels faster the DTU step is host-bound, and the compiled loss (a few fused kernels instead of ~130
-    # launches) took a 30k DTU run on an H100 from 505 to 426 s for ~15 s of compiling (benchmarks/train/README.md,
-    # session 21); short runs would spend more on compiling than they save. Where the loss is compiled on CUDA, the
-    # Gaussians' activations are too (model.Activation: DTU 30k on an H100 331.2 → 315.8 s together with the SH colour
-    # backward's branch-free basis, session 35). YAML reads a bare on/off as true/false: those are taken as "on"/"off"
-    compile_loss: str | bool = "auto"
-    # a compiled loss on CUDA is replayed as CUDA graphs (torch.compile's "reduce-overhead": the loss and the appearance
-    # network forward and backward, one launch each instead of ~100 kernels issued by the host). On a DTU model at
-    # 20k iterations (H100) the step went from 18.1 to 11.8 ms, the GPU's own 11.4 ms (benchmarks/train/README.md,
-    # session 24). False: the compiled kernels issued one by one
-    loss_cuda_graphs: bool = True
-    # while training, let cuDNN time its algorithms for the appearance network's convolutions (torch.backends.cudnn
-    # .benchmark; the image sizes are fixed, so each size is timed once). Without it cuDNN picked a non-tensor-core
-    # kernel for the two full-resolution layers' weight gradients: 0.53 ms of the 11.1 ms DTU step on an H100, 0.08 ms
-    # with it, 0.24 ms less in all (benchmarks/train/README.md, session 25). The setting is restored when training ends
-    cudnn_benchmark: bool = True
-    # render each training view on a random background colour (3DGS's --random_background) instead of the scene's:
-    # a surface can then no longer stay partly transparent with brighter colours over the fixed background, which
-    # the photometric loss cannot tell apart on opaque photos and which the opacity field turns into holes and
-    # second sheets (benchmarks/real_captures/README.md, session 11). Targets of alpha images (Blender cut-outs) are
-    # composited again on the same colour; other images are the scene through and through and stay as they are
+    views_per_step: int = 0  # views averaged in one step; 0: one per process (gof_warp.training.distributed)
+    # render each training view on a random background colour (3DGS's --random_background) instead of the scene's,
+    # so that a partly transparent surface cannot imitate the fixed background. Alpha-composited targets (Blender
+    # cut-outs) are composited again on the same colour; opaque images stay as they are. Default false
     random_background: bool = False
     data: DataConfig = field(default_factory=DataConfig)
     model: ModelConfig = field(default_factory=ModelConfig)
@@ -145,6 +129,10 @@ class TrainConfig:
     loss: LossConfig = field(default_factory=LossConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)
     densify: DensifyConfig = field(default_factory=DensifyConfig)
+    performance: PerformanceConfig = field(default_factory=PerformanceConfig)
+    experimental: ExperimentalConfig = field(default_factory=ExperimentalConfig)
+
+    upgrade_keys = staticmethod(upgrade_keys)
 
     def __post_init__(self):
         if isinstance(self.iterations, bool) or not isinstance(self.iterations, int) or self.iterations < 1:
@@ -154,17 +142,22 @@ class TrainConfig:
         if not valid or snaps != sorted(set(snaps)):
             raise ConfigError(f"snapshot_iterations must be increasing, unique iterations in [1, iterations - 1] "
                               f"(iterations = {self.iterations}), got {snaps}")
-        for key in ("views_per_step", "checksum_every"):
+        for key in ("views_per_step", "checkpoint_every", "checkpoint_keep", "log_every"):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
                 raise ConfigError(f"{key} must be an integer >= 0, got {v!r}")
-        m = self.tile_list_margin
-        if isinstance(m, bool) or not isinstance(m, (int, float)) or not (m == 0 or m >= 1):
-            raise ConfigError(f"tile_list_margin must be 0 (exact sizing) or a number >= 1, got {m!r}")
-        if isinstance(self.compile_loss, bool):
-            self.compile_loss = "on" if self.compile_loss else "off"
-        if self.compile_loss not in COMPILE_MODES:
-            raise ConfigError(f"compile_loss must be one of {COMPILE_MODES}, got {self.compile_loss!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise ConfigError(f"seed must be an integer >= 0, got {self.seed!r}")
+        # the sections' copies (fields marked set_by): one place for each setting
+        copies: dict[str, dict] = {}
+        for key, (section, name) in EXPERIMENTAL_TARGETS.items():
+            copies.setdefault(section, {})[name] = getattr(self.experimental, key)
+        copies.setdefault("optim", {}).update(self.performance.optim_fields())
+        copies.setdefault("densify", {})["seed"] = self.seed
+        for section, values in copies.items():
+            current = getattr(self, section)
+            if any(getattr(current, k) != v or getattr(current, k) is not v for k, v in values.items()):
+                setattr(self, section, dataclasses.replace(current, **values))
 
 
 def initial_gaussians(scene: Scene, cfg: ModelConfig, seed: int, device) -> tuple[Gaussians, dict, np.ndarray | None]:
@@ -184,17 +177,19 @@ def _image_tensor(image: np.ndarray, device) -> torch.Tensor:
 
 
 
-#: ``compile_loss="auto"`` compiles only runs at least this long: compiling costs ~15 s on a fresh machine and saves
-#: ~1–2.5 ms per DTU iteration on an H100, so shorter runs would spend more on compiling than they save.
+#: ``performance.compile_loss="auto"`` compiles only runs at least this long (iterations): compiling costs ~15 s on a
+#: fresh machine and saves ~1–2.5 ms per DTU iteration on a GPU, so shorter runs would spend more on compiling than
+#: they save (benchmarks/RESULTS.md).
 AUTO_COMPILE_MIN_ITERATIONS = 10_000
 
 
 def compile_mode(config: TrainConfig) -> str:
-    """``config.compile_loss`` with ``"auto"`` resolved for the run's length: ``"off"`` below
+    """``config.performance.compile_loss`` with ``"auto"`` resolved for the run's length: ``"off"`` below
     :data:`AUTO_COMPILE_MIN_ITERATIONS` iterations (``TrainingLoss`` itself keeps ``"auto"`` eager off CUDA)."""
-    if config.compile_loss == "auto" and config.iterations < AUTO_COMPILE_MIN_ITERATIONS:
+    mode = config.performance.compile_loss
+    if mode == "auto" and config.iterations < AUTO_COMPILE_MIN_ITERATIONS:
         return "off"
-    return config.compile_loss
+    return mode
 
 
 class Trainer:
@@ -235,8 +230,8 @@ class Trainer:
         self.spikes = LossSpikeMonitor()
         self._spikes_read: list[dict] = []  # the listed spikes the last _drain read back (for run's on_spike)
         # tile lists sized without waiting for the GPU each iteration (on the CPU there is nothing to overlap)
-        self.tile_lists = (TileListSizer(config.tile_list_margin)
-                           if self.device.type == "cuda" and config.tile_list_margin else None)
+        self.tile_lists = (TileListSizer(config.performance.tile_list_margin)
+                           if self.device.type == "cuda" and config.performance.tile_list_margin else None)
         # the training renders' scratch arrays, structs and stream wrappers, reused from one render to the next (less
         # host time per render, same results; 268 B a Gaussian held between renders, see RenderScratch). None: made
         # anew per render
@@ -271,8 +266,8 @@ class Trainer:
             ], **config.optim.adam_kwargs(self.device))
         # the loss with the appearance's L1 pair (camera i's embedding is row i), compiled as one graph where asked
         self.loss = TrainingLoss(config.loss, self.cameras, self.device, compile_mode(config),
-                                 cuda_graphs=config.loss_cuda_graphs, appearance=self.appearance)
-        # the multi-view photometric term (loss.multiview, off by default), beside the loss and compiled where it is
+                                 cuda_graphs=config.performance.loss_cuda_graphs, appearance=self.appearance)
+        # the multi-view photometric term (experimental.multiview, off by default), beside the loss and compiled where it is
         self.multiview = (MultiViewTerm(config.loss.multiview, self.cameras, self.images, config.seed,
                                         compile_backend="inductor" if self.loss.compiled is not None else None,
                                         views_per_step=self.views_per_step)
@@ -282,7 +277,7 @@ class Trainer:
         self.activation = Activation(self.loss.compiled is not None and self.device.type == "cuda",
                                      strict=self.loss.mode != "auto")
         if self.multiview is not None and self.ranks.active:
-            log.warning("loss.multiview with %d processes: each tests occlusion against the depths of the views it "
+            log.warning("experimental.multiview with %d processes: each tests occlusion against the depths of the views it "
                         "rendered, so the run is not the one-process run's up to summation order", self.ranks.world)
 
     # ------------------------------------------------------------------ one iteration
@@ -522,12 +517,12 @@ class Trainer:
         Ctrl-C during training stops at the end of the current iteration: a checkpoint of that iteration is
         written (atomically, like every checkpoint) and :class:`TrainingInterrupted` is raised; the final
         outputs (``point_cloud.ply``, ``metrics.json``) are not written. :meth:`resume` continues bit-for-bit (with
-        ``loss.multiview`` on, not quite: see :class:`~gof_warp.multiview.MultiViewTerm`).
+        ``experimental.multiview`` on, not quite: see :class:`~gof_warp.multiview.MultiViewTerm`).
         """
         cfg = self.config
         if self.ranks.is_main:
             self._write_static_files()
-        with cudnn_benchmark(cfg.cudnn_benchmark):  # the warm-up records the loss graphs: it chooses the algorithms
+        with cudnn_benchmark(True):  # the warm-up records the loss graphs: it chooses the algorithms
             if self.iteration < cfg.iterations:
                 self._warm_up()
             with deferred_interrupt() as interrupted:
@@ -572,7 +567,7 @@ class Trainer:
         s = self.tile_lists
         if s is not None and s.overflows:
             log.warning("%d of %d training renders overflowed their tile lists and dropped some Gaussians' entries "
-                        "(metrics.json -> tile_lists); a larger tile_list_margin (now %g) or 0 (exact sizing, one "
+                        "(metrics.json -> tile_lists); a larger performance.tile_list_margin (now %g) or 0 (exact sizing, one "
                         "synchronisation per render) avoids it", s.overflows, s.calls, s.margin)
 
     def _warm_up(self, started: float | None = None) -> None:
@@ -638,7 +633,7 @@ class Trainer:
             if progress is not None:
                 progress(it, {**last, "num_gaussians": len(self.gaussians),
                               "its_per_s": it / self.elapsed if self.elapsed > 0 else math.nan})
-            if self.ranks.active and cfg.checksum_every and it % cfg.checksum_every == 0:
+            if self.ranks.active and cfg.performance.checksum_every and it % cfg.performance.checksum_every == 0:
                 self.ranks.check_identical(self.gaussians.params, it)
             if it in snapshot_at and self.ranks.is_main:  # before the checkpoint of the same iteration, which records it
                 t_snap = time.perf_counter()

@@ -185,7 +185,7 @@ def write_run_pictures(run_dir, *, mesh_path=None, views: int = 3, out_dir=None,
     from ..data import DataConfig
     from ..training.run_folder import cameras_from_json
     from ..core.model import Gaussians
-    from ..rendering.render import RenderConfig
+    from ..training.settings import run_render_config
 
     run = Path(run_dir)
     if run.is_dir():
@@ -198,7 +198,7 @@ def write_run_pictures(run_dir, *, mesh_path=None, views: int = 3, out_dir=None,
         raise GofError(f"{run} is neither a run folder nor a .ply file")
     device = resolve_device(device)
     config = _load_yaml(base / "config.yaml") if run.is_dir() else {}
-    render_config = from_dict(RenderConfig, config.get("render", {}) or {}, "config.yaml: render")
+    render_config = run_render_config(config or {}, "config.yaml")
     data_config = from_dict(DataConfig, config.get("data", {}) or {}, "config.yaml: data")
     render_config = dataclasses.replace(render_config, background=tuple(data_config.background))
     if mesh is not None and mesh_path is None:
