@@ -106,6 +106,54 @@ def is_cuda(device) -> bool:
     return torch.device(str(device)).type == "cuda"
 
 
+class MemoryPhases:
+    """Peak device memory per phase of a run, on a CUDA ``device`` (on the CPU every method is a no-op).
+
+    For each phase: torch's allocated and reserved peaks (its caching allocator: reserved is what the process holds
+    from the driver for torch), Warp's pool high-water mark, and the device's used memory as the driver reports it
+    (``cudaMemGetInfo``: every process and context on the device), sampled at :meth:`sample`. A phase ends at
+    :meth:`end_phase`, which resets torch's peak counters, so each phase's peaks are its own.
+    """
+
+    def __init__(self, device: torch.device):
+        self.device = device
+        self.cuda = device.type == "cuda"
+        self.phases: dict[str, dict] = {}
+        self._driver_peak = 0
+        if self.cuda:
+            torch.cuda.reset_peak_memory_stats(device)
+
+    def sample(self) -> None:
+        """Read the driver's used memory now (call where the host waits for the device anyway)."""
+        if self.cuda:
+            free, total = torch.cuda.mem_get_info(self.device)
+            self._driver_peak = max(self._driver_peak, total - free)
+
+    def end_phase(self, name: str) -> None:
+        """Record the peaks since the last phase ended under ``name`` and start counting the next phase."""
+        if not self.cuda:
+            return
+        import warp as wp
+
+        self.sample()
+        self.phases[name] = {
+            "gpu_peak_allocated_mb": round(torch.cuda.max_memory_allocated(self.device) / 2**20, 1),
+            "gpu_peak_reserved_mb": round(torch.cuda.max_memory_reserved(self.device) / 2**20, 1),
+            "gpu_reserved_at_end_mb": round(torch.cuda.memory_reserved(self.device) / 2**20, 1),
+            "gpu_warp_pool_high_mb": round(wp.get_mempool_used_mem_high(warp_device(self.device)) / 2**20, 1),
+            "device_used_peak_mb": round(self._driver_peak / 2**20, 1),
+        }
+        self._driver_peak = 0
+        torch.cuda.reset_peak_memory_stats(self.device)
+
+    def overall(self) -> dict:
+        """The run's peaks over every phase recorded so far (empty on the CPU)."""
+        if not self.phases:
+            return {}
+        keys = ("gpu_peak_allocated_mb", "gpu_peak_reserved_mb", "device_used_peak_mb")
+        return {k: max(ph[k] for ph in self.phases.values()) for k in keys}
+
+
 def peak_memory(device: torch.device) -> dict:
     """Host peak RSS and, on a CUDA ``device``, its torch and Warp-pool peaks (MB)."""
     out = {"host_peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}

@@ -38,7 +38,7 @@ from ..core.config import ConfigError, dump_yaml, from_dict, to_dict
 from ..data import DataConfig
 from .densify import DensifyConfig, Densifier
 from .distributed import Ranks
-from ..core.devices import cudnn_benchmark, peak_memory
+from ..core.devices import MemoryPhases, cudnn_benchmark, peak_memory
 from ..core.errors import GofError
 from .filter3d import update_filter_3d
 from .hidden import hidden_gaussians
@@ -522,9 +522,11 @@ class Trainer:
         cfg = self.config
         if self.ranks.is_main:
             self._write_static_files()
+        self.memory = MemoryPhases(self.device)
         with cudnn_benchmark(True):  # the warm-up records the loss graphs: it chooses the algorithms
             if self.iteration < cfg.iterations:
                 self._warm_up()
+            self.memory.end_phase("warm_up")
             with deferred_interrupt() as interrupted:
                 last = self._train_loop(progress, interrupted, on_snapshot, on_spike)
         train_time = self.elapsed
@@ -542,6 +544,9 @@ class Trainer:
             "processes": self.ranks.world,
             "views_per_step": self.views_per_step,
             **{k: round(v, 1) for k, v in peak_memory(self.device).items()},
+            **self.memory.overall(),  # the peaks over all phases (torch's counters restart at each phase)
+            # per phase: warm_up (compiling, graph capture), densify (to densify.stop_iter), after (to the end)
+            "memory_phases": self.memory.phases or None,
             "final_train_psnr": round(last.get("psnr", float("nan")), 3) if last else None,
             "test": self.evaluate(),
             "loss_spikes": self.spikes.report(),
@@ -625,6 +630,7 @@ class Trainer:
                     or it in snapshot_at or checkpoint_due):
                 last = self._drain()  # waits for the GPU: the time now includes the queued work
                 self.elapsed = time.perf_counter() - t0
+                self.memory.sample()
                 if self._spikes_read and on_spike is not None and self.ranks.is_main:
                     t_spike = time.perf_counter()
                     for event in self._spikes_read:
@@ -641,6 +647,8 @@ class Trainer:
                 if on_snapshot is not None:
                     on_snapshot(self, record)
                 t0 += time.perf_counter() - t_snap  # not training time
+            if it == cfg.densify.stop_iter or it == cfg.iterations:
+                self.memory.end_phase("densify" if it == cfg.densify.stop_iter else "after")
             if checkpoint_due:
                 self.save_checkpoint()
             if interrupted():
