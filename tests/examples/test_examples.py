@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-EXAMPLES = sorted((Path(__file__).resolve().parents[1] / "examples").glob("*.py"))
+EXAMPLES = sorted((Path(__file__).resolve().parents[2] / "examples").glob("*.py"))
 # What each example must print (beyond exiting 0); examples not listed must print something.
 EXPECTED = {
     "load_scene": ["format: blender", "train_views: 6"],

@@ -9,7 +9,7 @@ import torch
 from gof_warp.core import devices
 from gof_warp.core.errors import GofError
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_explicit_wins_and_names_are_checked():

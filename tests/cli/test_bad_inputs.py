@@ -54,7 +54,7 @@ def _one_error(err: str) -> str:
 # --------------------------------------------------------------------------------- 1: huge scales
 def test_huge_scales_cubes_cli_is_a_clear_error_not_a_nan_crash(tmp_path, scene, capsys):
     """Was: ValueError: cannot convert float NaN to integer (grid sizing), with a traceback. The command's ``main`` in
-    this process (an exception escaping it fails the test; the real process's exit path: test_extract.py)."""
+    this process (an exception escaping it fails the test; the real process's exit path: test_extraction.py)."""
     ply = _ply(tmp_path / "huge.ply", HUGE_LOG_SCALE)
     rc = extract.main([str(ply), "--scene", str(scene), "--method", "cubes", "--resolution", "32", "--no-pictures",
                        "--quiet"])

@@ -14,7 +14,7 @@ from gof_warp.training.near_camera import centre_depths, near_camera_census
 from gof_warp.training.step_scalars import IterationScalars
 from gof_warp.synthetic import make_scene
 from gof_warp.training.trainer import TrainConfig, Trainer
-from test_train import TINY
+from test_trainer import TINY
 
 
 def _camera(centre, name="c") -> Camera:

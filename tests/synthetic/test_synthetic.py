@@ -320,7 +320,7 @@ def test_every_preset_generates(tmp_path, name, shared_data_or_none):
 
 @pytest.fixture
 def shared_data_or_none():
-    spot = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "spot"
+    spot = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "spot"
     return spot if spot.is_dir() else None
 
 

@@ -97,7 +97,7 @@ def test_dense_grid_bounds_ignore_huge_and_unseen_gaussians(reports):
 
 def test_bad_inputs_are_counted_per_kind_with_no_crash_or_nan(reports):
     """The bad-input cases (stability_inputs.run_input_cases) as the suite ran them: all as expected, no crash or NaN,
-    nothing overwritten, each a clear error or a warning (tests/test_bad_inputs.py ran them a second time for these
+    nothing overwritten, each a clear error or a warning (tests/cli/test_bad_inputs.py ran them a second time for these
     checks; they are here now)."""
     summary, inputs = _saved_inputs["summary"], _saved_inputs["inputs"]
     assert set(summary) == {"model", "scene", "ply", "config"}

@@ -22,7 +22,7 @@ from gof_warp.core.errors import GofError
 from gof_warp.training.loss_monitor import LossSpikeMonitor
 from gof_warp.synthetic import make_scene
 from gof_warp.training.trainer import Trainer, TrainingInterrupted
-from test_train import _config
+from test_trainer import _config
 
 
 @pytest.fixture(scope="module")

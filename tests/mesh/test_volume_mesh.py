@@ -1,7 +1,7 @@
 """A mesh extracted from the baked opacity volume (gof_warp.mesh.volume_mesh) is as good as the tetra mesh of the
 same Gaussians (issue 16: "within 2 % Chamfer of the tetra mesh").
 
-Asserted interpretation, on the analytic ground-and-sphere scene of tests/test_volume.py (GT: the plane z = 0
+Asserted interpretation, on the analytic ground-and-sphere scene of tests/mesh/test_volume.py (GT: the plane z = 0
 and the sphere of radius 0.3, scored where the GT is unambiguous — the sphere's upper cap and the ground away
 from its edges and from the sphere's foot — with exact point-to-triangle distances):
 
@@ -30,7 +30,7 @@ from gof_warp.eval.geometry_metrics import evaluate_mesh, mesh_statistics
 from gof_warp.mesh.tetra import TetraConfig
 from gof_warp.mesh.volume import bake_opacity_volume, sample_volume
 from gof_warp.mesh.volume_mesh import volume_mesh
-from tests.test_volume import SPHERE_C, SPHERE_R, ground_and_sphere, scene_cameras
+from test_volume import SPHERE_C, SPHERE_R, ground_and_sphere, scene_cameras
 
 CHAMFER_RATIO_MAX = 1.02  # issue 16: the volume mesh within 2 % of the tetra mesh's Chamfer to the GT
 BETWEEN_MAX_VOXELS = 0.1  # Chamfer(volume mesh, tetra mesh) in voxels (measured 0.06)

@@ -95,7 +95,7 @@ def _python(code: str):
     import sys
 
     return subprocess.run([sys.executable, "-W", "always::RuntimeWarning", "-c", code], capture_output=True,
-                          text=True, timeout=120, cwd=Path(__file__).resolve().parents[1])
+                          text=True, timeout=120, cwd=Path(__file__).resolve().parents[2])
 
 
 def test_pycolmap_after_gof_warp_leaves_png_writing_working_and_before_it_warns(tmp_path):

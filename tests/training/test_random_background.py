@@ -11,7 +11,7 @@ from gof_warp.core.config import merge
 from gof_warp.data import load_scene
 from gof_warp.synthetic import make_scene
 from gof_warp.training.trainer import TrainConfig, Trainer
-from test_train import TINY
+from test_trainer import TINY
 
 
 @pytest.fixture(scope="module")

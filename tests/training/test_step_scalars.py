@@ -14,7 +14,7 @@ from gof_warp.training.step_scalars import IterationScalars, PendingScalars
 from gof_warp.synthetic import make_scene
 from gof_warp.training.trainer import TrainConfig, Trainer, TrainingError
 
-TINY = {"iterations": 24, "checkpoint_every": 0, "log_every": 10,  # test_train's compressed schedule
+TINY = {"iterations": 24, "checkpoint_every": 0, "log_every": 10,  # test_trainer's compressed schedule
         "model": {"sh_degree": 1, "init": "random", "random_init_points": 300},
         "optim": {"means_lr_max_steps": 24},
         "densify": {"start_iter": 3, "stop_iter": 20, "interval": 4, "opacity_reset_interval": 16,
