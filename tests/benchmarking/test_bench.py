@@ -44,6 +44,7 @@ def _expected_keys(runs):
                   for m in methods)
 
 
+@pytest.mark.slow
 def test_one_row_per_run_iteration_and_method_with_finite_numbers(tiny):
     out, rows = tiny
     assert sorted(row_key(r) for r in rows) == _expected_keys(suite("tiny"))
@@ -75,6 +76,7 @@ def test_one_row_per_run_iteration_and_method_with_finite_numbers(tiny):
     assert len(table) == len(rows) and "machine_platform" in table[0] and "iteration" in table[0]
 
 
+@pytest.mark.slow
 def test_charts_are_written(tiny):
     pytest.importorskip("matplotlib")
     out, _ = tiny
@@ -84,6 +86,7 @@ def test_charts_are_written(tiny):
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 5000, name
 
 
+@pytest.mark.slow
 def test_resume_skips_done_rows_and_reuses_the_trained_model_and_snapshot(tiny, monkeypatch):
     out, rows = tiny
 

@@ -29,6 +29,7 @@ def reports(tmp_path_factory):
     return by_case
 
 
+@pytest.mark.slow
 def test_every_case_and_method_reports_without_crash_or_nan(reports):
     for case, by_method in reports.items():
         assert set(by_method) == set(STABILITY_METHODS), case

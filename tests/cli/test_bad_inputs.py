@@ -149,6 +149,7 @@ def test_identical_cameras_warn_no_parallax(tmp_path, capsys):
 
 
 # --------------------------------------------------------------------------------- 4: empty mesh
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["cubes", "tsdf", "tetra"])
 def test_empty_mesh_is_an_error_and_keeps_the_existing_mesh(tmp_path, scene, capsys, method):
     """Was: a 0-vertex mesh written over the existing file, exit 0."""

@@ -239,6 +239,7 @@ def test_activated_is_the_properties_bit_for_bit(with_filter):
         assert torch.equal(grad, g.params[k].grad), k
 
 
+@pytest.mark.slow
 def test_compiled_activation_follows_the_gaussian_count_without_recompiling():
     """``Activation(compiled=True)`` (``torch.compile`` with dynamic N; backend ``aot_eager`` here) gives the eager
     activations and gradients for models of different sizes, with and without the 3D filter, compiling one graph for
@@ -262,6 +263,7 @@ def test_compiled_activation_follows_the_gaussian_count_without_recompiling():
     assert torch._dynamo.utils.counters["stats"]["unique_graphs"] == 2  # filter set / not set; N is symbolic
 
 
+@pytest.mark.slow
 def test_activation_falls_back_to_eager_unless_strict(caplog):
     """A compiler failure: the non-strict activation warns, says why and computes the eager activations from then on;
     the strict one raises."""
@@ -284,6 +286,7 @@ def test_activation_falls_back_to_eager_unless_strict(caplog):
         assert torch.equal(got, want.detach())
 
 
+@pytest.mark.slow
 def test_pointwise_activation_has_no_reduction_for_the_compiler():
     """``activate_pointwise`` (what ``Activation`` compiles) traces to forward and backward graphs without a reduction
     op, so inductor can fuse each into one pointwise kernel (``activate``'s ``F.normalize`` traces to a row reduction:

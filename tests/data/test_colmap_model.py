@@ -47,6 +47,7 @@ def test_fixture_models_read_as_pycolmap_reads_them(tmp_path, binary, model):
     assert len(ours.images) == 5 and len(ours.xyz) > 0
 
 
+@pytest.mark.slow
 def test_colmap_can_reads_as_pycolmap_reads_it(shared_data):
     ours = _compare_with_pycolmap(shared_data / "colmap_can" / "sparse" / "0")
     assert len(ours.images) == 71 and len(ours.xyz) == 4414
@@ -98,6 +99,7 @@ def _python(code: str):
                           text=True, timeout=120, cwd=Path(__file__).resolve().parents[2])
 
 
+@pytest.mark.slow
 def test_pycolmap_after_gof_warp_leaves_png_writing_working_and_before_it_warns(tmp_path):
     """With pycolmap's wheel loaded before Pillow's C module, Pillow's PNG writer aborts the process (pycolmap 4.2.1).
     ``import gof_warp`` loads Pillow first, so a later pycolmap import is safe; an earlier one is warned about."""

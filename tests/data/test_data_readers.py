@@ -15,7 +15,7 @@ from gof_warp.data import DataConfig, load_scene, read_plan
 from gof_warp.data.undistort import undistort_pixels
 from gof_warp.cli.inspect_scene import main as inspect_main
 
-pytestmark = pytest.mark.realdata
+pytestmark = [pytest.mark.realdata, pytest.mark.slow]  # slow: each scene decoded once per module
 
 COLMAP_REPROJ_MEAN_PX = 1.0  # COLMAP reports 0.75 px mean for this model; undistortion zooms by ~3 %
 COLMAP_REPROJ_MEDIAN_PX = 0.8

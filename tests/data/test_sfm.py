@@ -25,6 +25,8 @@ from gof_warp.core.errors import GofError, SceneError
 from gof_warp.eval.geometry_metrics import point_mesh_distance
 from gof_warp.synthetic import make_scene
 
+pytestmark = pytest.mark.slow  # renders and triangulates a scene per module
+
 RESOLUTION = (192, 192)
 VIEWS = 24
 SUPERSAMPLE = 1  # rendering is most of the fixture's time; SfM's statistics barely change (below)

@@ -79,6 +79,7 @@ def test_ssim_matches_float64_loops_and_identity(device):
     assert ssim(xb, torch.rand(2, 3, 16, 16, device=device)).item() < 0.5
 
 
+@pytest.mark.slow
 def test_compiled_ssim_shifted_sums_match_loops_and_eager_gradients():
     """Inside ``torch.compile`` the window is applied as shifted sums (fusable), eagerly as two depthwise convolutions:
     both against the float64 loops, and the same gradients (``aot_eager`` traces the compiled path without codegen)."""
@@ -159,6 +160,7 @@ def _lpips_package_state_dict() -> dict:
     return out
 
 
+@pytest.mark.slow
 def test_lpips_from_local_weights(tmp_path, monkeypatch):
     sd = _lpips_package_state_dict()
     trunk, lins = tmp_path / "vgg.pth", tmp_path / "lins.pth"  # like torchvision's vgg16 + lpips' vgg.pth
@@ -303,6 +305,7 @@ def test_bad_mesh_file_names_the_file(tmp_path):
 
 
 # ----------------------------------------------------------------------------- CLI
+@pytest.mark.slow
 def test_cli_end_to_end_json(tmp_path):
     _square(0.0).export(tmp_path / "pred.ply")
     _square(0.05).export(tmp_path / "gt.ply")

@@ -41,6 +41,7 @@ def ground_grid(half, cell):
     return M.grid_plane(center=(0, 0, 0), half_size=half, cell=cell)
 
 
+@pytest.mark.slow
 def test_crop_then_sample_scores_the_exact_mesh_at_the_floor_where_sample_then_crop_understates():
     # a 40 m ground and a 1 m box; the cameras see a few square metres around the box
     box = M.box(center=(0, 0, 0.505), size=(1, 1, 1))
@@ -57,6 +58,7 @@ def test_crop_then_sample_scores_the_exact_mesh_at_the_floor_where_sample_then_c
     assert old.fscore[0] < 0.5 and old.num_gt_samples < 0.2 * m["num_gt_samples"]
 
 
+@pytest.mark.slow
 def test_exact_flat_ground_scores_one_and_the_ground_metrics_pass():
     V, F, _ = union(ground_grid(2.0, 0.1))
     cams = ring(4, 1.0, 2.5)
@@ -70,6 +72,7 @@ def test_exact_flat_ground_scores_one_and_the_ground_metrics_pass():
     assert g["flat_target_met"] and g["patch_target_met"] and g["flat_fraction"] == 1.0
 
 
+@pytest.mark.slow
 def test_hole_in_the_seen_ground_fails_patch_completeness():
     G = ground_grid(2.0, 0.1)
     cams = ring(4, 1.0, 2.5)
@@ -90,6 +93,7 @@ def test_hole_in_the_seen_ground_fails_patch_completeness():
     assert g["flat_target_met"]  # what is there is flat
 
 
+@pytest.mark.slow
 def test_wavy_ground_fails_flatness_and_flat_passes():
     G = ground_grid(2.0, 0.05)
     cams = ring(4, 1.0, 2.5)
@@ -103,6 +107,7 @@ def test_wavy_ground_fails_flatness_and_flat_passes():
     assert gf["flat_target_met"] and gf["height_error_p95"] < 1e-9
 
 
+@pytest.mark.slow
 def test_unseen_faces_are_not_scored():
     # a box 5 mm above the ground with one triangle sealed inside it: its bottom and the inner face are unseen
     box = M.box(center=(0, 0, 0.305), size=(0.6, 0.6, 0.6))
@@ -143,6 +148,7 @@ def test_region_is_the_observed_volume():
     assert area == pytest.approx(0.25, rel=0.03) and tri[:, :, 0].mean(1).max() < 0.0
 
 
+@pytest.mark.slow
 def test_cli_with_a_scene_folder(tmp_path, capsys):
     from gof_warp.synthetic import make_scene
 

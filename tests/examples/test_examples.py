@@ -7,6 +7,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow  # runs every example in a fresh interpreter
+
 EXAMPLES = sorted((Path(__file__).resolve().parents[2] / "examples").glob("*.py"))
 # What each example must print (beyond exiting 0); examples not listed must print something.
 EXPECTED = {

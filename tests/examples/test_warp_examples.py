@@ -17,6 +17,8 @@ import pytest
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 RUNNER = """
 import importlib, json, sys
+
+pytestmark = pytest.mark.slow  # runs the examples in fresh interpreters
 sys.path.insert(0, {examples!r})
 module = importlib.import_module({name!r})
 results = [module.main(args) for args in {arg_sets!r}]

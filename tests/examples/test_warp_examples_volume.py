@@ -17,6 +17,8 @@ from test_volume import LEVEL_TOL, SPHERE_C, SPHERE_R, ground_and_sphere, inside
 
 from gof_warp.mesh.volume import bake_opacity_volume, save_volume
 
+pytestmark = pytest.mark.slow  # bakes a scene, runs the examples in fresh interpreters
+
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 # Resting particles sit on the volume's 0.5 level: within 0.35 h of the exact level (test_volume), which is
 # within LEVEL_TOL of the ground truth; half a voxel more covers the last step's Newton projection.

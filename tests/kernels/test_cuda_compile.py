@@ -17,6 +17,8 @@ import warp as wp
 
 import gof_warp.kernels as K
 
+pytestmark = pytest.mark.slow  # compiles every kernel module for CUDA
+
 ARCH = 90  # sm_90: H100 / H200, the GPUs the project is measured on
 STATIC_SMEM_LIMIT = 48 * 1024
 

@@ -87,6 +87,7 @@ def test_public_names_cover_what_a_warp_user_needs():
         assert callable(getattr(K, name)), name
 
 
+@pytest.mark.slow
 def test_importing_kernels_and_marching_does_not_import_torch(tmp_path):
     code = ("import sys, gof_warp.kernels as K\n"
             "[getattr(K, n) for n in K.__all__]\n"
@@ -178,6 +179,7 @@ def test_marching_cubes_takes_a_warp_field(device):
     assert np.abs(np.linalg.norm(v.astype(np.float64), axis=1) - RADIUS).max() < 1e-3
 
 
+@pytest.mark.slow
 def test_pure_warp_caller_gets_warp_device_rules(tmp_path):
     """Without torch: device=None follows wp.ScopedDevice, and the search runs with no torch loaded."""
     code = ("import sys, numpy as np, warp as wp\n"

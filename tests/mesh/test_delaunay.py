@@ -68,6 +68,7 @@ def assert_exact(par: np.ndarray, one: np.ndarray, p: np.ndarray, stats: dict) -
     assert stats["delaunay_unmatched_faces"] == 0 and stats["delaunay_volume_coverage"] == pytest.approx(1.0, abs=1e-9)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("processes", [False, True])
 def test_chunked_equals_one_call_in_general_position(processes):
     p = np.random.default_rng(0).normal(size=(15_000, 3))
@@ -77,6 +78,7 @@ def test_chunked_equals_one_call_in_general_position(processes):
     assert_exact(par, delaunay(p), p, stats)
 
 
+@pytest.mark.slow
 def test_chunked_fills_the_large_tets_no_chunk_sees():
     """Two dense clusters 20 apart: the tetrahedra spanning the gap are larger than any halo; the chunks leave
     them out (unmatched faces), the exact merge puts them back."""

@@ -238,6 +238,7 @@ def run_folder(tmp_path_factory):
     return run
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["tetra", "cubes", "tsdf"])
 def test_cli_writes_mesh_and_stats(run_folder, method, tmp_path, cli_in_process):
     """The command's ``main`` in this process (a ``python -m`` start costs ~7 s of CI per method). Real processes of
@@ -277,6 +278,7 @@ def test_cli_keep_hidden_skips_the_drop(run_folder, tmp_path, cli_in_process):
     assert faces["drop"][1] and not faces["keep"][1] and faces["keep"][0] >= faces["drop"][0] > 0
 
 
+@pytest.mark.slow
 def test_cli_errors_name_the_problem(run_folder, tmp_path, cli_in_process):
     from gof_warp.cli.extract import main
 

@@ -224,6 +224,7 @@ def test_pieces_marched_apart_join_into_the_whole_mesh(cloud):
     assert merge_keyed_pieces([])[0].shape == (0, 3)
 
 
+@pytest.mark.slow
 def test_searching_given_edges_gives_the_marching_vertices(cloud):
     """search_edges on the edge keys of an unsearched marching (as the ranks of a torchrun extraction search the union
     of their pieces' edges) gives the vertices the marching's own search gives, bit for bit, level by level; it calls

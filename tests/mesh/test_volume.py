@@ -225,6 +225,7 @@ def test_bake_run_writes_nvdb_and_info(tmp_path):
         bake_run(tmp_path / "nowhere")
 
 
+@pytest.mark.slow
 def test_extract_cli_bakes_a_volume(tmp_path):
     """``python -m gof_warp.extract RUN --volume --voxel-size H`` writes RUN/opacity_volume.nvdb and its JSON."""
     import subprocess

@@ -266,6 +266,7 @@ def _views_split_rank(rank, init_dir, result):
             dist.destroy_process_group()
 
 
+@pytest.mark.slow
 def test_views_shared_out_among_ranks_give_the_one_process_field(tmp_path):
     """torch.distributed (gloo) ranks each evaluate every world-th view and reduce (minimum, summed view counts):
     every rank ends with the one-process field and seen counts bit for bit, also when a rank has no view

@@ -468,6 +468,7 @@ def test_near_plane_tile_culling_renders_identically():
     assert crossing.sum() > 100 and kept < 0.8 * rect
 
 
+@pytest.mark.slow
 def test_tile_culling_renders_benchmark_scene_identically():
     """The benchmark scene (20k Gaussians, 320x240, SH degree 2; its ~100 near-plane-crossing Gaussians lose
     all their entries): outputs and gradients bitwise equal with and without culling."""
@@ -479,6 +480,7 @@ def test_tile_culling_renders_benchmark_scene_identically():
     assert float(out["alpha"].mean()) > 0.5
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("n, W, H, bound", [(20_000, 320, 240, 0.65), (50_000, 640, 360, 0.5)])
 def test_tile_culling_reduces_benchmark_entries(n, W, H, bound):
     """The renderer benchmark's scene: the few Gaussians crossing the near plane (ground splats beside the

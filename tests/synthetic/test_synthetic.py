@@ -298,6 +298,7 @@ def test_rig_views_distinct_and_inside_band(name):
         np.testing.assert_allclose(cam.project(np.array([rig.target]))[0][0], [cam.cx, cam.cy], atol=1e-9)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", list_presets())
 def test_every_preset_generates(tmp_path, name, shared_data_or_none):
     if name == "spot" and shared_data_or_none is None:

@@ -60,6 +60,7 @@ def _params_equal(a: Trainer, b: Trainer):
 
 
 # ---------------------------------------------------------------------------------------------- safe to load
+@pytest.mark.slow
 def test_every_piece_of_the_state_is_plain_data_and_loads_weights_only(tiny_scene, tmp_path):
     """Each component with state is exercised (appearance model and its optimizer, densifier sampler and
     statistics, loss-spike record, snapshots, history, RNGs), then the whole state is walked."""
@@ -142,6 +143,7 @@ def test_a_checkpoint_that_would_run_code_is_refused(tmp_path, fmt):
 
 
 # ---------------------------------------------------------------------------------------------- resume falls back
+@pytest.mark.slow
 def test_resume_falls_back_past_a_truncated_checkpoint(tiny_scene, tmp_path, caplog):
     cfg = _config(iterations=12, checkpoint_every=4, checkpoint_keep=3)
     first = Trainer(tiny_scene, cfg, tmp_path / "r", "cpu")
@@ -166,6 +168,7 @@ def test_resume_falls_back_past_a_truncated_checkpoint(tiny_scene, tmp_path, cap
     assert [it for it, _ in list_checkpoints(tmp_path / "r")] == [4, 8, 12] and aside.is_file()
 
 
+@pytest.mark.slow
 def test_resume_with_no_usable_checkpoint_is_a_clear_error(tiny_scene, tmp_path):
     cfg = _config(iterations=8, checkpoint_every=4)
     Trainer(tiny_scene, cfg, tmp_path / "r", "cpu").run()
@@ -187,6 +190,7 @@ def python_sigint_handler():
     signal.signal(signal.SIGINT, previous)
 
 
+@pytest.mark.slow
 def test_ctrl_c_stops_at_the_end_of_the_iteration_and_resumes_bit_for_bit(tiny_scene, tmp_path, python_sigint_handler):
     straight = Trainer(tiny_scene, _config(), tmp_path / "a", "cpu")
     straight.run()
@@ -218,6 +222,7 @@ def test_ctrl_c_stops_at_the_end_of_the_iteration_and_resumes_bit_for_bit(tiny_s
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
+@pytest.mark.slow
 def test_cli_ctrl_c_exits_130_keeps_the_checkpoint_and_resumes(tiny_scene, tmp_path, cli_in_process, caplog,
                                                                monkeypatch):
     run = tmp_path / "run"

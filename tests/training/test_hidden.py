@@ -199,6 +199,7 @@ def test_densifier_prunes_hidden_gaussians_at_its_iterations_only():
             DensifyConfig(**bad)
 
 
+@pytest.mark.slow
 def test_training_with_a_hidden_prune_reports_it(tiny_train_scene, tiny_train_overrides, tmp_path):
     from gof_warp.data import load_scene
     from gof_warp.training.presets import resolve_config

@@ -323,6 +323,7 @@ def test_compiled_term_matches_the_eager_one(per_step):
     assert compiled._core is not _loss  # it stayed compiled: no fallback to the eager function
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("device", ["cpu", pytest.param("cuda", marks=pytest.mark.skipif(
     not torch.cuda.is_available(), reason="needs a GPU"))])
 def test_training_with_the_term_on(tmp_path, device):

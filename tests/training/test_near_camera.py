@@ -80,6 +80,7 @@ def test_monitor_lists_view_spikes_with_their_terms_and_keeps_them_in_its_state(
     assert again.report()["view_spikes"] == report["view_spikes"]
 
 
+@pytest.mark.slow
 def test_a_view_spike_in_training_records_what_sits_in_front_of_that_camera(tmp_path):
     scene = load_scene(make_scene("default", tmp_path / "s", views=6, resolution=(32, 32), device="cpu"))
     t = Trainer(scene, merge(TrainConfig(), TINY), tmp_path / "run", "cpu")
@@ -112,6 +113,7 @@ def test_distortion_colours_run_from_dark_to_bright_and_an_empty_map_is_dark():
     assert np.array_equal(colorize_distortion(np.zeros((2, 3))), np.broadcast_to(c[0, 0], (2, 3, 3)))
 
 
+@pytest.mark.slow
 def test_training_draws_a_picture_of_each_listed_spike(tmp_path):
     from gof_warp.viz.pictures import spike_picture_name, spike_picture_or_warning
 
@@ -252,6 +254,7 @@ def test_gaussians_in_front_of_cameras_match_the_float64_ray_test_per_camera():
     assert wide.tolist() == [True, False]
 
 
+@pytest.mark.slow
 def test_the_trainer_removes_a_gaussian_planted_in_front_of_a_camera_at_a_late_prune(tmp_path):
     scene = load_scene(make_scene("default", tmp_path / "s", views=6, resolution=(32, 32), device="cpu"))
     late = {"densify": {**TINY["densify"], "late_prune_interval": 2, "near_camera_fraction": 0.5}}

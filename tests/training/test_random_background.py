@@ -61,6 +61,7 @@ def test_alpha_targets_are_composited_again_on_the_drawn_colour(scene, tmp_path)
     assert torch.equal(kept, dtu.images[0])
 
 
+@pytest.mark.slow
 def test_each_iteration_renders_on_its_own_colour(scene, tmp_path, monkeypatch):
     seen = []
     real = trainer_module.render
@@ -79,6 +80,7 @@ def test_each_iteration_renders_on_its_own_colour(scene, tmp_path, monkeypatch):
     assert set(seen[:4]) == {tuple(float(c) for c in scene.background)}
 
 
+@pytest.mark.slow
 def test_resume_reproduces_the_uninterrupted_run(scene, tmp_path):
     straight = Trainer(scene, _config(), tmp_path / "a", "cpu")
     straight.run()

@@ -45,6 +45,7 @@ def test_flush_returns_every_record_in_order_with_its_own_terms():
     assert pending.flush() == []
 
 
+@pytest.mark.slow
 def test_a_training_step_reads_nothing_back_from_the_device(tiny_scene, tmp_path, monkeypatch):
     # fused Adam, as on CUDA (the CPU's loop Adam reads its step count back, which costs nothing there)
     cfg = merge(TrainConfig(), {**TINY, "optim": {"fused": True}, "appearance": True})
@@ -61,6 +62,7 @@ def test_a_training_step_reads_nothing_back_from_the_device(tiny_scene, tmp_path
     assert record.iteration == 10 and {"l1", "dssim", "distortion", "normal", "total", "psnr"} <= set(terms)
 
 
+@pytest.mark.slow
 def test_deferred_loop_matches_reading_each_iteration(tiny_scene, tmp_path):
     """The loop (read back every few iterations) and step() (read back at once) give the same history,
     spike record and parameters."""
@@ -79,6 +81,7 @@ def test_deferred_loop_matches_reading_each_iteration(tiny_scene, tmp_path):
         assert torch.equal(p, stepped.gaussians.params[name]), name
 
 
+@pytest.mark.slow
 def test_a_nan_loss_in_the_loop_names_its_iteration(tiny_scene, tmp_path):
     trainer = Trainer(tiny_scene, merge(TrainConfig(), TINY), tmp_path / "n", "cpu")
     for _ in range(3):

@@ -51,6 +51,7 @@ def straight_run(tiny_scene, tmp_path_factory):
     return trainer, run, n0, metrics
 
 
+@pytest.mark.slow
 def test_training_runs_and_writes_outputs(tiny_scene, straight_run):
     trainer, run, n0, metrics = straight_run
     for name in ("point_cloud.ply", "metrics.json", "config.yaml", "cameras.json"):
@@ -70,6 +71,7 @@ def test_training_runs_and_writes_outputs(tiny_scene, straight_run):
     assert spikes["after_iteration"] == 1000 and spikes["iterations_checked"] == 0 and spikes["max_ratio"] is None
 
 
+@pytest.mark.slow
 def test_resume_reproduces_the_uninterrupted_run(tiny_scene, straight_run, tmp_path):
     straight = straight_run[0]
     first = Trainer(tiny_scene, _config(iterations=12), tmp_path / "b", "cpu")
@@ -83,6 +85,7 @@ def test_resume_reproduces_the_uninterrupted_run(tiny_scene, straight_run, tmp_p
     assert torch.equal(straight.gaussians.filter_3d, second.gaussians.filter_3d)
 
 
+@pytest.mark.slow
 def test_resume_refuses_a_different_config(tiny_scene, tmp_path):
     Trainer(tiny_scene, _config(iterations=4, checkpoint_every=0), tmp_path / "r", "cpu").run()
     other = Trainer(tiny_scene, merge(_config(), {"loss": {"lambda_normal": 0.5}}), tmp_path / "r", "cpu")
@@ -90,6 +93,7 @@ def test_resume_refuses_a_different_config(tiny_scene, tmp_path):
         other.resume()
 
 
+@pytest.mark.slow
 def test_nan_loss_stops_and_keeps_the_last_good_checkpoint(tiny_scene, tmp_path):
     trainer = Trainer(tiny_scene, _config(iterations=4), tmp_path / "n", "cpu")
     trainer.run()
@@ -128,6 +132,7 @@ def test_cli_reports_bad_input_before_training(tmp_path, cli_in_process):
     assert rc == 2 and "unknown config preset 'nope'" in err
 
 
+@pytest.mark.slow
 def test_cli_refuses_to_overwrite_a_run_without_resume(tiny_scene, tmp_path, cli_in_process):
     """In this process (the real process's exit path: test_cli_reports_bad_input_before_training)."""
     from gof_warp.cli.train import main
@@ -138,6 +143,7 @@ def test_cli_refuses_to_overwrite_a_run_without_resume(tiny_scene, tmp_path, cli
     assert rc == 2 and "--resume" in err
 
 
+@pytest.mark.slow
 def test_decoupled_appearance_trains_and_stays_out_of_the_render(tiny_scene, tmp_path):
     from gof_warp.training.appearance import AppearanceModel
 
@@ -154,6 +160,7 @@ def test_decoupled_appearance_trains_and_stays_out_of_the_render(tiny_scene, tmp
     assert trainer.appearance.gain(torch.rand(3, 20, 20), 0).numel() == 0  # below 32 px: no crop, no gain
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="CUDA graphs need a GPU")
 def test_loss_as_cuda_graphs_trains_with_appearance_and_several_views(tmp_path):
     """``loss_cuda_graphs``: the warm-up builds both graphs, two views a step accumulate the appearance's gradients
@@ -169,6 +176,7 @@ def test_loss_as_cuda_graphs_trains_with_appearance_and_several_views(tmp_path):
     assert abs(metrics["final_train_psnr"] - plain_metrics["final_train_psnr"]) <= 0.5
 
 
+@pytest.mark.slow
 def test_snapshots_are_written_and_do_not_change_the_run(tiny_scene, straight_run, tmp_path):
     from gof_warp.core.model import Gaussians
 
@@ -204,6 +212,7 @@ def test_snapshot_iterations_are_validated(bad):
     assert _config(snapshot_iterations=[1, 23]).snapshot_iterations == [1, 23]
 
 
+@pytest.mark.slow
 def test_resume_keeps_snapshots(tiny_scene, tmp_path):
     first = Trainer(tiny_scene, _config(iterations=12, snapshot_iterations=[4]), tmp_path / "r", "cpu")
     before = first.run()["snapshots"]
@@ -216,6 +225,7 @@ def test_resume_keeps_snapshots(tiny_scene, tmp_path):
     assert ply.read_bytes() == written and (tmp_path / "r" / after[1]["path"]).is_file()
 
 
+@pytest.mark.slow
 def test_warm_up_pass_changes_nothing_that_training_reads(tiny_scene, tmp_path, monkeypatch):
     """The throw-away pass before the clock starts (Trainer._warm_up) leaves the run bitwise as without it."""
     warm = Trainer(tiny_scene, _config(iterations=10, appearance=True, checkpoint_every=0), tmp_path / "w", "cpu")
@@ -231,6 +241,7 @@ def test_warm_up_pass_changes_nothing_that_training_reads(tiny_scene, tmp_path, 
     assert warm._rng.bit_generator.state == cold._rng.bit_generator.state
 
 
+@pytest.mark.slow
 def test_render_scratch_changes_nothing_that_training_reads(tiny_scene, straight_run, tmp_path):
     """The trainer's RenderScratch (scratch arrays, structs and stream wrappers kept from one render to the next) leaves
     the run bitwise as with every render's arrays made anew: through densification, pruning, the SH degree's
@@ -252,6 +263,7 @@ def test_render_scratch_changes_nothing_that_training_reads(tiny_scene, straight
         assert torch.equal(value, runs[1].gaussians.params[name]), name
 
 
+@pytest.mark.slow
 def test_overflowed_tile_lists_are_reported(straight_run, caplog):
     """Renders that dropped tile-list entries (a GPU run's sizer; none on the CPU) are said at the end of training,
     not only counted in metrics.json."""

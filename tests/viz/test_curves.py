@@ -116,6 +116,7 @@ def test_write_curves_from_metrics_json(tmp_path, caplog):
 # ------------------------------------------------------------------------------- the train command
 
 
+@pytest.mark.slow
 def test_train_writes_the_curves_and_prints_progress_unless_quiet(tiny_train_scene, tiny_train_overrides, tmp_path,
                                                                   capsys):
     from gof_warp.cli import train

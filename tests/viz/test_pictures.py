@@ -176,6 +176,7 @@ def test_near_plane_hides_what_lies_in_front_of_it(device):
         raycast.cast_pinhole_rays(mesh, cam.R, cam.t, cam.fx, cam.fy, cam.cx, cam.cy, 4, 3, min_depth=-1.0)
 
 
+@pytest.mark.slow
 def test_mesh_column_is_clipped_where_the_render_is(tiny_run):
     """view_panels draws the mesh from the larger of render.near and the camera's own clip, as the renderer does."""
     import dataclasses
@@ -232,6 +233,7 @@ def _columns_of(png, columns, scene, k):
     return img, boxes, idx
 
 
+@pytest.mark.slow
 def test_run_pictures_with_mesh_show_photo_render_and_mesh(tiny_run):
     run, scene = tiny_run
     paths = pictures.write_run_pictures(run, mesh_path=run / "scene" / "gt_mesh.ply", views=2, device="cpu")
@@ -253,6 +255,7 @@ def test_run_pictures_with_mesh_show_photo_render_and_mesh(tiny_run):
     assert not list((run / "pictures").glob(".*.tmp"))
 
 
+@pytest.mark.slow
 def test_run_pictures_without_photos_still_show_the_model(tiny_run, tmp_path, caplog):
     run, scene = tiny_run
     bare = tmp_path / "bare"
@@ -266,6 +269,7 @@ def test_run_pictures_without_photos_still_show_the_model(tiny_run, tmp_path, ca
     _columns_of(path, ["render", "depth", "normal"], scene, 3)
 
 
+@pytest.mark.slow
 def test_wide_cameras_are_scaled_to_the_width_limit(tiny_run):
     from gof_warp.core.model import Gaussians
 
@@ -276,6 +280,7 @@ def test_wide_cameras_are_scaled_to_the_width_limit(tiny_run):
     assert panels.image.shape[1] <= 120 and panels.columns == ["photo", "render", "depth", "normal"]
 
 
+@pytest.mark.slow
 def test_cli_writes_the_picture_and_reports_errors_in_one_line(tiny_run, tmp_path, capsys):
     run, _ = tiny_run
     assert pictures.main([str(run), "--views", "1", "--out", str(tmp_path / "p"), "--device", "cpu", "--quiet"]) == 0
@@ -288,6 +293,7 @@ def test_cli_writes_the_picture_and_reports_errors_in_one_line(tiny_run, tmp_pat
     assert "none.ply" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_extract_writes_the_mesh_picture_unless_told_not_to(tiny_run, tmp_path, monkeypatch, caplog):
     from gof_warp.cli import extract
 

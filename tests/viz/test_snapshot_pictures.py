@@ -6,6 +6,7 @@ import logging
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 from PIL import Image
 
 from gof_warp.viz import pictures
@@ -19,6 +20,7 @@ def _train(scene, run, overrides, *extra):
                        "--quiet", *extra, *overrides, "snapshot_iterations=[2]"])
 
 
+@pytest.mark.slow
 def test_a_snapshot_writes_its_views_picture_unless_no_pictures(tiny_train_scene, tiny_train_overrides, tmp_path):
     run = tmp_path / "run"
     assert _train(tiny_train_scene, run, tiny_train_overrides) == 0
@@ -49,6 +51,7 @@ def test_a_snapshot_picture_failure_only_warns(tmp_path, caplog):
     assert not (tmp_path / "pictures" / "views_it7.png").exists()
 
 
+@pytest.mark.slow
 def test_training_goes_on_when_a_snapshot_picture_fails(tiny_train_scene, tiny_train_overrides, tmp_path, monkeypatch, caplog):
     def fail(*args, **kwargs):
         raise RuntimeError("no drawing today")

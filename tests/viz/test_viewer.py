@@ -163,6 +163,7 @@ def tiny_run(tmp_path_factory):
     return run
 
 
+@pytest.mark.slow
 @needs_viser
 @pytest.mark.skipif(CHROMIUM is None, reason="no Chromium binary: apt-get install chromium-headless-shell (or chromium), "
                                              "or set GOF_WARP_CHROMIUM")
@@ -194,6 +195,7 @@ def test_headless_browser_screenshot_shows_the_rendered_scene(tiny_run, tmp_path
     assert frame.std() > 5, "the render shows something, not a flat colour"
 
 
+@pytest.mark.slow
 @needs_viser
 def test_train_with_viewer_serves_the_page_and_updates_the_model(tiny_run, tmp_path, monkeypatch, capsys):
     from gof_warp.cli import train
@@ -225,6 +227,7 @@ def test_train_with_viewer_serves_the_page_and_updates_the_model(tiny_run, tmp_p
     assert served["status"] == 200 and "<html" in served["html"].lower()
 
 
+@pytest.mark.slow
 @needs_viser
 def test_viewer_shows_a_copy_of_the_newest_model(tiny_run):
     from gof_warp.viz.viewer import open_run
