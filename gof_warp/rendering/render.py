@@ -214,7 +214,7 @@ class RenderScratch:
     kernels that used it; one given back on another stream is dropped. Not for renders captured into CUDA graphs,
     and not to be shared between processes.
 
-    Checked on CUDA (one H100, session 31, ``benchmarks/train/README.md``): ``tests/test_render_host_glue.py``
+    Checked on CUDA (one H100, session 31, ``benchmarks/train/README.md``): ``tests/rendering/test_render_host_glue.py``
     (outputs bit for bit, gradients within the float atomics' run-to-run spread, spares on two streams); host time
     of a forward + backward at 800k Gaussians on 800×600 6.29 → 4.95 ms, GPU time unchanged; DTU scan 24 at 30k
     trained 355.0 → 348.6 s, Warp's pool peak 183 → 245 MB (within the bound above); ``compute-sanitizer --tool
