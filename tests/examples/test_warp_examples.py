@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.slow  # runs the examples in fresh interpreters
+
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 RUNNER = """
 import importlib, json, sys
-
-pytestmark = pytest.mark.slow  # runs the examples in fresh interpreters
 sys.path.insert(0, {examples!r})
 module = importlib.import_module({name!r})
 results = [module.main(args) for args in {arg_sets!r}]
