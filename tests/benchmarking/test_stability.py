@@ -41,6 +41,7 @@ def test_every_case_and_method_reports_without_crash_or_nan(reports):
                 assert np.isfinite(r["bbox_min"]).all() and np.isfinite(r["bbox_max"]).all(), (case, method)
 
 
+@pytest.mark.slow
 def test_good_blob_is_one_closed_component_near_the_sphere(reports):
     for method in ("tetra", "cubes"):
         r = reports["good"][method]
@@ -49,11 +50,13 @@ def test_good_blob_is_one_closed_component_near_the_sphere(reports):
         assert np.all(np.abs(half - BLOB_RADIUS) < SHAPE_TOL), (method, half)
 
 
+@pytest.mark.slow
 def test_opacity_zero_model_gives_an_empty_mesh_not_an_error(reports):
     for method, r in reports["opacity_0"].items():
         assert r["outcome"] == "ok" and r["faces"] == 0, (method, r)
 
 
+@pytest.mark.slow
 def test_tiny_and_flat_gaussians_do_not_change_the_gof_mesh(reports):
     good = reports["good"]["tetra"]
     for case in ("tiny_scales", "flat_scales", "opacity_1"):
@@ -63,12 +66,14 @@ def test_tiny_and_flat_gaussians_do_not_change_the_gof_mesh(reports):
         assert np.allclose(r["bbox_max"], good["bbox_max"], atol=0.05), case
 
 
+@pytest.mark.slow
 def test_gaussians_outside_every_camera_stay_out_of_the_gof_mesh(reports):
     r = reports["far_outside"]["tetra"]
     assert r["outcome"] == "ok" and r["faces"] > 100 and r["faces_far"] == 0, r
     assert np.all(np.abs(r["bbox_min"]) < FAR_RADIUS) and np.all(np.abs(r["bbox_max"]) < FAR_RADIUS)
 
 
+@pytest.mark.slow
 def test_empty_region_seen_by_cameras_gets_no_surface(reports):
     for method in ("tetra", "cubes"):
         r = reports["empty_region"][method]
@@ -87,6 +92,7 @@ def test_cases_build_the_degenerate_values_they_name():
         make_case("nope")
 
 
+@pytest.mark.slow
 def test_dense_grid_bounds_ignore_huge_and_unseen_gaussians(reports):
     """cubes/TSDF size their grid from the Gaussians the cameras see, with capped 3σ widening."""
     for case in ("huge_scales", "far_outside"):
@@ -96,6 +102,7 @@ def test_dense_grid_bounds_ignore_huge_and_unseen_gaussians(reports):
             assert np.all(np.abs(r["bbox_min"]) < FAR_RADIUS) and np.all(np.abs(r["bbox_max"]) < FAR_RADIUS), (case, method)
 
 
+@pytest.mark.slow
 def test_bad_inputs_are_counted_per_kind_with_no_crash_or_nan(reports):
     """The bad-input cases (stability_inputs.run_input_cases) as the suite ran them: all as expected, no crash or NaN,
     nothing overwritten, each a clear error or a warning (tests/cli/test_bad_inputs.py ran them a second time for these

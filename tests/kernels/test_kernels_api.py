@@ -101,6 +101,7 @@ def test_importing_kernels_and_marching_does_not_import_torch(tmp_path):
 
 
 # ---------------------------------------------------------------------------------------------- field kernels
+@pytest.mark.slow
 def test_make_field_kernel_matches_float64(device):
     rng = np.random.default_rng(0)
     x = rng.uniform(-1, 1, (257, 3)).astype(np.float32)

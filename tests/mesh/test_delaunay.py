@@ -90,6 +90,7 @@ def test_chunked_fills_the_large_tets_no_chunk_sees():
     assert_exact(par, delaunay(p), p, stats)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["clusters", "box_corners"])
 def test_a_large_fill_is_chunked_itself_and_stays_exact(monkeypatch, kind):
     """The merge's fill (the points along the chunk borders) is triangulated in chunks too once it has
@@ -114,6 +115,7 @@ def test_a_large_fill_is_chunked_itself_and_stays_exact(monkeypatch, kind):
     assert_exact(par, delaunay(p), p, stats)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("chunks", [4, 9])
 def test_chunked_equals_one_call_on_cospherical_box_corners(chunks):
     """GOF's points (3σ-box corners: cospherical octuples everywhere) and a regular lattice (every cube's corners
@@ -155,6 +157,7 @@ def test_jitter_is_tiny_seeded_and_keeps_duplicates():
     np.testing.assert_array_equal(q, jittered(p))
 
 
+@pytest.mark.slow
 def test_duplicates_merge_onto_lowest_index_in_both_paths():
     rng = np.random.default_rng(3)
     base = rng.normal(size=(5000, 3))

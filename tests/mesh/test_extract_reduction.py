@@ -61,6 +61,7 @@ def _mesh(means, scales, opacity, config):
     return len(points), verts, faces, stats
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("config", [TetraConfig(opacity_min=0.1), TetraConfig(corner_min_extent=0.1),
                                     TetraConfig(opacity_min=0.1, corner_min_extent=0.1), TetraConfig.fast()],
                          ids=["opacity_min", "corner_min_extent", "both", "fast"])

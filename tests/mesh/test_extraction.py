@@ -52,6 +52,7 @@ def test_tetra_extraction_of_one_gaussian_is_its_analytic_sphere():
     assert errors[8] < errors[0], errors
 
 
+@pytest.mark.slow
 def test_face_budget_and_band_keep_the_sphere_closed():
     """--max-faces: the decimated tetra mesh honours the budget, stays closed and on the sphere; --band (only the
     points near the level) gives a closed mesh on the same sphere; bad budgets are clear errors."""
@@ -73,6 +74,7 @@ def test_face_budget_and_band_keep_the_sphere_closed():
             MeshConfig(**bad).validate()
 
 
+@pytest.mark.slow
 def test_octree_grid_gives_the_closed_analytic_sphere():
     """grid="octree": no Delaunay; the mesh is closed and on the analytic sphere, and finer cells give more faces;
     the level band (a Delaunay-grid option) with it is a clear error."""
@@ -99,6 +101,7 @@ def test_octree_grid_gives_the_closed_analytic_sphere():
         MeshConfig(tetra=TetraConfig(grid="voronoi")).validate()
 
 
+@pytest.mark.slow
 def test_auto_grid_takes_the_delaunay_grid_for_a_small_model_only():
     """grid="auto" (the default): a model whose octree at the default factor has fewer than small_leaves leaves is
     meshed on the Delaunay grid (the same mesh, and the stage JSON says why); at or over the limit, or with a cell
@@ -124,6 +127,7 @@ def test_auto_grid_takes_the_delaunay_grid_for_a_small_model_only():
         assert why == "octree" and np.array_equal(f, f_oct) and np.array_equal(v, v_oct)
 
 
+@pytest.mark.slow
 def test_octree_grid_marched_in_pieces_is_the_mesh_marched_at_once():
     """OctreeConfig.piece_tets: the grid's tetrahedra made, marched and their crossing edges collected a piece at a
     time, the search run once on the union, the pieces joined by edge key: the same vertices and faces, bit for bit,
