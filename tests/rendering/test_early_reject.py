@@ -150,6 +150,7 @@ def test_warp_mask_golden_circle():
     assert masks.tolist() == [0b1100, 0, 0xFF, 0]  # tile 4 (rows 16-31) is below the circle
 
 
+@pytest.mark.slow
 def test_warp_mask_never_skips_a_kept_pixel():
     """Against float64 brute force on the scene of discs, needles and near-plane Gaussians: a warp (16 × 2 pixels of
     a 16 × 16 tile) is skipped only if no pixel of it is kept by the exact per-pixel test, and a warp whose rows pass

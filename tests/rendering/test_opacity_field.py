@@ -184,6 +184,7 @@ def test_empty_inputs():
         opacity_field(g, cams, torch.full((2, 3), float("nan")))
 
 
+@pytest.mark.slow
 def test_the_point_tile_size_changes_speed_not_values():
     """The per-view lists the points read are binned on tiles of any size (CPU default 4 px, the renderer's 16 on a
     GPU): the field is bit-identical for every tile size, and matches the float64 reference; bad sizes are errors."""

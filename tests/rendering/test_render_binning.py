@@ -254,6 +254,7 @@ def _brute_force_tiles(cam, means, quats, scales, k, rect, ts, pad, samples=24):
     return touched
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("pad, ts", [(0.0, 16), (0.5, 16), (0.5, 4)])
 def test_tile_culling_is_conservative_and_tight(pad, ts):
     cam = look_at((0.3, -2.0, 0.5), (0.0, 0.0, 0.0), **TILE_CAMERA)
@@ -360,6 +361,7 @@ def _conic_types(cam, means, quats, scales, k):
     return np.array(out)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("pad, ts, samples", [(0.0, 16, 24), (0.5, 16, 24), (0.5, 4, 8)])
 def test_near_plane_tile_culling_is_conservative(pad, ts, samples):
     """Gaussians crossing the near plane (whole-image rectangle): against the float64 brute force of the
