@@ -521,6 +521,7 @@ def _spans_both(rect: wp.array(dtype=wp.vec4i), ellipse: TileEllipses, cam: Came
         scan[k] = row_tile_span_scan(load_ellipse(ellipse, k), ty, r[0], r[2], cam, settings)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("pad, ts", [(0.0, 16), (0.5, 16), (0.5, 4), (0.0, 1)])
 def test_closed_form_row_span_equals_the_tile_scan(pad, ts):
     """The binning's O(1) row span (``row_tile_span``) against its reference that tests tiles one by one from both

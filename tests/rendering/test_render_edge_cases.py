@@ -172,6 +172,7 @@ def _warp_forward_backward(params, cam, tiled, reduce_min_lanes=33, device="cpu"
     return [a.numpy() for a in out.arrays()] + [a.grad.numpy() for a in wpar] + [abs_stats.numpy()]
 
 
+@pytest.mark.slow
 def test_shared_memory_kernels_match_plain_kernels():
     """The CUDA shared-memory kernels, run on the CPU with emulated 256-thread blocks."""
     cam = _camera(width=37, height=29)

@@ -152,6 +152,7 @@ def test_shading_matches_float64_reference(device):
     np.testing.assert_allclose(rgb, ref, atol=UNIT_ATOL * 10)
 
 
+@pytest.mark.slow
 def test_procedural_albedo_properties(device):
     """Procedural colours stay between the two colours (times irradiance), vary, and depend on the seed."""
     mat = M.Material(color_a=(0.2, 0.1, 0.0), color_b=(0.8, 0.9, 0.5), noise_scale=4.0)

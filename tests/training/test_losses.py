@@ -202,6 +202,7 @@ def _loss_and_grads(loss_fn, out, gt, *args, **kw):
     return loss.detach(), terms, {k: v.grad.clone() for k, v in out.items() if v.grad is not None}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("form", ["paper", "gof"])
 def test_compiled_training_loss_equals_the_eager_loss(form):
     """``TrainingLoss`` through ``torch.compile`` (backend ``aot_eager``: Dynamo's capture of the whole loss as one

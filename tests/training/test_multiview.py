@@ -204,6 +204,7 @@ def test_grey_and_patches_that_do_not_fit():
         sample_centres(6, 40, 8, 7)
 
 
+@pytest.mark.slow
 def test_term_draws_the_same_pair_for_the_same_iteration():
     cams = [_camera(x, name=f"c{i}") for i, x in enumerate((-0.5, -0.2, 0.1, 0.4))]
     views = [_plane_view(c) for c in cams]
@@ -294,6 +295,7 @@ def test_term_draws_several_neighbours_without_replacement():
         MultiViewConfig(weight=0.5, neighbours=2, neighbours_per_step=3)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("per_step", [1, 2])
 def test_compiled_term_matches_the_eager_one(per_step):
     """What the trainer compiles (traced here by aot_eager: the same graph, no code generated) gives the eager value
