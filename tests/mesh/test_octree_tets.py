@@ -176,6 +176,7 @@ def test_pieces_are_consecutive_ranges_of_the_whole_grid():
         next(grid.pieces(3, 2, 4))
 
 
+@pytest.mark.slow
 def test_chunk_size_changes_only_the_order_of_the_tetrahedra():
     """The chunks (leaves and face records made at once, which bound the memory) reorder the tetrahedra but make the
     same points and the same set of tetrahedra, each positively oriented."""
@@ -267,6 +268,7 @@ def test_bad_boxes_are_clear_errors():
         octree_grid(torch.zeros(2, 3), torch.ones(3))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("device", ["cpu"] + (["cuda"] if torch.cuda.is_available() else []))
 def test_same_grid_on_every_device(device):
     g = torch.Generator().manual_seed(11)

@@ -230,6 +230,7 @@ def test_compiled_training_loss_equals_the_eager_loss(form):
     assert compiled.compiled is not None and compiled.fallback_reason is None
 
 
+@pytest.mark.slow
 def test_training_loss_with_appearance_compiled_equals_the_eager_correction():
     """With an appearance model, ``TrainingLoss`` puts GOF's corrected pair ``(gain ⊙ crop(rgb), crop(gt))`` in the L1
     term, the gain from camera i's embedding row: eager and through ``torch.compile`` (one graph for every view: the

@@ -116,6 +116,7 @@ def _cli(*args, cwd):
                           timeout=300)
 
 
+@pytest.mark.slow
 def test_cli_reports_bad_input_before_training(tmp_path, cli_in_process):
     from gof_warp.cli.train import main
 
