@@ -127,7 +127,7 @@ def opacity_min_over_view_whole(
     seen: wp.array(dtype=wp.int32),
 ):
     """:func:`opacity_min_over_view` with every view walking its whole list: the reference the bounded kernel
-    equals bit for bit (``tests/test_opacity_field.py``)."""
+    equals bit for bit (``tests/rendering/test_opacity_field.py``)."""
     i = wp.tid()
     x_v = cam.R * points[i] + cam.t
     tile = point_view_tile(x_v, cam, settings)

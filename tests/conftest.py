@@ -1,12 +1,22 @@
 """Shared test set-up: Warp's kernel cache in a known folder, devices to test on, the shared data path."""
 
 import os
+import sys
 from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
+TESTS = Path(__file__).resolve().parent
+REPO = TESTS.parent
 SHARED_DATA = REPO.parent / "shared" / "data"
+
+# The tests mirror the packages (tests/core/, tests/mesh/, ...). The helpers here (reference_render, _scene_fixtures,
+# _optim_cases) and the test modules other folders borrow from (``from test_volume import ...`` in tests/examples/)
+# are imported by plain name: pytest's "prepend" import mode puts only a test file's own folder on sys.path, so
+# tests/ and each of its folders go there once, here (test file basenames are unique across the tree).
+for _folder in [TESTS, *sorted(p for p in TESTS.iterdir() if p.is_dir() and not p.name.startswith((".", "_")))]:
+    if str(_folder) not in sys.path:
+        sys.path.append(str(_folder))
 
 # Warp compiles kernels once per module; keep the cache beside the repo so CI can reuse it between steps.
 os.environ.setdefault("WARP_CACHE_PATH", str(REPO / ".warp_cache"))

@@ -10,8 +10,8 @@ gradient conventions:
 * the distortion uses detached weights, so its gradient flows only through the ``t*``.
 
 Only the front-to-back compositing loop over the depth-sorted Gaussians runs in Python; everything else is
-vectorised over ``[pixels, Gaussians]``. Importable from test files in ``tests/`` as
-``from reference_render import ...`` (pytest prepends the test file's folder to ``sys.path``).
+vectorised over ``[pixels, Gaussians]``. Importable from test files anywhere under ``tests/`` as
+``from reference_render import ...`` (``tests/conftest.py`` puts ``tests/`` on ``sys.path``).
 
 Shapes: ``means [N,3]`` world, ``quats [N,4]`` wxyz (used as given: normalise before calling),
 ``scales [N,3]`` activated, ``opacities [N]`` activated, ``sh [N,K,3]``; outputs ``[H,W,...]`` float64.

@@ -24,7 +24,7 @@ Before any of it the points are **perturbed** by 3e-7 of their bounding-box diag
 equal points: :func:`jittered`): 3σ-box corners are cospherical octuples whose tetrahedralisation is not
 unique, and each Qhull call would pick its own diagonals, so chunks would disagree with each other (holes,
 overlaps). In general position the Delaunay tetrahedralisation is unique, and the chunked result equals one
-Qhull call's (``tests/test_delaunay.py``). The perturbation only decides connectivity (the marching and
+Qhull call's (``tests/mesh/test_delaunay.py``). The perturbation only decides connectivity (the marching and
 the bisection use the exact points); volumes, orientation and flatness are those of the perturbed points, so the 3σ-box cells that are flat in
 the exact inputs come out as slivers rather than gaps. Duplicate points are merged onto their lowest index
 and every tetrahedron is positively oriented (in the perturbed coordinates).
@@ -56,7 +56,7 @@ log = logging.getLogger(__name__)
 # contains flat simplices whose float64 volume is a rounding residue (~1e-16 relative).
 DEGENERATE_REL_VOLUME = 1e-10
 # A point counts as inside a circumsphere when nearer its centre than R (1 - this); nearer to the sphere
-# is cospherical to rounding. Measured on 3σ-box corners (tests/test_delaunay.py): unperturbed, Qhull keeps
+# is cospherical to rounding. Measured on 3σ-box corners (tests/mesh/test_delaunay.py): unperturbed, Qhull keeps
 # tetrahedra with points up to ~3e-9 R inside; perturbed by JITTER_REL, up to ~1e-10 R.
 SPHERE_RTOL = 1e-9
 BACKENDS = ("scipy", "cgal", "auto")

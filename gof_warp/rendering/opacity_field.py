@@ -52,8 +52,8 @@ class OpacityFieldConfig:
     chunk_size: int = 1 << 22  # points per device chunk
     # Screen tile (pixels) of the per-view Gaussian lists the points are evaluated against; None: CPU_TILE_SIZE on
     # the CPU, the renderer's tile on a GPU. The value is the same for any tile (the lists are conservative and
-    # each point tests its own ray: bit-identical, tests/test_opacity_field.py); smaller tiles mean shorter lists
-    # per point and more list entries. Measured on the 2-core CPU (default scene, 9k Gaussians, 40 views 128²,
+    # each point tests its own ray: bit-identical, tests/rendering/test_opacity_field.py); smaller tiles mean shorter
+    # lists per point and more list entries. Measured on the 2-core CPU (default scene, 9k Gaussians, 40 views 128²,
     # 20k points): 16 px 4.5-5.0 s, 8 px 2.9 s, 4 px 2.1-2.4 s, 2 px 1.9 s. Not measured on a GPU yet: unchanged there.
     tile_size: int | None = None
     # On the CPU, where Warp runs a kernel on one core: points shared out to this many forked processes (0: one

@@ -224,7 +224,7 @@ class RenderScratch:
     kernels that used it; one given back on another stream is dropped. Not for renders captured into CUDA graphs,
     and not to be shared between processes.
 
-    Checked on CUDA (one H100): ``tests/test_render_host_glue.py`` (outputs bit for bit, gradients within the float
+    Checked on CUDA (one H100): ``tests/rendering/test_render_host_glue.py`` (outputs bit for bit, gradients within the float
     atomics' run-to-run spread, spares on two streams). A scratch saves ~1.3 ms of host time a forward + backward
     at 800k Gaussians on 800×600 (GPU time unchanged) and raises Warp's pool peak on DTU scan 24 from ~183 to
     ~245 MB (within the bound above). ``compute-sanitizer --tool memcheck`` over those tests and 233 training
