@@ -129,7 +129,7 @@ def atomic_path(path):
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         if isinstance(e, OSError) and e.errno in _DISK_FULL:
-            raise GofError(f"no space left on device writing {target}") from None
+            raise GofError(f"no space left on device writing {target} ({e.strerror or e})") from None
         raise
 
 
