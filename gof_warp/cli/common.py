@@ -38,7 +38,8 @@ def configure_output(quiet: bool = False) -> None:
 
 def run_command(body: Callable[[], int | None],
                 interrupted_note: str | Callable[[KeyboardInterrupt], str] = "") -> int:
-    """Run a command's body and map its failures to exit codes (0 ok, 2 bad input, 130 interrupted).
+    """Run a command's body and map its failures to exit codes (0 ok, 2 bad input, 130 interrupted; 143 where
+    training stopped on SIGTERM, :class:`~gof_warp.training.interrupts.TrainingInterrupted` with its ``signum``).
 
     On Ctrl-C one line ``interrupted: <note>`` is printed; ``interrupted_note`` is that note, or a function
     of the ``KeyboardInterrupt`` (which may carry details, e.g. the iteration training reached) returning it.
@@ -54,5 +55,5 @@ def run_command(body: Callable[[], int | None],
         note = interrupted_note(e) if callable(interrupted_note) else interrupted_note
         end_progress_line = "\n" if sys.stderr.isatty() else ""  # a progress line may be open
         print(f"{end_progress_line}interrupted{': ' + note if note else ''}", file=sys.stderr)
-        return 130
+        return 128 + int(getattr(e, "signum", 2))  # 130 for Ctrl-C (SIGINT), 143 for a deferred SIGTERM
     return 0 if rc is None else int(rc)

@@ -267,6 +267,7 @@ def main(argv=None) -> int:
 def extract_run(a, ranks, device) -> None:
     """The command's work for parsed arguments ``a`` on ``device``; rank 0 alone writes."""
     run = Path(a.run)
+    check_outputs(a, run)
     if a.volume:
         if ranks.active:
             raise GofError("--volume runs in one process (launch without torchrun)")
@@ -313,11 +314,11 @@ def extract_run(a, ranks, device) -> None:
     empty = [level for level, (_, f) in zip(levels, meshes) if len(f) == 0]
     if empty:  # before anything is written: an existing mesh of that name stays as it is
         raise GofError(empty_mesh_message(gaussians, a.method, empty, cfg))
-    base = Path(a.out) if a.out else (run if run.is_dir() else run.parent) / f"mesh_{a.method}.ply"
+    base = mesh_base(a, run)
     outputs = []
     t_save = time.perf_counter()
     for level, (v, f) in zip(levels, meshes):
-        path = base if len(meshes) == 1 else base.with_name(f"{base.stem}_{level:g}{base.suffix}")
+        path = mesh_path(base, level, len(meshes))
         save_mesh(path, v, f)
         outputs.append({"path": str(path), "level": level, "vertices": int(len(v)), "faces": int(len(f))})
         print(f"wrote {path}: {len(v)} vertices, {len(f)} faces")
@@ -337,6 +338,34 @@ def extract_run(a, ranks, device) -> None:
                 print(f"wrote {p}")
         command["pictures_s"] = round(time.perf_counter() - t_pictures, 3)
         write_json_atomic(base.with_suffix(".json"), summary)  # again, with the pictures' time
+
+
+def mesh_base(a, run: Path) -> Path:
+    """The mesh path ``--out`` names, or ``RUN/mesh_<method>.ply`` (beside a PLY given as RUN)."""
+    return Path(a.out) if a.out else (run if run.is_dir() else run.parent) / f"mesh_{a.method}.ply"
+
+
+def mesh_path(base: Path, level: float, count: int) -> Path:
+    """The file of the mesh at ``level``: ``base`` for one mesh, ``<stem>_<level><suffix>`` for each of several."""
+    return base if count == 1 else base.with_name(f"{base.stem}_{level:g}{base.suffix}")
+
+
+def check_outputs(a, run: Path) -> None:
+    """Every path the command will write, checked before any work (:func:`check_output_path`): none may be a
+    folder or another non-regular file, nor one of the run's inputs (:func:`run_inputs`)."""
+    from ..core.io_utils import check_output_path
+    from ..training.run_folder import run_inputs
+
+    protected = run_inputs(run, a.scene)
+    if a.volume:
+        nvdb = Path(a.out) if a.out else run / "opacity_volume.nvdb" if run.is_dir() else run.with_suffix(".nvdb")
+        paths = [nvdb, nvdb.with_suffix(".json")]
+    else:
+        base = mesh_base(a, run)
+        levels = tuple(a.levels) if a.method != "tsdf" else (0.0,)
+        paths = [mesh_path(base, level, len(levels)) for level in levels] + [base.with_suffix(".json")]
+    for path in paths:
+        check_output_path(path, protected=protected)
 
 
 def rank_summary(ranks, device, stages: dict, total_s: float) -> dict:

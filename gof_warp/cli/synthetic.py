@@ -37,7 +37,8 @@ examples:
     ap.add_argument("--supersample", type=int, default=None, help="samples per pixel axis for colour and alpha (default: the preset's)")
     ap.add_argument("--mesh", default=None, help="textured OBJ (or a folder with one) for --preset spot (default: none)")
     ap.add_argument("--device", default=None, help="Warp device, e.g. cpu or cuda:0 (default: cuda if available)")
-    ap.add_argument("--force", action="store_true", help="replace a non-empty output folder")
+    ap.add_argument("--force", action="store_true", help="replace a non-empty output folder that is a synthetic scene "
+                                                          "written by this command (any other is refused)")
     ap.add_argument("--list", action="store_true", help="list the presets and what each stresses, then exit")
     ap.add_argument("-q", "--quiet", action="store_true", help="only print errors")
     return ap

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import shlex
 import sys
 from pathlib import Path
@@ -65,6 +66,9 @@ def main(argv=None) -> int:
                     help="training iterations (default: the config's)")
     ap.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto")
     ap.add_argument("--resume", action="store_true", help="continue from the newest checkpoint in --out")
+    ap.add_argument("--overwrite", action="store_true", help="train anew into an --out that holds a finished run or "
+                                                              "checkpoints: its model, checkpoints, metrics, meshes and "
+                                                              "pictures are removed first (the scene stays)")
     ap.add_argument("--no-pictures", action="store_true", help="do not write RUN/pictures/views.png (photo | render "
                                                                "| depth | normal of a few views) and curves.png "
                                                                "(loss, PSNR, Gaussians) at the end, nor "
@@ -166,10 +170,8 @@ def _spike_pictures(trainer, event: dict) -> None:
 
 
 def _run(a) -> int:
-    from ..data import load_scene
-    from ..training.distributed import rank_device, ranks_from_environment
     from ..core.io_utils import ensure_writable_dir
-    from ..training.trainer import Trainer, has_checkpoints
+    from ..training.run_folder import lock_run_folder, remove_if_empty
 
     scenes = [x for x in a.args if "=" not in x]
     overrides = [x for x in a.args if "=" in x]
@@ -182,10 +184,37 @@ def _run(a) -> int:
         if a.viewer_every < 1:
             raise GofError(f"--viewer-every must be >= 1, got {a.viewer_every}")
         require_viser()  # before any work: a missing optional dependency is named at once
+    if a.resume and a.overwrite:
+        raise GofError("--resume continues the run in --out and --overwrite starts it anew: give one of them")
     out = _out_dir(a)
+    created = not out.exists() and not out.is_symlink()
     ensure_writable_dir(out)
-    if has_checkpoints(out) and not a.resume:
-        raise GofError(f"{out} already holds checkpoints of a run: pass --resume to continue it, or choose another --out")
+    try:
+        if not _main_process():  # under torchrun rank 0 holds the lock for all
+            return _train(a, out, scenes, overrides, builtin)
+        with lock_run_folder(out):
+            return _train(a, out, scenes, overrides, builtin)
+    except BaseException:
+        if created and _main_process():
+            remove_if_empty(out)  # the folder this command made, when nothing was written into it
+        raise
+
+
+def _main_process() -> bool:
+    """Whether this process is rank 0 of a torchrun launch, or the only one."""
+    return int(os.environ.get("WORLD_SIZE", "1") or 1) <= 1 or os.environ.get("RANK", "0") == "0"
+
+
+def _train(a, out: Path, scenes: list[str], overrides: list[str], builtin: bool) -> int:
+    """The command's work in the locked run folder ``out``."""
+    from ..data import load_scene
+    from ..training.distributed import rank_device, ranks_from_environment
+    from ..training.run_folder import is_finished_run, remove_run_outputs
+    from ..training.trainer import Trainer, has_checkpoints
+
+    if is_finished_run(out) and not (a.resume or a.overwrite):
+        raise GofError(f"{out} already holds a run (point_cloud.ply or checkpoints): pass --resume to continue it, "
+                       "--overwrite to train anew in its place, or choose another --out")
     preset = a.config or ("quick" if builtin else "auto")
     if preset == "auto":
         from ..training.presets import choose_preset
@@ -208,6 +237,11 @@ def _run(a) -> int:
     else:
         scene_dir = Path(scenes[0])
     scene = load_scene(scene_dir, cfg.data)
+    if a.overwrite and ranks.is_main:  # the scene and config are good: now the old run's outputs go
+        removed = remove_run_outputs(out)
+        if removed:
+            log.info("--overwrite: removed %d outputs of the earlier run in %s", len(removed), out)
+    ranks.barrier()
     log.info("scene %s: %d train / %d test views, extent %.3f; device %s", scene_dir, len(scene.train), len(scene.test),
              scene.extent, device)
     trainer = Trainer(scene, cfg, out, device, scene_path=scene_dir, ranks=ranks)

@@ -34,6 +34,7 @@ import numpy as np
 
 from .common import HelpFormatter, configure_output, run_command
 from ..core.errors import GofError
+from ..core.io_utils import write_bytes_atomic
 from ..viz.viewer import FRUSTUM_COLOR
 
 log = logging.getLogger(__name__)
@@ -162,8 +163,7 @@ def screenshot(url: str, path, *, width: int = 1200, height: int = 800, ready=No
         finally:
             _end_browser(proc)
     out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_bytes(base64.b64decode(data))
+    write_bytes_atomic(out, base64.b64decode(data))
     return out
 
 
@@ -284,6 +284,12 @@ def main(argv=None) -> int:
         from ..core.devices import resolve_device
         from ..viz.viewer import open_run, require_viser
 
+        if a.screenshot:  # before any work: never over the run's own files, a folder or a device
+            from ..core.io_utils import check_output_path
+            from ..training.run_folder import run_inputs
+
+            meshes = [Path(a.mesh)] if a.mesh else sorted(Path(a.run).glob("mesh_*.ply"))
+            check_output_path(a.screenshot, protected=run_inputs(Path(a.run)) + meshes)
         require_viser()
         if a.screenshot and find_chromium() is None:
             screenshot("", a.screenshot)  # raises the clear "no Chromium" error before the model is loaded

@@ -44,11 +44,29 @@ def _check_args(views, resolution, seed, supersample):
         raise GofError(f"supersample must be an integer in 1..8, got {supersample}")
 
 
+GENERATOR = "gof_warp.synthetic"  # scene.json's "generator": the mark of a folder make_scene wrote
+
+
+def is_generated_scene(folder) -> bool:
+    """Whether ``folder`` is a scene :func:`make_scene` wrote: its ``scene.json`` names :data:`GENERATOR`."""
+    import json
+
+    try:
+        meta = json.loads((Path(folder) / "scene.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(meta, dict) and meta.get("generator") == GENERATOR
+
+
 def _check_out(out: Path, force: bool) -> None:
-    if out.exists() and not out.is_dir():
+    if out.is_symlink() or (out.exists() and not out.is_dir()):
         raise GofError(f"output {out} exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not force:
-        raise GofError(f"output folder {out} is not empty (pass --force to replace it)")
+    if out.is_dir() and any(out.iterdir()):
+        if not force:
+            raise GofError(f"output folder {out} is not empty (pass --force to replace it)")
+        if not is_generated_scene(out):  # force replaces only what make_scene made: never a folder of someone's
+            raise GofError(f"output folder {out} is not a synthetic scene gof_warp generated (its scene.json does not "
+                           f"name {GENERATOR}): refusing to replace it; empty it or choose another folder")
 
 
 def _publish(tmp: Path, out: Path) -> None:
@@ -97,7 +115,8 @@ def make_scene(preset: str | Preset, out, views: int | None = None,
 
     Args:
         preset: a name from :func:`list_presets` or a :class:`Preset`.
-        out: output folder; must not exist or be empty, unless ``force`` (then it is replaced).
+        out: output folder; must not exist or be empty, unless ``force`` (then it is replaced, but only when it
+            is a scene this function wrote: :func:`is_generated_scene`).
         views: number of training views (default: the preset's); test views are the preset's.
         resolution: ``(width, height)`` (default: the preset's CPU-sized resolution; benchmarks use
             ``GPU_RESOLUTION``).
@@ -130,7 +149,7 @@ def make_scene(preset: str | Preset, out, views: int | None = None,
             obj_faces = caster.faces[np.isin(caster.face_part, [i for i, q in enumerate(parts) if q.role == "object"])]
             write_bytes_atomic(tmp / "gt_object.ply", writer.ply_bytes(caster.points, obj_faces))
         write_json_atomic(tmp / "scene.json", {
-            "generator": "gof_warp.synthetic",
+            "generator": GENERATOR,
             "generator_version": GENERATOR_VERSION,
             "preset": p.name,
             "intent": p.intent,
@@ -160,6 +179,6 @@ def make_scene(preset: str | Preset, out, views: int | None = None,
     return out
 
 
-__all__ = ["CameraRig", "DEFAULT_RESOLUTION", "GENERATOR_VERSION", "GPU_RESOLUTION", "Lighting", "Material",
-           "Preset", "RayCaster", "RenderedView", "SyntheticMesh", "default_device", "get_preset", "list_presets",
-           "make_scene", "with_rig"]
+__all__ = ["CameraRig", "DEFAULT_RESOLUTION", "GENERATOR", "GENERATOR_VERSION", "GPU_RESOLUTION", "Lighting",
+           "Material", "Preset", "RayCaster", "RenderedView", "SyntheticMesh", "default_device", "get_preset",
+           "is_generated_scene", "list_presets", "make_scene", "with_rig"]

@@ -22,8 +22,11 @@ run: the parameters at the end are the same bit for bit on CPU.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import logging
 import math
+import signal
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,7 +36,8 @@ import numpy as np
 import torch
 
 from .appearance import AppearanceModel
-from .checkpoint import CheckpointWriter, list_checkpoints, load_newest, numpy_rng_state, plain_rng_state
+from .checkpoint import (CheckpointError, CheckpointWriter, list_checkpoints, load_newest, numpy_rng_state,
+                         plain_rng_state)
 from ..core.config import ConfigError, dump_yaml, from_dict, to_dict
 from ..data import DataConfig
 from .densify import DensifyConfig, Densifier
@@ -172,6 +176,31 @@ def initial_gaussians(scene: Scene, cfg: ModelConfig, seed: int, device) -> tupl
                                  device=device), info, measured
 
 
+def scene_fingerprint(scene: Scene) -> dict:
+    """What identifies the scene a run is trained on: its format, its numbers of train and test views, and a
+    SHA-256 over the format, the views' names and every camera's parameters (intrinsics, pose, image size;
+    rounded to 9 significant digits). A checkpoint records it; :meth:`Trainer.resume` compares it."""
+    def cams(views):
+        out = []
+        for v in views:
+            d = v.camera.to_dict()
+            d.pop("near", None)  # the trainer may set near planes itself (render.near_from_points)
+            out.append({k: (np.round(np.asarray(x, dtype=np.float64), 9).tolist() if k in ("R", "t") else
+                            float(f"{x:.9g}") if isinstance(x, float) else x) for k, x in d.items()}
+                       | {"view": v.name})
+        return sorted(out, key=lambda c: (str(c["view"]), str(c["name"])))
+
+    body = json.dumps({"format": scene.format, "train": cams(scene.train), "test": cams(scene.test)}, sort_keys=True)
+    return {"format": scene.format, "train_views": len(scene.train), "test_views": len(scene.test),
+            "sha256": hashlib.sha256(body.encode()).hexdigest()}
+
+
+#: the keys of a checkpoint that :meth:`Trainer.load_state_dict` reads (others are optional)
+CHECKPOINT_KEYS = ("iteration", "elapsed", "config", "params", "max_sh_degree", "active_sh_degree", "filter_3d",
+                   "optimizer", "densifier", "appearance", "appearance_optimizer", "view_rng", "view_stack",
+                   "torch_rng", "cuda_rng", "history")
+
+
 def _image_tensor(image: np.ndarray, device) -> torch.Tensor:
     return torch.from_numpy(image).to(device=device, dtype=torch.float32) / 255.0
 
@@ -210,6 +239,7 @@ class Trainer:
         if self.views_per_step % self.ranks.world:
             raise GofError(f"views_per_step = {self.views_per_step} does not divide among {self.ranks.world} processes")
         self.scene_path = None if scene_path is None else str(Path(scene_path).resolve())
+        self.scene_fingerprint = scene_fingerprint(scene)
         self.out_dir = ensure_writable_dir(out_dir)
         self.render_config = dataclasses.replace(config.render, background=tuple(float(c) for c in scene.background))
         self.render_config.validate()
@@ -653,11 +683,12 @@ class Trainer:
                 self.save_checkpoint()
             if interrupted():
                 self._drain()
-                raise self._interrupted()
+                raise self._interrupted(getattr(interrupted, "signum", None))
         return last
 
-    def _interrupted(self) -> TrainingInterrupted:
-        """Checkpoint the current iteration (unless just done) for an interrupt; the exception to raise."""
+    def _interrupted(self, signum: int | None = None) -> TrainingInterrupted:
+        """Checkpoint the current iteration (unless just done) for an interrupt (``signum``: the signal, SIGINT
+        when None); the exception to raise."""
         self._checkpoints.wait()
         found = list_checkpoints(self.out_dir)
         path = found[-1][1] if found else None
@@ -666,7 +697,8 @@ class Trainer:
                 path = self.save_checkpoint(wait=True)
             except TrainingError as e:  # NaN parameters: keep the previous checkpoint, say why
                 log.warning("%s", e)
-        return TrainingInterrupted(self.iteration, self.config.iterations, path)
+        return TrainingInterrupted(self.iteration, self.config.iterations, path,
+                                   signal.SIGINT if signum is None else signum)
 
     @torch.no_grad()
     def evaluate(self, views=None) -> dict:
@@ -733,6 +765,7 @@ class Trainer:
             "snapshots": list(self.snapshots),
             "loss_spikes": self.spikes.state_dict(),
             "tile_lists": None if self.tile_lists is None else self.tile_lists.state_dict(),
+            "scene_fingerprint": dict(self.scene_fingerprint),
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -780,9 +813,12 @@ class Trainer:
 
         A newer checkpoint that cannot be read (truncated, corrupt, refused as unsafe) is renamed to
         ``<name>.corrupt`` and named in a warning with the one used instead
-        (:func:`gof_warp.checkpoint.load_newest`); :attr:`resumed_from` is the file loaded.
+        (:func:`gof_warp.checkpoint.load_newest`); :attr:`resumed_from` is the file loaded. :class:`GofError`
+        when the checkpoint lacks an entry, lies beyond ``config.iterations``, was written with another config,
+        or on another scene (:func:`scene_fingerprint`; checkpoints without one are not compared).
         """
         state, self.resumed_from = load_newest(self.out_dir, map_location=self.device, set_aside=self.ranks.is_main)
+        self._check_checkpoint(state, self.resumed_from)
         saved = to_dict(from_dict(TrainConfig, state["config"], "checkpoint config"))
         now = to_dict(self.config)
         for key in ("iterations", "snapshot_iterations"):  # training may be extended on resume, and snapshots
@@ -794,6 +830,26 @@ class Trainer:
                            "resume with the same config (RUN/config.yaml) or start a new run")
         self.load_state_dict(state)
         return self.iteration
+
+    def _check_checkpoint(self, state: dict, path: Path) -> None:
+        """:class:`GofError` when the checkpoint ``state`` (read from ``path``) cannot continue this run."""
+        missing = [k for k in CHECKPOINT_KEYS if k not in state]
+        if missing:
+            raise CheckpointError(f"checkpoint {path} lacks the entr{'y' if len(missing) == 1 else 'ies'} "
+                                  f"{', '.join(repr(k) for k in missing)}: it is not a complete gof_warp checkpoint")
+        it = state["iteration"]
+        if isinstance(it, bool) or not isinstance(it, int) or it < 0:
+            raise CheckpointError(f"checkpoint {path} holds the iteration {it!r}, not a count of iterations")
+        if it > self.config.iterations:
+            raise GofError(f"checkpoint {path} is at iteration {it}, beyond this run's {self.config.iterations} "
+                           f"iterations: pass --iterations {it} or more to continue it")
+        saved = state.get("scene_fingerprint")
+        if isinstance(saved, dict) and saved.get("sha256") != self.scene_fingerprint["sha256"]:
+            now = self.scene_fingerprint
+            raise GofError(f"the checkpoint {path} was trained on another scene ({saved.get('format')!r}, "
+                           f"{saved.get('train_views')} train / {saved.get('test_views')} test views) than this one "
+                           f"({now['format']!r}, {now['train_views']} train / {now['test_views']} test views, other "
+                           "cameras or view names): resume with the scene the run was trained on, or start a new run")
 
 
 def has_checkpoints(run_dir) -> bool:
