@@ -111,7 +111,8 @@ def read_colmap(root: Path, config) -> ScenePlan:
             camera = Camera(R=R, t=t, fx=K[0], fy=K[1], cx=K[2], cy=K[3], width=lens.width, height=lens.height, name=name)
         except SceneError as e:
             raise SceneError(f"{model_dir} (image {im.name}): {e}") from None
-        views.append(ViewPlan(name=name, camera=camera, image_path=image_dir / im.name,
+        rel = imio.check_inside(im.name, image_dir, f"{pose_file} (image {im.name})", config.allow_outside_paths)
+        views.append(ViewPlan(name=name, camera=camera, image_path=image_dir / rel,
                               lens=lens if lens.has_distortion else None, composite_alpha=False))  # fmt: skip
         models.append(lens.model)
     n_files = len(imio.list_images(image_dir))
