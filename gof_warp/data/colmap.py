@@ -92,7 +92,7 @@ def read_colmap(root: Path, config) -> ScenePlan:
     cam_file = next((model_dir / f for f in _MODEL_FILES if (model_dir / f).is_file()), model_dir)
     pose_file = next((model_dir / f for f in ("images.bin", "images.txt") if (model_dir / f).is_file()), model_dir)
     image_dir = _images_dir(root, model_dir, config.images)
-    warnings = []
+    warnings = list(rec.warnings)
     registered = [im for im in rec.images.values() if "sky_mask" not in im.name]  # the file holds posed images only
     if not registered:
         raise SceneError(f"{model_dir}: the COLMAP model has no registered images")

@@ -9,9 +9,11 @@ import struct
 import threading
 import zlib
 
+import numpy as np
+
 import pytest
 
-from _scene_fixtures import make_colmap_scene, make_ingp_scene, random_image, save_image
+from _scene_fixtures import make_colmap_scene, make_dtu_scene, make_ingp_scene, random_image, save_image
 from gof_warp.cli import inspect_scene as inspect
 from gof_warp.core.errors import SceneError
 from gof_warp.data import DataConfig, load_scene
@@ -130,3 +132,40 @@ def test_transform_matrix_not_numbers_names_the_frame(tmp_path, capsys, matrix):
     _edit_frames(root, lambda frames: frames[3].update(transform_matrix=matrix))
     err = _error(capsys, root)
     assert "transforms.json frame 3" in err and "transform_matrix" in err, err
+
+
+# ----------------------------------------------------------------------------- 5: DTU cameras that are no npz
+def test_dtu_cameras_npy_renamed_npz_is_a_clear_error(tmp_path, capsys):
+    root, _ = make_dtu_scene(tmp_path / "dtu")
+    with open(root / "cameras_sphere.npz", "wb") as f:
+        np.save(f, np.eye(4))
+    err = _error(capsys, root)
+    assert "cameras_sphere.npz" in err and "npz" in err and ".npy" in err, err
+
+
+def test_dtu_cameras_of_strings_is_a_clear_error(tmp_path, capsys):
+    root, _ = make_dtu_scene(tmp_path / "dtu")
+    np.savez(root / "cameras_sphere.npz", **{f"world_mat_{i}": np.array(["x"] * 16) for i in range(5)})
+    err = _error(capsys, root)
+    assert "cameras_sphere.npz" in err and "world_mat_0" in err, err
+
+
+# ----------------------------------------------------------------------------- 8: a stale .bin beside a newer .txt
+def test_stale_colmap_bin_beside_a_newer_txt_warns(tmp_path, capsys):
+    root = make_colmap_scene(tmp_path / "scene", n=4, binary=True)
+    model = root / "sparse" / "0"
+    assert (model / "cameras.bin").is_file()
+    for stem in ("cameras", "images"):
+        b = model / f"{stem}.bin"
+        (model / f"{stem}.txt").write_text("# edited\n")
+        os.utime(b, (b.stat().st_atime, b.stat().st_mtime - 100))
+    assert inspect.main([str(root), "--json"]) == 0
+    warnings = json.loads(capsys.readouterr().out)["warnings"]
+    for stem in ("cameras", "images"):
+        assert any(f"{stem}.bin is used but {stem}.txt beside it is newer" in w for w in warnings), warnings
+    assert not any("points3D" in w for w in warnings), warnings
+    # an older .txt beside the .bin is what COLMAP writes: nothing said
+    for stem in ("cameras", "images"):
+        t = model / f"{stem}.txt"
+        os.utime(t, (t.stat().st_atime, (model / f"{stem}.bin").stat().st_mtime - 100))
+    assert not any("newer" in w for w in load_scene(root).warnings)
