@@ -80,7 +80,8 @@ class ModelConfig:
     ``init``: ``"sfm"`` — the scene's own sparse points (COLMAP ``points3D``, a ``points3d.ply``) or, when it
     has none, points triangulated from the known poses (:mod:`gof_warp.data.sfm`, cached beside the scene);
     ``"random"`` — ``random_init_points`` uniform in ``init_box`` (3DGS's Blender init); ``"auto"`` — as
-    ``"sfm"``, but falls back to random (with a warning) when triangulation finds too few points.
+    ``"sfm"``, but an error naming the fixes when triangulation fails or finds fewer than 100 points (never a
+    silent random start: pass ``"random"`` to ask for one).
     ``background_points``: extra points on a sphere around the scene (:func:`background_points`), where the
     cameras look past every initial point — the far background SfM rarely reaches; 0 = none.
     """
