@@ -54,7 +54,7 @@ from .multiview import MultiViewTerm
 from .near_camera import (in_front_of_cameras, near_camera_bounds, near_camera_census, near_ray_census,
                           stack_cameras)
 from .optim import LeanAdam, OptimConfig, make_optimizer, update_learning_rate
-from ..rendering.render import DensifyStats, RenderConfig, RenderScratch, render
+from ..rendering.render import DensifyStats, RenderConfig, RenderScratch, render, scene_near, scene_size
 from ..core.scene import Scene
 from .settings import EXPERIMENTAL_TARGETS, ExperimentalConfig, PerformanceConfig, upgrade_keys
 from .step_scalars import IterationScalars, PendingScalars
@@ -173,6 +173,21 @@ def initial_gaussians(scene: Scene, cfg: ModelConfig, seed: int, device) -> tupl
                                  device=device), info, measured
 
 
+def _scene_near_plane(config: TrainConfig, scene: Scene) -> TrainConfig:
+    """``config`` with ``render.near`` fitted to the scene (:func:`~gof_warp.rendering.render.scene_near`): the
+    default 0.2 is scaled down for a scene smaller than 1 unit; a larger explicit value is warned about. The run's
+    config.yaml records the value used, so extraction and resuming use the same plane."""
+    size = scene_size(scene.extent, scene.train_cameras, scene.points)
+    near, warning = scene_near(config.render.near, size)
+    if warning:
+        log.warning("warning: %s", warning)
+    if near == config.render.near:
+        return config
+    log.info("render.near %g for this scene of size %.3g (0.2 is larger than the scene; set render.near to choose)",
+             near, size)
+    return dataclasses.replace(config, render=dataclasses.replace(config.render, near=near))
+
+
 def _image_tensor(image: np.ndarray, device) -> torch.Tensor:
     return torch.from_numpy(image).to(device=device, dtype=torch.float32) / 255.0
 
@@ -205,6 +220,7 @@ class Trainer:
 
     def __init__(self, scene: Scene, config: TrainConfig, out_dir, device: str, scene_path=None,
                  ranks: Ranks | None = None):
+        config = _scene_near_plane(config, scene)
         self.scene, self.config, self.device = scene, config, torch.device(device)
         self.ranks = Ranks.single() if ranks is None else ranks
         self.views_per_step = config.views_per_step or self.ranks.world
