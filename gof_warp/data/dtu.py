@@ -58,6 +58,8 @@ def _load_npz(path: Path) -> dict:
                              f"(an .npy file?)")
         with z:
             out = {k: z[k] for k in z.files}
+    except SceneError:
+        raise
     except FileNotFoundError:
         raise SceneError(f"{path}: file not found") from None
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
