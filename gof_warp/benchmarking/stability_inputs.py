@@ -222,6 +222,74 @@ def _cases(root: Path):
         yield case, "config", "error", "iterations must be", lambda name, arg=arg: {
             "method": "train", **run_cli(train.main, [scene, "--out", root / name, "--quiet", *arg])}
 
+    # ---- scene files that point elsewhere or are no plain files, oversized headers, bad matrices and camera files
+    def outside(frames):
+        frames[1]["file_path"] = "../../outside.png"
+
+    def strings(frames):
+        frames[2]["transform_matrix"] = [["a", "b", "c", "d"]] * 4
+
+    def fifo_image(p):
+        import os
+
+        write_colmap(p, cams, zero_view=-1)
+        first = p / "images" / f"{cams[0].name}.png"
+        first.unlink()
+        os.mkfifo(first)
+        return p
+
+    def bomb_image(p):
+        import struct
+        import zlib
+
+        def chunk(kind, data):
+            return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+        write_colmap(p, cams, zero_view=-1)
+        (p / "images" / f"{cams[0].name}.png").write_bytes(
+            b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 20000, 20000, 8, 2, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(b"\0" * 16)) + chunk(b"IEND", b""))
+        return p
+
+    def npy_cameras(p):
+        write_dtu(p, cams, zero_view=-1)
+        with open(p / "cameras_sphere.npz", "wb") as f:
+            np.save(f, np.eye(4))
+        return p
+
+    def stale_bin(p):
+        import os
+
+        from ..data.colmap_model import read_model
+
+        write_colmap(p, cams, zero_view=-1)
+        model = p / "sparse" / "0"
+        rec = read_model(model)  # the same model as a .bin, 100 s older than its .txt
+        with open(model / "cameras.bin", "wb") as f:
+            f.write(np.uint64(len(rec.cameras)).tobytes())
+            for cid, c in rec.cameras.items():
+                f.write(np.int32(cid).tobytes() + np.int32(1).tobytes() + np.uint64(c.width).tobytes()
+                        + np.uint64(c.height).tobytes() + np.asarray(c.params, "<f8").tobytes())
+        t = (model / "cameras.txt").stat().st_mtime
+        os.utime(model / "cameras.bin", (t - 100, t - 100))
+        return p
+
+    yield "path_outside_scene_ingp", "scene", "error", "outside the scene folder", inspect_case(
+        lambda p: write_transforms(p, cams, "transforms.json", edit=outside))
+    yield "transform_matrix_strings", "scene", "error", "transforms_train.json frame 2", inspect_case(
+        lambda p: write_transforms(p, cams, edit=strings))
+    yield "fifo_image_colmap", "scene", "error", "not a regular file", inspect_case(fifo_image)
+    yield "header_20000x20000_colmap", "scene", "error", "megapixels", inspect_case(bomb_image)
+    yield "npy_as_npz_dtu", "scene", "error", "cameras_sphere.npz", inspect_case(npy_cameras)
+    yield "stale_bin_colmap", "scene", "warning", "cameras.txt beside it is newer", inspect_case(stale_bin)
+
+    # ---- config files: not UTF-8, nested too deeply
+    for case, content in (("config_latin1", b"iterations: 5\n# caf\xe9\n"), ("config_deep", b"[" * 3_000_000)):
+        def go(name, content=content):
+            path = root / f"{name}.yaml"
+            path.write_bytes(content)
+            return {"method": "train", **run_cli(train.main, [scene, "--out", root / name, "--quiet", "--config", path])}
+        yield case, "config", "error", f"{case}.yaml", go
+
 
 def run_input_cases(out) -> list[dict]:
     """Every bad-input case (see the module docstring); inputs are written under ``out/inputs``."""

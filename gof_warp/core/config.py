@@ -168,9 +168,13 @@ def combine_overrides(overrides: list[str]) -> dict:
 def load_yaml(path) -> dict:
     path = Path(path)
     try:
-        data = yaml.safe_load(path.read_text())
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ConfigError(f"config file {path} not found") from None
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"config file {path} is not UTF-8 text (byte {e.start}: {e.reason}); save it as UTF-8") from None
+    except RecursionError:
+        raise ConfigError(f"config file {path} is nested too deeply to be a config (corrupt or not a config?)") from None
     except (OSError, yaml.YAMLError) as e:
         raise ConfigError(f"config file {path} cannot be read: {e}") from None
     if data is None:

@@ -88,6 +88,10 @@ def read_ply_vertices(path) -> dict[str, np.ndarray]:
             if len(set(names)) != len(names):
                 raise PlyError(f"{path}: duplicate vertex property names")
             if fmt == "ascii":
+                have = path.stat().st_size - f.tell()
+                if n * 2 * len(props) > have:  # each value needs a digit and a separator
+                    raise PlyError(f"{path}: truncated: the header claims {n} vertices of {len(props)} values but the "
+                                   f"file holds {have} bytes after its header")
                 rows = []
                 for i in range(n):
                     line = f.readline()
@@ -100,6 +104,10 @@ def read_ply_vertices(path) -> dict[str, np.ndarray]:
             endian = "<" if fmt == "binary_little_endian" else ">"
             dtype = np.dtype([(p, endian + dt) for p, dt in props])
             need = n * dtype.itemsize
+            have = path.stat().st_size - f.tell()
+            if need > have:  # before reading: a header claiming 1e13 vertices must not allocate for them
+                raise PlyError(f"{path}: truncated: the header claims {n} vertices ({need} bytes of vertex data) but "
+                               f"the file holds {have} bytes after its header")
             data = f.read(need)
             if len(data) != need:
                 raise PlyError(f"{path}: truncated: expected {need} bytes of vertex data for {n} vertices, found {len(data)}")

@@ -58,6 +58,10 @@ class DataConfig:
         undistort: ``"valid"`` (pinhole K zoomed so that no output pixel is blank) or ``"same"`` (keep the
             file's K; blank corners get ``background``). See :mod:`gof_warp.data.undistort`.
         images: COLMAP image folder name (``images``, ``images_2`` …).
+        allow_outside_paths: read image and mask paths of the scene files (``transforms*.json`` ``file_path`` /
+            ``mask_path``, COLMAP image names) that resolve outside the scene folder (COLMAP: its image folder),
+            e.g. ``../other/img.png``, absolute paths or links to elsewhere. False (default): such a path is an
+            error naming the entry, and the file is not touched.
     """
 
     downscale: float = 1.0
@@ -67,6 +71,7 @@ class DataConfig:
     use_masks: bool = True
     undistort: str = "valid"
     images: str = "images"
+    allow_outside_paths: bool = False
 
     def __post_init__(self):
         if not (isinstance(self.downscale, (int, float)) and math.isfinite(self.downscale) and self.downscale >= 1):

@@ -92,7 +92,7 @@ def read_colmap(root: Path, config) -> ScenePlan:
     cam_file = next((model_dir / f for f in _MODEL_FILES if (model_dir / f).is_file()), model_dir)
     pose_file = next((model_dir / f for f in ("images.bin", "images.txt") if (model_dir / f).is_file()), model_dir)
     image_dir = _images_dir(root, model_dir, config.images)
-    warnings = []
+    warnings = list(rec.warnings)
     registered = [im for im in rec.images.values() if "sky_mask" not in im.name]  # the file holds posed images only
     if not registered:
         raise SceneError(f"{model_dir}: the COLMAP model has no registered images")
@@ -111,7 +111,8 @@ def read_colmap(root: Path, config) -> ScenePlan:
             camera = Camera(R=R, t=t, fx=K[0], fy=K[1], cx=K[2], cy=K[3], width=lens.width, height=lens.height, name=name)
         except SceneError as e:
             raise SceneError(f"{model_dir} (image {im.name}): {e}") from None
-        views.append(ViewPlan(name=name, camera=camera, image_path=image_dir / im.name,
+        rel = imio.check_inside(im.name, image_dir, f"{pose_file} (image {im.name})", config.allow_outside_paths)
+        views.append(ViewPlan(name=name, camera=camera, image_path=image_dir / rel,
                               lens=lens if lens.has_distortion else None, composite_alpha=False))  # fmt: skip
         models.append(lens.model)
     n_files = len(imio.list_images(image_dir))

@@ -13,6 +13,7 @@ naming the file.
 
 from __future__ import annotations
 
+import logging
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,6 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import SceneError
+
+log = logging.getLogger(__name__)
 
 # COLMAP's camera model ids, names and parameter counts (src/colmap/sensor/models.h)
 CAMERA_MODELS = {
@@ -54,6 +57,7 @@ class ColmapModel:
     point_ids: np.ndarray  # [P] int64
     xyz: np.ndarray  # [P, 3] float64
     rgb: np.ndarray  # [P, 3] uint8
+    warnings: list[str] = field(default_factory=list)  # e.g. a .txt file newer than the .bin used
 
 
 def quaternion_to_rotation(q) -> np.ndarray:
@@ -203,8 +207,12 @@ def read_points(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def read_model(model_dir: Path) -> ColmapModel:
-    """The model in ``model_dir`` (binary files first, as COLMAP does); ``points3D`` may be absent (no points)."""
+    """The model in ``model_dir`` (binary files first, as COLMAP does); ``points3D`` may be absent (no points).
+
+    Where both ``X.bin`` and ``X.txt`` exist and the text file was modified later, the binary one is still used
+    and :attr:`ColmapModel.warnings` says so (an edited or re-exported text model beside a stale binary)."""
     model_dir = Path(model_dir)
+    warnings: list[str] = []
 
     def pick(stem: str, required: bool = True) -> Path | None:
         for ext in (".bin", ".txt"):
@@ -214,6 +222,12 @@ def read_model(model_dir: Path) -> ColmapModel:
             raise SceneError(f"{model_dir}: no {stem}.bin or {stem}.txt")
         return None
 
+    for stem in ("cameras", "images", "points3D"):
+        b, t = model_dir / f"{stem}.bin", model_dir / f"{stem}.txt"
+        if b.is_file() and t.is_file() and t.stat().st_mtime > b.stat().st_mtime:
+            warnings.append(f"{b} is used but {t.name} beside it is newer; remove the stale one "
+                            f"(COLMAP reads the .bin first, as gof_warp does)")
+            log.warning("warning: %s", warnings[-1])
     cameras, images = read_cameras(pick("cameras")), read_images(pick("images"))
     missing = sorted({im.camera_id for im in images.values()} - set(cameras))
     if missing:
@@ -221,7 +235,7 @@ def read_model(model_dir: Path) -> ColmapModel:
     points = pick("points3D", required=False)
     ids, xyz, rgb = read_points(points) if points else (np.zeros(0, np.int64), np.zeros((0, 3)),
                                                          np.zeros((0, 3), np.uint8))  # fmt: skip
-    return ColmapModel(cameras, images, ids, xyz, rgb)
+    return ColmapModel(cameras, images, ids, xyz, rgb, warnings)
 
 
 __all__ = ["CAMERA_MODELS", "ColmapCamera", "ColmapImage", "ColmapModel", "quaternion_to_rotation", "read_model"]

@@ -48,13 +48,26 @@ def decompose_projection(P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
 
 
 def _load_npz(path: Path) -> dict:
+    """The arrays of an ``.npz`` file (no pickles); SceneError naming the file for anything else (an ``.npy`` or a
+    pickle renamed ``.npz``, a corrupt archive, arrays that are not numbers)."""
     try:
-        with np.load(path) as z:
-            return {k: z[k] for k in z.files}
+        z = np.load(path, allow_pickle=False)
+        if not isinstance(z, np.lib.npyio.NpzFile):
+            kind = f"a single array {getattr(z, 'shape', '')}" if isinstance(z, np.ndarray) else type(z).__name__
+            raise SceneError(f"{path}: expected an .npz archive of world_mat_<i> / scale_mat_<i> arrays, found {kind} "
+                             f"(an .npy file?)")
+        with z:
+            out = {k: z[k] for k in z.files}
+    except SceneError:
+        raise
     except FileNotFoundError:
         raise SceneError(f"{path}: file not found") from None
-    except (OSError, ValueError, zipfile.BadZipFile) as e:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as e:
         raise SceneError(f"{path}: cannot read camera file: {e}") from None
+    for k, v in out.items():
+        if v.dtype.kind not in "biuf":
+            raise SceneError(f"{path}: entry {k!r} holds {v.dtype} values, expected numbers")
+    return out
 
 
 def read_dtu(root: Path, config) -> ScenePlan:

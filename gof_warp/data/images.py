@@ -8,6 +8,8 @@
 
 from __future__ import annotations
 
+import os
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,6 +18,10 @@ from PIL import Image, UnidentifiedImageError
 
 from ..core.errors import SceneError
 
+# Largest image read, in pixels (100 megapixels: 300 MB decoded as RGB, 1.2 GB as float32 on the device). A header
+# that claims more is refused before decoding: such a file is a decompression bomb or not meant for training (the
+# project trains at a few megapixels a view); Pillow's own limit would raise an untyped error later.
+MAX_IMAGE_PIXELS = 100_000_000
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".JPG", ".JPEG", ".PNG", ".bmp", ".tif", ".tiff", ".webp", ".exr")
 
 
@@ -32,9 +38,45 @@ class ImageHeader:
         return self.mode in ("RGBA", "LA", "PA", "RGBa", "La")
 
 
-def _open(path: Path):
+def check_regular_file(path: Path, what: str = "image") -> None:
+    """Raise :class:`SceneError` unless ``path`` is a regular file (or a link to one): a FIFO, socket or device
+    would block or stream forever when opened."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        raise SceneError(f"{path}: {what} file not found") from None
+    except OSError as e:
+        raise SceneError(f"{path}: cannot read {what}: {e}") from None
+    if stat.S_ISDIR(mode):
+        raise SceneError(f"{path}: expected an {what} file, found a folder")
+    if not stat.S_ISREG(mode):
+        raise SceneError(f"{path}: {what} is not a regular file (a FIFO, socket or device); refusing to open it")
+
+
+def check_inside(path, folder, what: str, allow_outside: bool = False) -> Path:
+    """``path`` itself when it resolves (links followed) inside the resolved ``folder``; else :class:`SceneError`
+    naming ``what`` (the entry that gave the path), unless ``allow_outside`` (``data.allow_outside_paths``).
+
+    Nothing is opened: the path is only resolved, so a scene file cannot make the readers open (or reveal the
+    existence of) files elsewhere on the machine."""
+    path = Path(path)
+    if allow_outside:
+        return path
+    base = Path(folder).resolve()
+    real = (base / path).resolve() if not path.is_absolute() else path.resolve()
+    if real != base and base not in real.parents:
+        raise SceneError(f"{what}: path {str(path)!r} points outside the scene folder {base}; "
+                         f"set data.allow_outside_paths=true to read files outside it")
+    return path
+
+
+def _open(path: Path, what: str = "image"):
+    check_regular_file(path, what)
     try:
         return Image.open(path)
+    except Image.DecompressionBombError as e:
+        raise SceneError(f"{path}: {what} is too large to decode ({e}); gof_warp reads images of at most "
+                         f"{MAX_IMAGE_PIXELS / 1e6:g} megapixels: downscale the file first") from None
     except FileNotFoundError:
         raise SceneError(f"{path}: image file not found") from None
     except IsADirectoryError:
@@ -45,10 +87,14 @@ def _open(path: Path):
         raise SceneError(f"{path}: cannot open image: {e}") from None
 
 
-def read_header(path) -> ImageHeader:
+def read_header(path, what: str = "image") -> ImageHeader:
     """Size and mode of an image file, read from its header only (cheap)."""
     path = Path(path)
-    with _open(path) as im:
+    with _open(path, what) as im:
+        if im.width * im.height > MAX_IMAGE_PIXELS:
+            raise SceneError(f"{path}: image header claims {im.width}x{im.height} pixels, over the limit of "
+                             f"{MAX_IMAGE_PIXELS / 1e6:g} megapixels (a corrupt file or a decompression bomb); "
+                             f"downscale the file first")
         mode = im.mode
         if mode == "P" and "transparency" in im.info:
             mode = "PA"
@@ -71,7 +117,10 @@ def _to_uint8(im: Image.Image) -> np.ndarray:
 
 
 def _load_pixels(path: Path, what: str) -> np.ndarray:
-    with _open(path) as im:
+    with _open(path, what) as im:
+        if im.width * im.height > MAX_IMAGE_PIXELS:
+            raise SceneError(f"{path}: {what} is {im.width}x{im.height} pixels, over the limit of "
+                             f"{MAX_IMAGE_PIXELS / 1e6:g} megapixels")
         try:
             im.load()
             return _to_uint8(im)

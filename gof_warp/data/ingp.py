@@ -92,9 +92,14 @@ def frame_camera(top: dict, frame: dict, image_path: Path, where: str, undistort
     cx = w / 2.0 if cx is None else cx
     cy = h / 2.0 if cy is None else cy
     dist = {k: _number(merged, k, where) or 0.0 for k in _DISTORTION_KEYS}
-    c2w = np.asarray(frame.get("transform_matrix"), dtype=np.float64) if "transform_matrix" in frame else None
+    try:
+        c2w = np.asarray(frame["transform_matrix"], dtype=np.float64) if "transform_matrix" in frame else None
+    except (TypeError, ValueError):  # strings, ragged rows, nested objects
+        c2w = None
     if c2w is None or c2w.shape not in ((4, 4), (3, 4)) or not np.all(np.isfinite(c2w)):
-        raise SceneError(f"{where}: 'transform_matrix' must be a finite 4x4 or 3x4 matrix")
+        got = frame.get("transform_matrix")
+        raise SceneError(f"{where}: 'transform_matrix' must be a finite 4x4 or 3x4 matrix of numbers, "
+                         f"got {str(got)[:80] if 'transform_matrix' in frame else 'none'}")
     lens = LensCamera(fx=fx, fy=fy, cx=cx, cy=cy, width=w, height=h, model="OPENCV", **dist)
     name = Path(str(frame.get("file_path", ""))).with_suffix("").as_posix()
     if lens.has_distortion:
@@ -115,11 +120,17 @@ def frames_to_views(json_path: Path, data: dict, config, split: str | None = Non
         where = f"{json_path} frame {i}"
         if not isinstance(frame, dict) or "file_path" not in frame:
             raise SceneError(f"{where}: frame without 'file_path'")
-        image_path = imio.find_image(json_path.parent, str(frame["file_path"]))
-        if not image_path.is_file():
+        allow = config.allow_outside_paths
+        rel = imio.check_inside(str(frame["file_path"]), json_path.parent, f"{where} 'file_path'", allow)
+        image_path = imio.find_image(json_path.parent, str(rel))
+        if not image_path.exists():
             raise SceneError(f"{image_path}: image file not found (frame {i} of {json_path})")
+        imio.check_regular_file(image_path)
         cam, lens, model = frame_camera(data, frame, image_path, where, config.undistort)
-        mask_path = imio.find_image(json_path.parent, str(frame["mask_path"])) if frame.get("mask_path") else None
+        mask_path = None
+        if frame.get("mask_path"):
+            rel = imio.check_inside(str(frame["mask_path"]), json_path.parent, f"{where} 'mask_path'", allow)
+            mask_path = imio.find_image(json_path.parent, str(rel))
         views.append(ViewPlan(name=cam.name, camera=cam, image_path=image_path, lens=lens, mask_path=mask_path, split=split))
         models.append(model)
     names = [v.name for v in views]

@@ -20,8 +20,12 @@ from ..core.scene import Scene
 
 log = logging.getLogger(__name__)
 
-# Triangulation that finds fewer points than this is not a usable start ("auto" then falls back to random).
+# Triangulation that finds fewer points than this is not a usable start ("auto" then stops with an error).
 MIN_SFM_POINTS = 100
+# How to go on when "auto" cannot get measured points. A random start is never taken silently: on real captures it
+# costs many dB of PSNR, so the user must ask for it.
+_FIX = ("Install pycolmap (pip install pycolmap), or give the scene a COLMAP model with points3D (or a points3d.ply), "
+        "or pass model.init=random to accept a random start.")
 
 
 def camera_focus(cameras: list[Camera]) -> np.ndarray:
@@ -121,14 +125,14 @@ def initial_point_cloud(scene: Scene, init: str, *, random_points: int, init_box
             except GofError as e:
                 if init == "sfm":
                     raise
-                log.warning("triangulation from the known poses failed (%s); random initialisation instead", e)
-            else:
-                info["sfm"] = result.stats
-                if len(result.points) >= MIN_SFM_POINTS or init == "sfm":
-                    points, colours, info["source"] = result.points, result.colors, "triangulated"
-                else:
-                    log.warning("triangulation found only %d points (< %d); random initialisation instead",
-                                len(result.points), MIN_SFM_POINTS)
+                raise GofError(f"model.init=auto: the scene has no sparse points and triangulation from its known "
+                               f"poses failed ({e}). {_FIX}") from None
+            info["sfm"] = result.stats
+            if len(result.points) < MIN_SFM_POINTS and init == "auto":
+                raise GofError(f"model.init=auto: triangulation from the known poses found only {len(result.points)} "
+                               f"points (< {MIN_SFM_POINTS}). Pass model.init=sfm to start from them anyway; or "
+                               f"{_FIX[0].lower()}{_FIX[1:]}")
+            points, colours, info["source"] = result.points, result.colors, "triangulated"
     if points is None:
         box = np.asarray(init_box, float) if init_box is not None else default_init_box(scene)
         if box.shape != (6,) or np.any(box[3:] <= box[:3]):

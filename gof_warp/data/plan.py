@@ -105,7 +105,7 @@ def check_files(plan: ScenePlan, use_masks: bool) -> list[_Checked]:
         cam, lens = _fit_to_image(v, header, notes)
         has_mask = False
         if use_masks and v.mask_path is not None:
-            mh = imio.read_header(v.mask_path)
+            mh = imio.read_header(v.mask_path, "mask")
             if (mh.width, mh.height) != (header.width, header.height):
                 raise SceneError(f"{v.mask_path}: mask is {mh.width}x{mh.height} but its image is {header.width}x{header.height}")
             has_mask = True

@@ -64,7 +64,8 @@ CAMERA_DIGITS = 7  # decimals of the camera values in the cache key
 def _views_digest(views: list[View]) -> str:
     """Digest of the views' names, cameras and images. A cache carried with the scene must be found on another
     machine, so cameras are rounded to ``CAMERA_DIGITS`` decimals (the same poses read there can differ in the last
-    bits: the pose inversion's floating-point order), and an image decoded from a file is identified by the file's
+    bits: the pose inversion's floating-point order) and negative zeros made positive (a tiny negative value there
+    rounds to ``-0.0``, whose bytes differ from ``0.0``), and an image decoded from a file is identified by the file's
     bytes and decoding settings (:class:`~gof_warp.scene.ImageSource`: another JPEG decoder may round some pixels the
     other way). An image made in memory, or whose file is gone, is identified by its pixels."""
     h = hashlib.sha256()
@@ -73,7 +74,7 @@ def _views_digest(views: list[View]) -> str:
         h.update(v.name.encode("utf-8") + b"\0")
         pose = np.concatenate([np.asarray(c.R, np.float64).ravel(), np.asarray(c.t, np.float64).ravel(),
                                np.array([c.fx, c.fy, c.cx, c.cy, c.width, c.height], np.float64)])
-        h.update(np.round(pose, CAMERA_DIGITS).tobytes())
+        h.update((np.round(pose, CAMERA_DIGITS) + 0.0).tobytes())  # + 0.0: -0.0 (and what rounds to it) → 0.0
         file_digest = v.source.digest() if v.source is not None else None
         if file_digest is not None:
             h.update(b"file\0" + file_digest.encode())

@@ -34,6 +34,38 @@ _MODEL_ATTRS = ("means", "rotations", "scales", "opacities", "active_sh_degree")
 _MISSING = object()
 
 
+DEFAULT_NEAR = 0.2  # GOF's near plane, for scenes of a few units
+# Left at DEFAULT_NEAR, the near plane is at most this fraction of the scene's size (scene_near): scenes of size
+# >= 1 keep 0.2 exactly, a scene of size 1e-6 gets 2e-7 instead of a plane far beyond everything it holds.
+NEAR_SCENE_FRACTION = 0.2
+
+
+def scene_size(extent: float, cameras=None, points=None) -> float:
+    """A scene's size for :func:`scene_near`: its camera extent (3DGS's ``cameras_extent``), or when initial
+    points are given and larger, the median distance from the cameras' mean centre to them (forward-facing
+    captures: cameras close together looking at things far away)."""
+    size = float(extent)
+    if cameras and points is not None and len(points):
+        centre = np.mean([c.center for c in cameras], axis=0)
+        size = max(size, float(np.median(np.linalg.norm(np.asarray(points, np.float64) - centre, axis=1))))
+    return size
+
+
+def scene_near(near: float, size: float) -> tuple[float, str | None]:
+    """``(near plane to use, a warning or None)`` for ``render.near = near`` in a scene of ``size``.
+
+    ``near == DEFAULT_NEAR`` (the setting left alone): ``min(0.2, NEAR_SCENE_FRACTION × size)``, so normal scenes
+    keep 0.2. Another value is the user's: kept, with a warning when it is larger than the scene."""
+    if not (size > 0 and math.isfinite(size)):
+        return near, None
+    if near == DEFAULT_NEAR:
+        return min(near, NEAR_SCENE_FRACTION * size), None
+    if near > size:
+        return near, (f"render.near = {near:g} is larger than the scene (size {size:.3g}): Gaussians nearer than "
+                      f"that to a camera are not drawn, which may be most of the scene")
+    return near, None
+
+
 @dataclass
 class RenderConfig:
     """Compositing thresholds (defaults: the official GOF/3DGS rasteriser, ``GOF_REFERENCE.md`` §1–2).
@@ -44,7 +76,9 @@ class RenderConfig:
 
     Attributes:
         near: Gaussians with camera z ≤ near are culled and intersections with t* ≤ near skipped
-            (GOF hard-codes 0.2; scale-dependent, hence configurable).
+            (GOF hard-codes 0.2; scale-dependent, hence configurable). Left at 0.2, a training run scales it
+            down for a scene smaller than 1 unit (:func:`scene_near`: ``0.2 ×`` the scene's size); any other
+            value is used as given, with a warning when it is larger than the scene.
         alpha_min: (pixel, Gaussian) pairs with α < alpha_min are skipped (3DGS/GOF: 1/255).
         alpha_max: α = min(alpha_max, opacity · E) (3DGS/GOF: 0.99).
         transmittance_min: compositing stops before a Gaussian that would bring T below it (1e-4).
@@ -73,7 +107,7 @@ class RenderConfig:
             ``render()`` itself reads only the camera's ``near``. 0 (default, GOF): ``near`` for every camera.
     """
 
-    near: float = 0.2
+    near: float = DEFAULT_NEAR
     alpha_min: float = 1.0 / 255.0
     alpha_max: float = 0.99
     transmittance_min: float = 1e-4

@@ -58,7 +58,7 @@ from .multiview import MultiViewTerm
 from .near_camera import (in_front_of_cameras, near_camera_bounds, near_camera_census, near_ray_census,
                           stack_cameras)
 from .optim import LeanAdam, OptimConfig, make_optimizer, update_learning_rate
-from ..rendering.render import DensifyStats, RenderConfig, RenderScratch, render
+from ..rendering.render import DensifyStats, RenderConfig, RenderScratch, render, scene_near, scene_size
 from ..core.scene import Scene
 from .settings import EXPERIMENTAL_TARGETS, ExperimentalConfig, PerformanceConfig, upgrade_keys
 from .step_scalars import IterationScalars, PendingScalars
@@ -84,7 +84,8 @@ class ModelConfig:
     ``init``: ``"sfm"`` — the scene's own sparse points (COLMAP ``points3D``, a ``points3d.ply``) or, when it
     has none, points triangulated from the known poses (:mod:`gof_warp.data.sfm`, cached beside the scene);
     ``"random"`` — ``random_init_points`` uniform in ``init_box`` (3DGS's Blender init); ``"auto"`` — as
-    ``"sfm"``, but falls back to random (with a warning) when triangulation finds too few points.
+    ``"sfm"``, but an error naming the fixes when triangulation fails or finds fewer than 100 points (never a
+    silent random start: pass ``"random"`` to ask for one).
     ``background_points``: extra points on a sphere around the scene (:func:`background_points`), where the
     cameras look past every initial point — the far background SfM rarely reaches; 0 = none.
     """
@@ -201,6 +202,21 @@ CHECKPOINT_KEYS = ("iteration", "elapsed", "config", "params", "max_sh_degree", 
                    "torch_rng", "cuda_rng", "history")
 
 
+def _scene_near_plane(config: TrainConfig, scene: Scene) -> TrainConfig:
+    """``config`` with ``render.near`` fitted to the scene (:func:`~gof_warp.rendering.render.scene_near`): the
+    default 0.2 is scaled down for a scene smaller than 1 unit; a larger explicit value is warned about. The run's
+    config.yaml records the value used, so extraction and resuming use the same plane."""
+    size = scene_size(scene.extent, scene.train_cameras, scene.points)
+    near, warning = scene_near(config.render.near, size)
+    if warning:
+        log.warning("warning: %s", warning)
+    if near == config.render.near:
+        return config
+    log.info("render.near %g for this scene of size %.3g (0.2 is larger than the scene; set render.near to choose)",
+             near, size)
+    return dataclasses.replace(config, render=dataclasses.replace(config.render, near=near))
+
+
 def _image_tensor(image: np.ndarray, device) -> torch.Tensor:
     return torch.from_numpy(image).to(device=device, dtype=torch.float32) / 255.0
 
@@ -233,6 +249,7 @@ class Trainer:
 
     def __init__(self, scene: Scene, config: TrainConfig, out_dir, device: str, scene_path=None,
                  ranks: Ranks | None = None):
+        config = _scene_near_plane(config, scene)
         self.scene, self.config, self.device = scene, config, torch.device(device)
         self.ranks = Ranks.single() if ranks is None else ranks
         self.views_per_step = config.views_per_step or self.ranks.world

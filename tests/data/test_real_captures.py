@@ -59,7 +59,8 @@ def test_scene_points_win_over_triangulation_and_random():
     assert info["source"] == "random" and len(pts) == 10
 
 
-def test_failed_triangulation_auto_falls_back_sfm_raises(monkeypatch, caplog):
+def test_failed_triangulation_is_an_error_under_auto_and_sfm(monkeypatch):
+    """A random start is never taken silently: "auto" names the failure and the three ways on."""
     import gof_warp.data.sfm as sfm
 
     def fail(*a, **k):
@@ -67,21 +68,22 @@ def test_failed_triangulation_auto_falls_back_sfm_raises(monkeypatch, caplog):
 
     monkeypatch.setattr(sfm, "triangulate_known_poses", fail)
     monkeypatch.setattr(sfm, "default_cache_dir", lambda scene: None)
-    with caplog.at_level(logging.WARNING):
-        pts, _, info = initial_point_cloud(_flat_scene(), "auto", random_points=20, init_box=(-1, -1, -1, 1, 1, 1))
-    assert info["source"] == "random" and len(pts) == 20 and "random initialisation instead" in caplog.text
+    with pytest.raises(GofError, match=r"model.init=auto.*no verified matches.*pycolmap.*points3D.*model.init=random"):
+        initial_point_cloud(_flat_scene(), "auto", random_points=20, init_box=(-1, -1, -1, 1, 1, 1))
+    pts, _, info = initial_point_cloud(_flat_scene(), "random", random_points=20, init_box=(-1, -1, -1, 1, 1, 1))
+    assert info["source"] == "random" and len(pts) == 20
     with pytest.raises(GofError, match="no verified matches"):
         initial_point_cloud(_flat_scene(), "sfm", random_points=20)
 
 
-def test_too_few_triangulated_points_fall_back_under_auto_only(monkeypatch):
+def test_too_few_triangulated_points_are_an_error_under_auto_only(monkeypatch):
     import gof_warp.data.sfm as sfm
 
     few = sfm.SfmResult(points=np.zeros((5, 3)), colors=np.zeros((5, 3), np.uint8), stats={"points": 5})
     monkeypatch.setattr(sfm, "triangulate_known_poses", lambda *a, **k: few)
     monkeypatch.setattr(sfm, "default_cache_dir", lambda scene: None)
-    _, _, info = initial_point_cloud(_flat_scene(), "auto", random_points=20, init_box=(-1, -1, -1, 1, 1, 1))
-    assert info["source"] == "random" and info["sfm"]["points"] == 5
+    with pytest.raises(GofError, match=r"found only 5 points.*model.init=sfm.*model.init=random"):
+        initial_point_cloud(_flat_scene(), "auto", random_points=20, init_box=(-1, -1, -1, 1, 1, 1))
     pts, _, info = initial_point_cloud(_flat_scene(), "sfm", random_points=20)
     assert info["source"] == "triangulated" and len(pts) == 5
 

@@ -171,7 +171,7 @@ def test_cache_key_follows_the_image_files_not_the_decoder(synthetic, tmp_path):
 
 def test_missing_pycolmap_is_a_clear_error(synthetic, tmp_path, monkeypatch):
     """Without pycolmap (and no cache for these views) the triangulation says what is missing and what to do, and
-    `model.init=auto` can fall back to random points (it catches GofError, not ImportError)."""
+    `model.init=auto` turns it into its own error naming the ways on (it catches GofError, not ImportError)."""
     import builtins
 
     real_import = builtins.__import__

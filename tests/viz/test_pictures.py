@@ -200,7 +200,7 @@ TINY = {
     "iterations": 12,
     "checkpoint_every": 100,
     "log_every": 4,
-    "model": {"sh_degree": 0, "random_init_points": 400},
+    "model": {"sh_degree": 0, "init": "random", "random_init_points": 400},
     "optim": {"means_lr_max_steps": 12},
     "densify": {"start_iter": 100, "stop_iter": 100, "filter_3d_until_iter": 0},
     "loss": {"regularization_from_iter": 100},
