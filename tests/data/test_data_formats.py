@@ -298,7 +298,7 @@ def test_blender_missing_frame_image_and_corrupt_colmap_model(tmp_path):
 
 def test_config_validation():
     for bad in (dict(downscale=0.5), dict(test_every=-1), dict(background=(2, 0, 0)), dict(undistort="crop")):
-        with pytest.raises(GofError, match="DataConfig"):
+        with pytest.raises(GofError, match=r"data\.(downscale|test_every|background|undistort)"):
             DataConfig(**bad)
 
 

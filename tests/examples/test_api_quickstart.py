@@ -4,7 +4,7 @@ import importlib.util
 import math
 from pathlib import Path
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "api_quickstart.py"
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "api_quickstart.py"
 
 
 def _example():

@@ -26,7 +26,7 @@ from gof_warp.cli.train import main as train_main
 pytestmark = pytest.mark.slow  # spawns gloo process groups that train
 
 ARGS = ["--config", "quick", "--iterations", "40", "--device", "cpu", "--no-pictures", "--quiet", "views_per_step=2",
-        "log_every=10", "checksum_every=10", "checkpoint_every=20", "model.random_init_points=400",
+        "log_every=10", "performance.checksum_every=10", "checkpoint_every=20", "model.random_init_points=400",
         "densify.start_iter=5", "densify.interval=10", "densify.grad_threshold=1e-6"]
 
 

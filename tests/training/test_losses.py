@@ -365,30 +365,31 @@ def test_training_loss_modes_and_fallback():
 
 
 def test_compile_loss_config_values():
-    """``compile_loss``: auto / on / off; a bare YAML on/off (read as true/false) means on/off; nonsense is an error
-    naming the key."""
+    """``performance.compile_loss``: auto / on / off; a bare YAML on/off (read as true/false) means on/off; nonsense is
+    an error naming the key."""
     from gof_warp.core.config import ConfigError, merge, parse_override
     from gof_warp.training.trainer import TrainConfig
 
-    assert TrainConfig().compile_loss == "auto"
-    assert merge(TrainConfig(), parse_override("compile_loss=off")).compile_loss == "off"
-    assert merge(TrainConfig(), parse_override("compile_loss=on")).compile_loss == "on"
-    assert merge(TrainConfig(), parse_override("compile_loss=auto")).compile_loss == "auto"
+    assert TrainConfig().performance.compile_loss == "auto"
+    for value in ("off", "on", "auto"):
+        cfg = merge(TrainConfig(), parse_override(f"performance.compile_loss={value}"))
+        assert cfg.performance.compile_loss == value
     with pytest.raises(ConfigError, match="compile_loss"):
-        merge(TrainConfig(), parse_override("compile_loss=sometimes"))
+        merge(TrainConfig(), parse_override("performance.compile_loss=sometimes"))
 
 
 def test_auto_compiles_only_long_runs_on_cuda():
-    """``compile_loss="auto"`` (the default) compiles runs of at least AUTO_COMPILE_MIN_ITERATIONS iterations on CUDA
+    """``performance.compile_loss="auto"`` (the default) compiles runs of at least AUTO_COMPILE_MIN_ITERATIONS iterations on CUDA
     only: a short run resolves to "off", a long one stays "auto" (which TrainingLoss keeps eager off CUDA), and an
     explicit "on" / "off" is kept whatever the length."""
     from gof_warp.training.losses import TrainingLoss
+    from gof_warp.training.settings import PerformanceConfig
     from gof_warp.training.trainer import AUTO_COMPILE_MIN_ITERATIONS, TrainConfig, compile_mode
 
     long_run, short_run = AUTO_COMPILE_MIN_ITERATIONS, AUTO_COMPILE_MIN_ITERATIONS - 1
     assert compile_mode(TrainConfig(iterations=long_run)) == "auto"
     assert compile_mode(TrainConfig(iterations=short_run)) == "off"
-    assert compile_mode(TrainConfig(iterations=short_run, compile_loss="on")) == "on"
-    assert compile_mode(TrainConfig(iterations=long_run, compile_loss="off")) == "off"
+    assert compile_mode(TrainConfig(iterations=short_run, performance=PerformanceConfig(compile_loss="on"))) == "on"
+    assert compile_mode(TrainConfig(iterations=long_run, performance=PerformanceConfig(compile_loss="off"))) == "off"
     # "auto" on the CPU: eager, nothing compiled
     assert TrainingLoss(LossConfig(), [_camera()], "cpu", mode=compile_mode(TrainConfig(iterations=long_run))).compiled is None

@@ -337,8 +337,8 @@ def test_training_with_the_term_on(tmp_path, device):
     cfg = merge(TrainConfig(), {"iterations": 16, "checkpoint_every": 0, "log_every": 1,
                                 "model": {"sh_degree": 0, "init": "random", "random_init_points": 300},
                                 "densify": {"start_iter": 100},
-                                "loss": {"regularization_from_iter": 100,
-                                         "multiview": {"weight": 0.2, "from_iter": 8, "pixels": 64, "patch": 5,
+                                "loss": {"regularization_from_iter": 100},
+                                "experimental": {"multiview": {"weight": 0.2, "from_iter": 8, "pixels": 64, "patch": 5,
                                                        "neighbours": 2, "neighbours_per_step": 2,
                                                        "max_angle_deg": 90.0}}})
     trainer = Trainer(scene, cfg, tmp_path / "run", device)

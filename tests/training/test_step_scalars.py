@@ -48,7 +48,7 @@ def test_flush_returns_every_record_in_order_with_its_own_terms():
 @pytest.mark.slow
 def test_a_training_step_reads_nothing_back_from_the_device(tiny_scene, tmp_path, monkeypatch):
     # fused Adam, as on CUDA (the CPU's loop Adam reads its step count back, which costs nothing there)
-    cfg = merge(TrainConfig(), {**TINY, "optim": {"fused": True}, "appearance": True})
+    cfg = merge(TrainConfig(), {**TINY, "performance": {"adam": "torch-fused"}, "appearance": True})
     trainer = Trainer(tiny_scene, cfg, tmp_path / "r", "cpu")
     trainer.iteration = 9  # regularisers on, statistics gathered (densification steps, every 4th, do read back)
 

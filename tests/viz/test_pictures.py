@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from gof_warp.cli.pictures import main as pictures_main
 from gof_warp.viz import pictures
 from gof_warp.core.camera import Camera, look_at
 from gof_warp.core.errors import GofError
@@ -283,13 +284,13 @@ def test_wide_cameras_are_scaled_to_the_width_limit(tiny_run):
 @pytest.mark.slow
 def test_cli_writes_the_picture_and_reports_errors_in_one_line(tiny_run, tmp_path, capsys):
     run, _ = tiny_run
-    assert pictures.main([str(run), "--views", "1", "--out", str(tmp_path / "p"), "--device", "cpu", "--quiet"]) == 0
+    assert pictures_main([str(run), "--views", "1", "--out", str(tmp_path / "p"), "--device", "cpu", "--quiet"]) == 0
     assert (tmp_path / "p" / "views.png").is_file()
     capsys.readouterr()
-    assert pictures.main([str(tmp_path / "nothing"), "--quiet"]) == 2
+    assert pictures_main([str(tmp_path / "nothing"), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error:") and "neither a run folder" in err and err.count("\n") == 1
-    assert pictures.main([str(run), "--mesh", str(tmp_path / "none.ply"), "--quiet"]) == 2
+    assert pictures_main([str(run), "--mesh", str(tmp_path / "none.ply"), "--quiet"]) == 2
     assert "none.ply" in capsys.readouterr().err
 
 
