@@ -19,8 +19,8 @@ import torch
 import trimesh
 
 import gof_warp
-from gof_warp.render import render  # the function: once loaded, the module gof_warp.render shadows gof_warp.render
-from gof_warp.trainer import TrainConfig, Trainer
+from gof_warp.rendering.render import render  # the function: once loaded, the module gof_warp.rendering.render shadows gof_warp.rendering.render
+from gof_warp.training.trainer import TrainConfig, Trainer
 
 
 def main(argv=None) -> dict:

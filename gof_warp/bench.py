@@ -1,4 +1,4 @@
-"""``python -m gof_warp.bench``: benchmark suites. The command lives in :mod:`gof_warp.cli.bench`."""
+"""``python -m gof_warp.bench``: benchmark suites. The command lives in :mod:`gof_warp.cli.common.bench`."""
 
 import sys
 

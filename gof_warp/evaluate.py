@@ -1,4 +1,4 @@
-"""``python -m gof_warp.evaluate``: mesh scores. The command lives in :mod:`gof_warp.cli.evaluate`."""
+"""``python -m gof_warp.evaluate``: mesh scores. The command lives in :mod:`gof_warp.cli.common.evaluate`."""
 
 import sys
 

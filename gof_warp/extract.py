@@ -1,4 +1,4 @@
-"""``python -m gof_warp.extract``: mesh extraction. The command lives in :mod:`gof_warp.cli.extract`."""
+"""``python -m gof_warp.extract``: mesh extraction. The command lives in :mod:`gof_warp.cli.common.extract`."""
 
 import sys
 

@@ -1,4 +1,4 @@
-"""``python -m gof_warp.inspect``: what gof_warp makes of a scene folder. The command lives in :mod:`gof_warp.cli.inspect_scene`."""
+"""``python -m gof_warp.inspect``: what gof_warp makes of a scene folder. The command lives in :mod:`gof_warp.cli.common.inspect_scene`."""
 
 import sys
 

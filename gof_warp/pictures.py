@@ -1,4 +1,4 @@
-"""``python -m gof_warp.pictures``: a run's pictures. The command lives in :mod:`gof_warp.cli.pictures`."""
+"""``python -m gof_warp.pictures``: a run's pictures. The command lives in :mod:`gof_warp.cli.common.pictures`."""
 
 import sys
 

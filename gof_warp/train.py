@@ -1,4 +1,4 @@
-"""``python -m gof_warp.train``: training. The command lives in :mod:`gof_warp.cli.train`."""
+"""``python -m gof_warp.train``: training. The command lives in :mod:`gof_warp.cli.common.train`."""
 
 import sys
 

@@ -1,4 +1,4 @@
-"""``python -m gof_warp.view``: the live viewer. The command lives in :mod:`gof_warp.cli.view`."""
+"""``python -m gof_warp.view``: the live viewer. The command lives in :mod:`gof_warp.cli.common.view`."""
 
 import sys
 

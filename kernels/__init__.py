@@ -83,7 +83,7 @@ _WHERE = {name: module for module, names in _MODULES.items() for name in names}
 
 # Documentation for stable names whose definition carries none (structs declared field by field).
 _DOCS = {
-    "CameraParams": """Pinhole camera (``wp.struct``), conventions of ``gof_warp.camera.Camera``.
+    "CameraParams": """Pinhole camera (``wp.struct``), conventions of ``gof_warp.core.camera.Camera``.
 
     Fields: ``R: mat33`` world-to-camera rotation, ``t: vec3`` world-to-camera translation (world units),
     ``centre: vec3`` camera centre in world space (``-Rᵀ t``), ``fx, fy, cx, cy: float`` in pixels,

@@ -1,6 +1,6 @@
 """The 3D filter's sampling depth: for each Gaussian centre, the nearest camera-space depth over the cameras
 that see it (Mip-Splatting's 3D filter as GOF computes it; the host side, the variance and the schedule
-live in :mod:`gof_warp.filter3d`).
+live in :mod:`gof_warp.training.filter3d`).
 
 A camera sees a centre ``x`` when ``z > near`` for ``(x_c, y_c, z) = R x + t`` and its projection
 ``(u, v) = (fx x_c / z + cx, fy y_c / z + cy)`` lies in ``[−g W, (1 + g) W] × [−g H, (1 + g) H]`` (GOF: a

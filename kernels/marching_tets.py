@@ -4,7 +4,7 @@ Level-set convention: a point is **inside** when ``value >= level`` (high opacit
 ``sdf = 0.5 - O < 0``). Output triangles are wound so that their normal ``(p1 - p0) × (p2 - p0)``
 points from inside (high) to outside (low), i.e. outwards for an opacity field.
 
-Pipeline (host code in :mod:`gof_warp.marching`):
+Pipeline (host code in :mod:`gof_warp.mesh.marching`):
 
 1. :func:`count_triangles` per tetrahedron → ``array_scan`` (inclusive) → number of faces.
 2. :func:`write_triangle_edges` per tetrahedron: each face corner is the **key of the global edge** it
@@ -19,7 +19,7 @@ Pipeline (host code in :mod:`gof_warp.marching`):
    field values at the midpoints (one step, one batch of field values from the caller), and
    :func:`bracket_tree_midpoints` / :func:`descend_bracket_tree` take ``d`` steps from one batch (every
    midpoint those steps can visit; ``d = 1`` is the one-step pair): the same brackets bit for bit. The host
-   code (:mod:`gof_warp.marching`) uses the tree pair;
+   code (:mod:`gof_warp.mesh.marching`) uses the tree pair;
    :func:`interpolate_in_brackets` puts the vertex at the linear zero of the final bracket.
 
 The field of step 4 is either host code filling a batch of values, or a user's ``@wp.func``

@@ -9,7 +9,7 @@ Pure Warp (+ numpy on the host side). Two kernels, each with a host function tha
   the world position, or a constant) times view-independent Lambertian lighting (directional lights +
   ambient), so that a degree-0 SH colour per surface point can fit it exactly.
 
-Camera conventions are those of ``gof_warp.camera`` (OpenCV axes, world-to-camera ``x_c = R x + t``).
+Camera conventions are those of ``gof_warp.core.camera`` (OpenCV axes, world-to-camera ``x_c = R x + t``).
 With ``s`` samples per pixel axis, sample ``(col, row)`` of the ``[H*s, W*s]`` grid sits at the
 continuous pixel coordinate ``((col + 0.5) / s, (row + 0.5) / s)``; ``s = 1`` gives the pixel centres
 ``(i + 0.5, j + 0.5)``. Its camera-space ray is ``((u - cx) / fx, (v - cy) / fy, 1)``, so the ray

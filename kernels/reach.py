@@ -3,7 +3,7 @@
 GOF's Delaunay grid has points only at the Gaussians' centres and the corners of their oriented 3σ boxes, and its
 cell filter drops tetrahedra whose edges outrun the Gaussians' extent, so its tetrahedra stay where the Gaussians
 reach. A grid that fills whole boxes (the octree) has vertices between and under them too; a tetrahedron none of
-whose vertices lies in any box reaches no Gaussian, and the host side (:mod:`gof_warp.tetra`) leaves it out.
+whose vertices lies in any box reaches no Gaussian, and the host side (:mod:`gof_warp.mesh.tetra`) leaves it out.
 
 A point ``p`` lies in the box of Gaussian ``k`` (centre ``μ``, rotation ``R`` from the wxyz quaternion, half extents
 ``e = σ s``) when ``|Rᵀ (p − μ)| ≤ e`` on every axis. The boxes' axis-aligned bounds (:func:`oriented_box_bounds`:

@@ -1,6 +1,6 @@
 """Structs passed to the renderer's kernels, and host helpers that fill them (no torch).
 
-``CameraParams`` holds a pinhole camera in the conventions of ``gof_warp.camera.Camera`` (world-to-camera
+``CameraParams`` holds a pinhole camera in the conventions of ``gof_warp.core.camera.Camera`` (world-to-camera
 ``R, t``; OpenCV axes; pixel centres at ``i + 0.5``). ``RasterSettings`` holds the thresholds of the
 compositing rule (``docs/rendering.md``) and the tile grid.
 """

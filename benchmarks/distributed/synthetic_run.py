@@ -18,7 +18,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "extract"))
 from bench_extract import ring_cameras, synthetic_model  # noqa: E402
 from bench_marching import DEFAULT_DATA  # noqa: E402
 
-from gof_warp.io_utils import write_json_atomic  # noqa: E402
+from gof_warp.core.io_utils import write_json_atomic  # noqa: E402
 
 
 def main(argv=None) -> int:

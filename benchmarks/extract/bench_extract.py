@@ -1,4 +1,4 @@
-"""End-to-end mesh extraction benchmark, per stage: ``gof_warp.extract.extract_mesh`` for each method
+"""End-to-end mesh extraction benchmark, per stage: ``gof_warp.cli.extract.extract_mesh`` for each method
 and point-reduction setting, with wall time, host/GPU peak memory and counts per stage (issue 5).
 
 Gaussians: a 3DGS-layout PLY (``--ply``; cameras from ``--cameras cameras.json``, e.g. a run folder's,
@@ -39,12 +39,12 @@ import warp as wp
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_marching import DEFAULT_DATA, Stage, load_gaussians, machine_info
 
-from gof_warp.camera import look_at
-from gof_warp.extract import MeshConfig, StageTimer, cameras_from_json, extract_mesh
-from gof_warp.io_utils import write_json_atomic
-from gof_warp.model import Gaussians
-from gof_warp.tetra import TetraConfig
-from gof_warp.tsdf import gaussian_bounds
+from gof_warp.core.camera import look_at
+from gof_warp.cli.extract import MeshConfig, StageTimer, cameras_from_json, extract_mesh
+from gof_warp.core.io_utils import write_json_atomic
+from gof_warp.core.model import Gaussians
+from gof_warp.mesh.tetra import TetraConfig
+from gof_warp.mesh.tsdf import gaussian_bounds
 
 
 def scene_diagonal(gaussians) -> float:

@@ -32,10 +32,10 @@ import torch
 import warp as wp
 from scipy.spatial import cKDTree
 
-from gof_warp.io_utils import write_json_atomic
-from gof_warp.marching import marching_tetrahedra
-from gof_warp.model import quat_to_rotmat as quat_to_rotation
-from gof_warp.tetra import delaunay, filter_cells, tetra_points
+from gof_warp.core.io_utils import write_json_atomic
+from gof_warp.mesh.marching import marching_tetrahedra
+from gof_warp.core.model import quat_to_rotmat as quat_to_rotation
+from gof_warp.mesh.tetra import delaunay, filter_cells, tetra_points
 
 DEFAULT_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "gaussians_54k.npz"
 KNN = 8  # Gaussians per field evaluation in the stand-in field

@@ -8,7 +8,7 @@
 What is compared: the per-image cost of two different renderers on identical Gaussians. gsplat
 (``rasterization(..., render_mode="RGB+ED")``) projects each Gaussian to a 2D screen-space Gaussian (EWA
 splatting, +0.3 px^2 low-pass ``eps2d``) and composites colour and expected depth (of the centres); ours
-(``gof_warp.render.rasterize``) intersects every pixel ray with each 3D Gaussian (GOF) and composites
+(``gof_warp.rendering.render.rasterize``) intersects every pixel ray with each 3D Gaussian (GOF) and composites
 colour, alpha, expected depth and median depth of the intersection points, normals and the distortion
 loss. Neither does the other's extra work, so the ratio is "what our image costs" vs "what a standard
 3DGS image costs" on the same scene, not a like-for-like kernel race.
@@ -54,7 +54,7 @@ def _import_ours():
     sys.path.insert(0, str(HERE))
     try:
         import bench_render as br  # also puts the repo root on sys.path and imports warp + gof_warp
-        from gof_warp.render import RenderConfig, rasterize
+        from gof_warp.rendering.render import RenderConfig, rasterize
     except ImportError as e:
         _fail(f"cannot import our renderer / bench_render.py ({e}); on the GPU machine source Warp's "
               f"install.sh and benchmarks/device_setup.sh first")  # fmt: skip

@@ -1,4 +1,4 @@
-"""GPU benchmark of the differentiable renderer (``gof_warp.render.rasterize``), plus a CUDA correctness check.
+"""GPU benchmark of the differentiable renderer (``gof_warp.rendering.render.rasterize``), plus a CUDA correctness check.
 
     python benchmarks/render/bench_render.py --check            # CUDA (tiled and plain) vs float64 reference
     python benchmarks/render/bench_render.py --sweep --out DIR  # 100k..3M Gaussians x 800x600, 1920x1080
@@ -42,7 +42,7 @@ except ImportError:
     _spec.loader.exec_module(sys.modules["gof_warp.kernels"])
 
 from gof_warp.benchmarking.render_scene import make_camera, make_scene  # noqa: E402,F401
-from gof_warp.render import DensifyStats, RenderConfig, rasterize  # noqa: E402
+from gof_warp.rendering.render import DensifyStats, RenderConfig, rasterize  # noqa: E402
 from gof_warp.kernels.render_types import camera_params_from, make_raster_settings  # noqa: E402
 from gof_warp.kernels.binning import TileListSizer  # noqa: E402
 from gof_warp.kernels.renderer import RenderOutputs, render_backward, render_forward  # noqa: E402

@@ -1,12 +1,12 @@
 """How far torch's Adam over the Gaussians' parameters is from its memory roofline (issue 14; run on a GPU).
 
-The trainer's optimiser is ``torch.optim.Adam(fused=True)`` with one group per parameter (``gof_warp.optim``). Its
+The trainer's optimiser is ``torch.optim.Adam(fused=True)`` with one group per parameter (``gof_warp.training.optim``). Its
 traffic per float is at least 28 bytes (read parameter, gradient, both moments; write parameter and both moments).
 This times, for DTU scan 24's final model size by default (776,149 Gaussians, SH degree 3: 59 floats each):
 
 * ``fused``: torch's fused Adam (six groups, the means' rate changed every step as the schedule does);
-* ``lean``: ``gof_warp.optim.LeanAdam``, the same kernel with less host work (``optim.adam=torch``);
-* ``warp``: ``gof_warp.optim.WarpAdam`` (``optim.adam=warp``, the default on CUDA), one Warp
+* ``lean``: ``gof_warp.training.optim.LeanAdam``, the same kernel with less host work (``optim.adam=torch``);
+* ``warp``: ``gof_warp.training.optim.WarpAdam`` (``optim.adam=warp``, the default on CUDA), one Warp
   kernel a parameter, four floats a thread;
 * ``foreach``: torch's multi-tensor Adam, for comparison;
 * ``copy``: 12 B a float copied and 4 B more read (28 B of traffic a float, as Adam's), the practical roofline;
@@ -25,7 +25,7 @@ import time
 
 import torch
 
-from gof_warp.optim import LeanAdam, WarpAdam
+from gof_warp.training.optim import LeanAdam, WarpAdam
 
 SHAPES = {"means": (3,), "sh_dc": (1, 3), "sh_rest": (15, 3), "opacity_logits": (1,), "log_scales": (3,),
           "quats": (4,)}

@@ -50,8 +50,8 @@ def _sync(device):
 
 def _with_model(trainer, ply: Path) -> None:
     """Give ``trainer`` the Gaussians of ``ply`` (SH padded with zeros to the preset's degree), fresh Adam state."""
-    from gof_warp.model import Gaussians, num_sh_coeffs
-    from gof_warp.optim import make_optimizer
+    from gof_warp.core.model import Gaussians, num_sh_coeffs
+    from gof_warp.training.optim import make_optimizer
 
     g = Gaussians.load_ply(ply, device=trainer.device)
     want = num_sh_coeffs(trainer.config.model.sh_degree) - 1
@@ -66,9 +66,9 @@ def _with_model(trainer, ply: Path) -> None:
 
 
 def _cudnn_setting(cfg):
-    """``gof_warp.devices.cudnn_benchmark`` as the trainer's config asks (a no-op in trees from before it)."""
+    """``gof_warp.core.devices.cudnn_benchmark`` as the trainer's config asks (a no-op in trees from before it)."""
     try:
-        from gof_warp.devices import cudnn_benchmark
+        from gof_warp.core.devices import cudnn_benchmark
     except ImportError:
         return contextlib.nullcontext()
     return cudnn_benchmark(getattr(cfg, "cudnn_benchmark", False))
@@ -157,21 +157,21 @@ def main(argv=None) -> int:
     ap.add_argument("--label", default="", help="free text stored in the JSON (e.g. the commit)")
     ap.add_argument("--reduce-min-lanes", type=int, default=None,
                     help="the CUDA backward's RasterSettings.reduce_min_lanes for every render (default: the kernels' own)")
-    ap.add_argument("overrides", nargs="*", help="section.key=value, as for gof_warp.train")
+    ap.add_argument("overrides", nargs="*", help="section.key=value, as for gof_warp.cli.train")
     a = ap.parse_intermixed_args(argv)
 
     from gof_warp.data import load_scene
-    from gof_warp.devices import resolve_device
-    from gof_warp.distributed import rank_device, ranks_from_environment
-    from gof_warp.preset_choice import resolve_config
-    from gof_warp.trainer import Trainer
+    from gof_warp.core.devices import resolve_device
+    from gof_warp.training.distributed import rank_device, ranks_from_environment
+    from gof_warp.training.presets import resolve_config
+    from gof_warp.training.trainer import Trainer
 
     if a.reduce_min_lanes is not None:  # a benchmark knob, not a training option: every render's settings get it
         import functools
 
-        import gof_warp.render
+        import gof_warp.rendering.render
 
-        gof_warp.render.make_raster_settings = functools.partial(gof_warp.render.make_raster_settings,
+        gof_warp.rendering.render.make_raster_settings = functools.partial(gof_warp.rendering.render.make_raster_settings,
                                                                  reduce_min_lanes=a.reduce_min_lanes)
     ranks = ranks_from_environment()  # under torchrun: every rank profiles its own step, into DIR/rank<r>/
     if ranks.active:

@@ -13,9 +13,9 @@ import json
 
 import torch
 
-from gof_warp.densify import reset_opacity
-from gof_warp.model import PARAM_NAMES, Gaussians
-from gof_warp.optim import OptimConfig, make_optimizer, replace_params
+from gof_warp.training.densify import reset_opacity
+from gof_warp.core.model import PARAM_NAMES, Gaussians
+from gof_warp.training.optim import OptimConfig, make_optimizer, replace_params
 
 
 def main() -> None:

@@ -20,8 +20,8 @@ import sys
 
 import torch
 
-from gof_warp.optim import WarpAdam
-from gof_warp.train import main as train_main
+from gof_warp.training.optim import WarpAdam
+from gof_warp.cli.train import main as train_main
 
 worst = {"relative_to_step": 0.0, "step": None, "group": None}
 #: ``--against-fused`` (a CUDA run): the reference is torch's own fused CUDA Adam (``torch._fused_adam_``, what

@@ -3,7 +3,7 @@
     python benchmarks/warp_embedding/bake_volume.py RUN [--scene SCENE] [--voxel-size V] [--out results.json]
 
 Measures the bake (time per stage, active voxels, NanoVDB bytes, .nvdb file bytes), the volume's error against
-the exact field (``gof_warp.opacity_field``) at random points near the surface (within a voxel of stored voxels
+the exact field (``gof_warp.rendering.opacity_field``) at random points near the surface (within a voxel of stored voxels
 whose value lies in [0.1, 0.9], inside the baked box), and the query throughput of a user kernel (points/s:
 uniform in the volume's box, and near the surface). Writes one JSON object with the machine named (device,
 warp/torch versions).
@@ -26,11 +26,11 @@ sys.path.insert(0, str(REPO))
 import torch  # noqa: E402
 import warp as wp  # noqa: E402
 
-from gof_warp.devices import resolve_device, warp_device  # noqa: E402
-from gof_warp.errors import GofError  # noqa: E402
-from gof_warp.opacity_field import opacity_field  # noqa: E402
-from gof_warp.run_folder import load_run  # noqa: E402
-from gof_warp.volume import bake_opacity_volume, load_volume, sample_volume, save_volume  # noqa: E402
+from gof_warp.core.devices import resolve_device, warp_device  # noqa: E402
+from gof_warp.core.errors import GofError  # noqa: E402
+from gof_warp.rendering.opacity_field import opacity_field  # noqa: E402
+from gof_warp.training.run_folder import load_run  # noqa: E402
+from gof_warp.mesh.volume import bake_opacity_volume, load_volume, sample_volume, save_volume  # noqa: E402
 
 
 @wp.kernel

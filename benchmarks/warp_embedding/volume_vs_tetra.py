@@ -1,10 +1,10 @@
-"""Mesh of a run's baked opacity volume (gof_warp.volume_mesh) vs its tetra mesh, both against the ground truth.
+"""Mesh of a run's baked opacity volume (gof_warp.mesh.volume_mesh) vs its tetra mesh, both against the ground truth.
 
     python benchmarks/warp_embedding/volume_vs_tetra.py RUN [--out JSON] [--tetra RUN/mesh_full.ply]
         [--gt RUN/scene/gt_mesh.ply] [--nvdb RUN/opacity_volume.nvdb] [--binary-steps 4] [--save-mesh PLY]
 
 Needs ``RUN/opacity_volume.nvdb`` + ``.json`` (``python -m gof_warp.extract RUN --volume``) and a tetra mesh.
-Writes one JSON: per mesh its Chamfer / F-score against the GT (``gof_warp.geometry_metrics.evaluate_mesh``, the
+Writes one JSON: per mesh its Chamfer / F-score against the GT (``gof_warp.eval.geometry_metrics.evaluate_mesh``, the
 GT's default density, max_dist and tau, so both are scored alike), the Chamfer between the two meshes (same
 parameters, tetra mesh as the reference), the relative gap ``(C_volume − C_tetra) / C_tetra``, the voxel size,
 the volume's bytes and the times.
@@ -24,9 +24,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
 
-from gof_warp.geometry_metrics import default_eval_params, evaluate_mesh, load_geometry  # noqa: E402
-from gof_warp.volume import load_volume  # noqa: E402
-from gof_warp.volume_mesh import volume_mesh  # noqa: E402
+from gof_warp.eval.geometry_metrics import default_eval_params, evaluate_mesh, load_geometry  # noqa: E402
+from gof_warp.mesh.volume import load_volume  # noqa: E402
+from gof_warp.mesh.volume_mesh import volume_mesh  # noqa: E402
 
 
 def _summary(ev: dict) -> dict:
@@ -58,8 +58,8 @@ def main(argv=None) -> dict:
     t_load = time.perf_counter() - t0
     exact = None
     if a.exact_search:
-        from gof_warp.opacity_field import opacity_field
-        from gof_warp.run_folder import load_run
+        from gof_warp.rendering.opacity_field import opacity_field
+        from gof_warp.training.run_folder import load_run
 
         g, cams, _, render_config = load_run(a.run, None, "cuda" if a.device.startswith("cuda") else "cpu")
         exact = lambda x: opacity_field(g, cams, x, render_config=render_config).cpu().numpy()  # noqa: E731

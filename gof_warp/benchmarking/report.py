@@ -21,7 +21,7 @@ from pathlib import Path
 
 from ..core.errors import GofError
 
-log = logging.getLogger("gof_warp.bench")
+log = logging.getLogger("gof_warp.benchmarking")  # one logger for the harness
 
 CHARTS = (("total_time_s", "chamfer", "chamfer_vs_time.png"), ("total_time_s", "fscore", "fscore_vs_time.png"),
           ("num_gaussians", "chamfer", "chamfer_vs_gaussians.png"), ("faces", "chamfer", "chamfer_vs_faces.png"),

@@ -1,5 +1,5 @@
-"""The pieces of a benchmark run, shared by the benchmark suites (:mod:`gof_warp.bench`) and the stability
-suite (:mod:`gof_warp.stability`): extraction methods and runs as plain data, GOF's schedule compressed to a run's
+"""The pieces of a benchmark run, shared by the benchmark suites (:mod:`gof_warp.cli.bench`) and the stability
+suite (:mod:`gof_warp.benchmarking.stability`): extraction methods and runs as plain data, GOF's schedule compressed to a run's
 length, the run's scene folder and resolved config, and training a run (or reusing its trained model).
 Library code: it imports no command-line module.
 """
@@ -15,7 +15,7 @@ from pathlib import Path
 from .report import peak_memory, reset_peak_memory
 from ..core.errors import GofError
 
-log = logging.getLogger("gof_warp.bench")
+log = logging.getLogger("gof_warp.benchmarking")  # one logger for the harness
 
 
 @dataclass(frozen=True)
@@ -43,9 +43,9 @@ class Run:
     the methods extracted from its last model and, at each of ``snapshots``, from that snapshot;
     ``budget_s`` is the planned cost (training + every extraction and scoring) on the suite's machine.
 
-    ``overrides`` are nested sections of :class:`~gof_warp.trainer.TrainConfig` (``{"densify": {...}}``), merged
+    ``overrides`` are nested sections of :class:`~gof_warp.training.trainer.TrainConfig` (``{"densify": {...}}``), merged
     into the preset when the run trains; they are checked when the run is defined (:func:`check_overrides`), so
-    a typo'd key or a mistyped value is a :class:`~gof_warp.config.ConfigError` naming it, not a silent no-op."""
+    a typo'd key or a mistyped value is a :class:`~gof_warp.core.config.ConfigError` naming it, not a silent no-op."""
 
     name: str
     preset: str
@@ -65,12 +65,12 @@ class Run:
 
 def check_overrides(overrides: dict, where: str, snapshots=()):
     """Check a run's training overrides when the run is defined, not when it trains: every key path must be a
-    field of :class:`~gof_warp.trainer.TrainConfig` and its stage configs (``{"densify": {"max_gaussians": …}}``)
+    field of :class:`~gof_warp.training.trainer.TrainConfig` and its stage configs (``{"densify": {"max_gaussians": …}}``)
     with a value of the field's type; with ``snapshots`` (``TrainConfig.snapshot_iterations``) they must fit
     the run's ``iterations``. Returns the overrides applied to the default ``TrainConfig``.
 
     Raises:
-        ConfigError: (a :class:`~gof_warp.errors.GofError`) naming ``where`` and the bad key, e.g.
+        ConfigError: (a :class:`~gof_warp.core.errors.GofError`) naming ``where`` and the bad key, e.g.
             ``run default_7k: unknown key 'densify.max_gausians'; valid keys of 'densify': [...]``.
     """
     from ..core.config import ConfigError, merge
@@ -188,7 +188,7 @@ def scene_folder(run: Run, run_dir: Path, data=None) -> Path:
 
 
 def run_config(run: Run):
-    """The run's resolved :class:`~gof_warp.trainer.TrainConfig` (preset + overrides + snapshots)."""
+    """The run's resolved :class:`~gof_warp.training.trainer.TrainConfig` (preset + overrides + snapshots)."""
     from ..core.config import merge
     from ..training.presets import resolve_config
 
@@ -210,7 +210,7 @@ def _trained(run_dir: Path, snapshots) -> dict | None:
 def _train_or_load(run: Run, run_dir: Path, device: str, data=None, progress=None):
     """``(gaussians, scene, render_config, metrics, scene_dir)`` of the run's last model; a model already
     trained in ``run_dir`` (with its snapshots) is reused. ``progress``: the trainer's ``progress(it, info)``
-    callback (e.g. :class:`gof_warp.progress.TrainingProgress`), called while training."""
+    callback (e.g. :class:`gof_warp.core.progress.TrainingProgress`), called while training."""
     from ..data import load_scene
     from ..core.model import Gaussians
     from ..training.trainer import Trainer

@@ -3,7 +3,7 @@
 Every case builds a model and cameras, then runs render (every view), the opacity field (at the
 Gaussian centres and a grid) and each extraction method, and reports per method:
 
-* ``outcome``: ``"ok"``, ``"error"`` (a clear :class:`~gof_warp.errors.GofError`: acceptable) or
+* ``outcome``: ``"ok"``, ``"error"`` (a clear :class:`~gof_warp.core.errors.GofError`: acceptable) or
   ``"crash"`` (any other exception: a bug), with the message;
 * ``nan_inf``: any non-finite value in the render outputs, the field or the mesh;
 * ``faces``, ``components`` (floaters/fragmentation), the mesh's bounding box, ``faces_far`` (faces
@@ -11,7 +11,7 @@ Gaussian centres and a grid) and each extraction method, and reports per method:
 * for trained synthetic presets: completeness, F-score and Chamfer against the exact mesh (holes).
 
 Bad inputs (broken scene folders, Gaussian PLYs, settings) are tried through the commands themselves by
-:mod:`gof_warp.stability_inputs`; ``stability.json``'s ``summary`` counts, per kind tried, the clear errors,
+:mod:`gof_warp.benchmarking.stability_inputs`; ``stability.json``'s ``summary`` counts, per kind tried, the clear errors,
 warnings, crashes and NaN/inf.
 
 Hand-made cases (no training, seconds; run in CI): a good blob of Gaussians on a sphere, and that blob
@@ -193,7 +193,7 @@ def run_case(name: str, device: str = "cpu", methods=STABILITY_METHODS) -> list[
 
 
 def trained_run(preset: str):
-    """The :class:`~gof_warp.bench_runs.Run` of a trained case: ``preset`` at 40×40, the bench's ``tiny``
+    """The :class:`~gof_warp.benchmarking.runs.Run` of a trained case: ``preset`` at 40×40, the bench's ``tiny``
     schedule (200 iterations, at most 2,000 Gaussians) and the preset's own overrides (checked on definition)."""
     from .runs import Run, _merge, preset_overrides, scaled_schedule
 
@@ -218,7 +218,7 @@ def run_trained_case(preset: str, out: Path, device: str = "cpu", methods=STABIL
 
 
 def run_stability(out, device: str = "cpu", trained: bool = True) -> list[dict]:
-    """Every hand-made case, the bad-input cases (:mod:`gof_warp.stability_inputs`) and, when ``trained``, the
+    """Every hand-made case, the bad-input cases (:mod:`gof_warp.benchmarking.stability_inputs`) and, when ``trained``, the
     trained presets. Writes ``out/stability.json``: ``reports`` (model cases × methods), ``inputs`` and
     ``summary`` (counts per kind tried: ok, clear errors, warnings, crashes, NaN/inf). Returns the model
     and input reports together (each has ``case``, ``method``, ``outcome``)."""

@@ -1,4 +1,4 @@
-"""The small world of the stability suites (:mod:`gof_warp.stability`, :mod:`gof_warp.stability_inputs`): a ring of
+"""The small world of the stability suites (:mod:`gof_warp.benchmarking.stability`, :mod:`gof_warp.benchmarking.stability_inputs`): a ring of
 cameras around the origin and a "good" model, Gaussians on a sphere, that every hand-made case perturbs."""
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ reporting 3k/7k/… numbers from one run), are extracted with every method of th
 against the scene's exact ``gt_mesh.ply``. Writes ``DIR/results.json`` and ``DIR/results.csv``: one row per
 (run, iteration, method), with ``iteration`` the model's (a snapshot's or the last), the training time
 and Gaussian count up to it, test PSNR/SSIM, every extraction time, memory, size and accuracy figure, and
-the machine; and the charts of :mod:`gof_warp.bench_report`. Memory is the peak host RSS (Linux VmHWM, reset
+the machine; and the charts of :mod:`gof_warp.benchmarking.report`. Memory is the peak host RSS (Linux VmHWM, reset
 before each training and extraction) and torch's peak CUDA allocation. An extraction refused with a clear
 error (e.g. an empty model) is a row with ``error`` set and no scores; anything else that fails stops the
 suite. Real scenes (no GT mesh) get rows with empty accuracy columns; the method ``render_only`` is a
@@ -25,7 +25,7 @@ exits with code 3 and says how many: run the same command again (e.g. in the nex
 A suite is plain data (:func:`suite`; ``--list`` prints it with each run's budget and the total): ``tiny``
 (the test's), ``quick`` (a CPU in minutes), ``full`` (the GPU run, sized by :class:`Sizing` for one H100
 lent in 10-minute calls: no run over 8 minutes with its extractions, about 48 minutes in all; see
-:func:`full_suite`). ``stability`` runs :mod:`gof_warp.stability` (where each method breaks; ``--fast``: only
+:func:`full_suite`). ``stability`` runs :mod:`gof_warp.benchmarking.stability` (where each method breaks; ``--fast``: only
 the hand-made cases) and writes ``stability.json``; its exit code is 1 when any (case, method) crashed.
 """
 
@@ -75,7 +75,7 @@ from ..benchmarking.runs import (  # noqa: F401 - the run pieces live in the lib
 from .common import HelpFormatter, configure_output, run_command
 from ..core.errors import GofError
 
-log = logging.getLogger("gof_warp.bench")
+log = logging.getLogger(__name__)
 
 SUITES = ("tiny", "quick", "full", "stability")
 EXIT_RUNS_LEFT = 3  # --time-limit reached with runs left: run the same command again
@@ -311,7 +311,7 @@ def run_suite(name: str, out, device: str = "cpu", runs: list[Run] | None = None
     """Run (or continue) a suite into ``out``; returns every row of the table.
 
     Args:
-        stages: a :class:`gof_warp.progress.Stages` reporting each run as a stage (its training bar, then a bar
+        stages: a :class:`gof_warp.core.progress.Stages` reporting each run as a stage (its training bar, then a bar
             over its extractions); None: no progress.
         runs_dir: where each run's scene, model and snapshots go (``runs_dir/<run>``; default ``out/runs``), so
             that ``out`` can hold only the table and charts (what a device call brings back).

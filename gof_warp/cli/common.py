@@ -1,7 +1,7 @@
 """What every ``python -m gof_warp.<command>`` shares: output set-up and the error contract.
 
 A command's user sees ``error: <message>`` (exit code 2, no traceback) for anything that is the input's
-fault (:class:`~gof_warp.errors.GofError`), and a short note (exit code 130) on Ctrl-C; every file the
+fault (:class:`~gof_warp.core.errors.GofError`), and a short note (exit code 130) on Ctrl-C; every file the
 commands write is written atomically, so an interrupted command leaves nothing half-written.
 """
 

@@ -9,11 +9,11 @@ statistics; ``--json`` writes the same (atomically). With ``--scene`` (a folder 
 ``transforms_train.json``, and for synthetic scenes ``scene.json``) the scores are taken on the region the
 training cameras observe, sampled inside it, with the exact-vs-exact floor beside them and, when
 ``scene.json`` records a ground plane, the ground patch completeness and flatness
-(:mod:`gof_warp.region_metrics`; JSON keys ``region``, ``floor``, ``ground`` beside ``metrics``; ``--crop``
+(:mod:`gof_warp.eval.region_metrics`; JSON keys ``region``, ``floor``, ``ground`` beside ``metrics``; ``--crop``
 then sets the box of interest). Defaults relative to the GT's bounding-box
 diagonal: tau = 0.5% and 1%, max-dist = 5%, density (sample spacing) for ~300k GT samples. The
-definitions are in :mod:`gof_warp.geometry_metrics`. Rendering metrics of a trained run:
-:func:`image_metrics` (from :mod:`gof_warp.metrics`). Bad input: ``error: ...`` on stderr, exit code 2.
+definitions are in :mod:`gof_warp.eval.geometry_metrics`. Rendering metrics of a trained run:
+:func:`image_metrics` (from :mod:`gof_warp.eval.image_metrics`). Bad input: ``error: ...`` on stderr, exit code 2.
 """
 
 from __future__ import annotations

@@ -1,12 +1,12 @@
 """``python -m gof_warp.extract RUN [--scene SCENE] [--out MESH.ply] [--method tetra|cubes|tsdf] ...``
 
-Mesh extraction from trained Gaussians (the library: :mod:`gof_warp.extraction`). Under
+Mesh extraction from trained Gaussians (the library: :mod:`gof_warp.mesh.extraction`). Under
 ``torchrun --nproc_per_node N -m gof_warp.extract RUN ...`` the field's views are shared out among the processes
-(one GPU each) and rank 0 triangulates and writes (:mod:`gof_warp.distributed`). ``RUN`` is a training output
+(one GPU each) and rank 0 triangulates and writes (:mod:`gof_warp.training.distributed`). ``RUN`` is a training output
 folder (``point_cloud.ply`` + ``cameras.json``) or any Gaussian PLY in the 3DGS layout together with ``--scene``
 for the cameras. Writes the mesh (PLY) and ``<mesh>.json`` with vertex/face counts and per-stage time and peak
 memory. An empty mesh is an error (exit 2) and writes nothing; Gaussians whose scales overflow (see
-:func:`gof_warp.extraction.meshable`) are left out with a warning.
+:func:`gof_warp.mesh.extraction.meshable`) are left out with a warning.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from ..mesh.octree_tets import DEFAULT_CELL_FACTOR, SMALL_CELL_FACTOR, OctreeCon
 from ..rendering.opacity_field import OpacityFieldConfig
 from ..mesh.tetra import GRIDS, TetraConfig
 
-log = logging.getLogger("gof_warp.extract")
+log = logging.getLogger(__name__)
 
 
 DESCRIPTION = """\
@@ -254,7 +254,7 @@ def main(argv=None) -> int:
         from ..core.devices import resolve_device as pick_device
         from ..training.distributed import rank_device, ranks_from_environment
 
-        ranks = ranks_from_environment()  # several processes under torchrun: views shared out (gof_warp.distributed)
+        ranks = ranks_from_environment()  # several processes under torchrun: views shared out (gof_warp.training.distributed)
         try:
             extract_run(a, ranks, rank_device(pick_device(a.device), ranks))
             ranks.barrier()

@@ -2,7 +2,7 @@
 
 Prints the detected format, camera model(s) (and whether they were undistorted), view counts,
 resolution(s), focal lengths, extent, masks, initial points, image memory, the training preset that
-``train --config auto`` picks with its reason (:mod:`gof_warp.preset_choice`) and the readers' warnings.
+``train --config auto`` picks with its reason (:mod:`gof_warp.training.presets`) and the readers' warnings.
 Loads (decodes) every image, so it also proves that the scene is readable. Exit status 0 on success,
 2 with ``error: <message>`` on stderr (no traceback) when the scene cannot be read.
 """

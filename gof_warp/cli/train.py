@@ -11,7 +11,7 @@ Progress: a bar with loss, PSNR, Gaussian count and ETA in a terminal, a plain l
 otherwise (logs, CI); ``--quiet``: neither. At the end ``RUN/pictures/views.png`` and ``RUN/pictures/curves.png``
 (loss, train PSNR and Gaussian count against the iteration), and ``RUN/pictures/views_it<N>.png`` at each of
 ``snapshot_iterations``. ``--viewer``: the live web viewer of
-:mod:`gof_warp.viewer` during training (``--viewer-port``, ``--viewer-every N`` iterations), kept up after
+:mod:`gof_warp.viz.viewer` during training (``--viewer-port``, ``--viewer-every N`` iterations), kept up after
 training until Ctrl-C.
 """
 
@@ -46,7 +46,7 @@ RUN/pictures/curves.png, and RUN/pictures/views_it<N>.png at each snapshot itera
 
 
 def pick_device(name: str) -> str:
-    """``--device`` (cpu, cuda, cuda:N or auto) under the one rule of :mod:`gof_warp.devices`."""
+    """``--device`` (cpu, cuda, cuda:N or auto) under the one rule of :mod:`gof_warp.core.devices`."""
     from ..core.devices import resolve_device
 
     return resolve_device(name)
@@ -121,7 +121,7 @@ def _interrupted_note(a, e: KeyboardInterrupt) -> str:
 
 
 def _start_viewer(a, trainer, out: Path):
-    """The live viewer of ``trainer``'s model (:mod:`gof_warp.viewer`), started, its address printed."""
+    """The live viewer of ``trainer``'s model (:mod:`gof_warp.viz.viewer`), started, its address printed."""
     from ..viz.viewer import Viewer
 
     logging.getLogger("websockets").setLevel(logging.WARNING)  # not a line per browser connection
@@ -224,7 +224,7 @@ def _train(a, out: Path, scenes: list[str], overrides: list[str], builtin: bool)
         log.info("%s", choice.describe())
         preset = choice.preset
     cfg = resolve_config(preset, overrides, a.iterations)
-    ranks = ranks_from_environment()  # several processes under torchrun: data-parallel (gof_warp.distributed)
+    ranks = ranks_from_environment()  # several processes under torchrun: data-parallel (gof_warp.training.distributed)
     device = rank_device(pick_device(a.device), ranks)
     if builtin:
         from ..synthetic import make_scene

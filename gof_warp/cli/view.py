@@ -3,7 +3,7 @@
 
 A live web viewer of a training run: open the printed address in a browser to fly around the Gaussians
 rendered by gof_warp's own renderer (render / depth / normal / opacity-field slice), with the training
-cameras and the run's newest mesh (``RUN/mesh_*.ply``). See :mod:`gof_warp.viewer`.
+cameras and the run's newest mesh (``RUN/mesh_*.ply``). See :mod:`gof_warp.viz.viewer`.
 
 It listens on 127.0.0.1 (this machine only) and prints its address, which carries a random access token: the
 page's WebSocket must present it (see :mod:`gof_warp.viz.viewer`). On a remote GPU machine, start it there and

@@ -2,8 +2,8 @@
 results: the input is read from each child's copy of the parent's memory.
 
 The two CPU-bound stages that Python threads cannot spread over cores use it: the chunked Delaunay's Qhull
-pieces (:mod:`gof_warp.delaunay`) and the opacity field's points on the CPU, where Warp runs a kernel on one
-core (:mod:`gof_warp.opacity_field`).
+pieces (:mod:`gof_warp.mesh.delaunay`) and the opacity field's points on the CPU, where Warp runs a kernel on one
+core (:mod:`gof_warp.rendering.opacity_field`).
 """
 
 from __future__ import annotations

@@ -123,7 +123,7 @@ def activate_pointwise(quats: torch.Tensor, log_scales: torch.Tensor, opacity_lo
 @dataclasses.dataclass(frozen=True)
 class ActivatedGaussians:
     """A model's activated parameters for one render (:meth:`Gaussians.activated`); the attributes
-    :func:`~gof_warp.render.render` reads."""
+    :func:`~gof_warp.rendering.render.render` reads."""
 
     means: torch.Tensor  # [N, 3]
     rotations: torch.Tensor  # [N, 4] unit wxyz
@@ -298,7 +298,7 @@ class Gaussians:
         return activate_opacities(self.opacity_logits, self.log_scales, self.filter_3d)
 
     def activated(self, fn=None) -> "ActivatedGaussians":
-        """The model as :func:`~gof_warp.render.render` reads it, its activations made by one call of ``fn``
+        """The model as :func:`~gof_warp.rendering.render.render` reads it, its activations made by one call of ``fn``
         (default :func:`activate`, the properties' arithmetic; the trainer passes an :class:`Activation`, compiled on
         CUDA). Gradients reach the raw parameters as through the properties."""
         rotations, scales, opacities = (fn or activate)(self.quats, self.log_scales, self.opacity_logits,

@@ -3,7 +3,7 @@
 Used for 3D Gaussian Splatting point clouds, whose PLY files are one ``vertex`` element with many
 scalar float properties. Reads ``binary_little_endian``, ``binary_big_endian`` and ``ascii``; writes
 ``binary_little_endian``. Every malformed input (bad header, unknown type, truncated data, list
-properties where scalars are expected) raises :class:`~gof_warp.errors.PlyError` naming the file.
+properties where scalars are expected) raises :class:`~gof_warp.core.errors.PlyError` naming the file.
 """
 
 from __future__ import annotations
@@ -150,7 +150,7 @@ def write_ply_vertices(path, columns: dict[str, np.ndarray]) -> None:
 def write_ply_mesh(path, vertices, faces) -> None:
     """Write a triangle mesh as a binary little-endian PLY, atomically: ``vertices`` ``[V, 3]`` (stored as float32
     ``x y z``), ``faces`` ``[F, 3]`` vertex indices (a ``uchar`` count and three ``int`` per face, the layout every
-    mesh tool reads). Raises :class:`~gof_warp.errors.PlyError` for wrong shapes or indices outside the vertices."""
+    mesh tool reads). Raises :class:`~gof_warp.core.errors.PlyError` for wrong shapes or indices outside the vertices."""
     v, f = check_triangles(vertices, faces, path, PlyError)
     if len(v) > np.iinfo(np.int32).max:
         raise PlyError(f"{path}: {len(v)} vertices do not fit PLY int indices")

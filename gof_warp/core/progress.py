@@ -7,7 +7,7 @@ the end; with ``quiet=True`` nothing is written (errors and warnings go through 
 
 **Training** (the trainer's ``progress(it, info)`` callback)::
 
-    from gof_warp.progress import TrainingProgress
+    from gof_warp.core.progress import TrainingProgress
 
     with TrainingProgress(total=cfg.iterations, start=trainer.iteration, quiet=a.quiet) as progress:
         trainer.run(progress=progress)
@@ -16,7 +16,7 @@ the end; with ``quiet=True`` nothing is written (errors and warnings go through 
 
 **Stages of a multi-stage job** (extraction, bench runs)::
 
-    from gof_warp.progress import Stages
+    from gof_warp.core.progress import Stages
 
     stages = Stages(quiet=a.quiet)             # one per command; pass it down to the library functions
     with stages.stage("delaunay"):             # terminal: a ticking "delaunay 0:12" line; a log: "delaunay ..."

@@ -56,7 +56,7 @@ class View:
     """One posed image.
 
     Attributes:
-        camera: its :class:`~gof_warp.camera.Camera` (pinhole, undistorted).
+        camera: its :class:`~gof_warp.core.camera.Camera` (pinhole, undistorted).
         image: ``[H, W, 3]`` uint8 RGB, already composited on the scene background where it had alpha.
         mask: ``[H, W]`` uint8 (255 inside), or None. Blender alpha and DTU object masks land here.
         name: image name (file stem).
@@ -117,7 +117,7 @@ class Scene:
         format: detected format name (``colmap``, ``blender``, ``ingp``, ``dtu``).
         source: the folder it was read from.
         camera_models: the camera model(s) as stored in the files (e.g. ``OPENCV``), before undistortion.
-        warnings: things the reader noticed that a user should know (printed by ``gof_warp.inspect``).
+        warnings: things the reader noticed that a user should know (printed by ``gof_warp.cli.inspect_scene``).
     """
 
     train: list[View]

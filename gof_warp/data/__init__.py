@@ -10,7 +10,7 @@ format      what marks the folder                                    reader
 ==========  =======================================================  ==================================
 
 Every reader checks all files before decoding any image and never writes anything. Cameras come out as
-undistorted pinhole :class:`~gof_warp.camera.Camera` s; images are decoded once into ``uint8`` arrays.
+undistorted pinhole :class:`~gof_warp.core.camera.Camera` s; images are decoded once into ``uint8`` arrays.
 
 Example::
 
@@ -125,7 +125,7 @@ def read_plan(path, config: DataConfig | None = None) -> ScenePlan:
 
 
 def load_scene(path, config: DataConfig | None = None, device=None) -> Scene:
-    """Load the scene folder ``path`` (format auto-detected) into a :class:`~gof_warp.scene.Scene`.
+    """Load the scene folder ``path`` (format auto-detected) into a :class:`~gof_warp.core.scene.Scene`.
 
     Args:
         path: scene folder (or a file inside it, e.g. its ``transforms.json``).

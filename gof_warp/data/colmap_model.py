@@ -7,7 +7,7 @@ model and parameters; each image's pose, camera, name and the ``points2D`` that 
 ``(x, y, point3D_id)`` rows (for checks that reproject them); each 3D point's id, position and colour (not its
 track).
 
-Errors (missing, truncated or malformed files; unknown camera models) are :class:`~gof_warp.errors.SceneError`
+Errors (missing, truncated or malformed files; unknown camera models) are :class:`~gof_warp.core.errors.SceneError`
 naming the file.
 """
 
@@ -63,7 +63,7 @@ class ColmapModel:
 def quaternion_to_rotation(q) -> np.ndarray:
     """``[3, 3]`` rotation of the unit quaternion along ``q = (w, x, y, z)`` (normalised here; COLMAP's convention).
 
-    :func:`gof_warp.model.quat_to_rotmat` is the same formula in torch; this NumPy one keeps reading a scene free
+    :func:`gof_warp.core.model.quat_to_rotmat` is the same formula in torch; this NumPy one keeps reading a scene free
     of torch, as the rest of :mod:`gof_warp.data` is."""
     w, x, y, z = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
     return np.array([

@@ -1,4 +1,4 @@
-"""From what a reader parsed to a :class:`~gof_warp.scene.Scene`: check every file, budget, then decode once.
+"""From what a reader parsed to a :class:`~gof_warp.core.scene.Scene`: check every file, budget, then decode once.
 
 Readers (``colmap.py``, ``blender.py``, ``ingp.py``, ``dtu.py``) only parse cameras and list files; they
 return a :class:`ScenePlan`. :func:`build_scene` then

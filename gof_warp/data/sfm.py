@@ -66,7 +66,7 @@ def _views_digest(views: list[View]) -> str:
     machine, so cameras are rounded to ``CAMERA_DIGITS`` decimals (the same poses read there can differ in the last
     bits: the pose inversion's floating-point order) and negative zeros made positive (a tiny negative value there
     rounds to ``-0.0``, whose bytes differ from ``0.0``), and an image decoded from a file is identified by the file's
-    bytes and decoding settings (:class:`~gof_warp.scene.ImageSource`: another JPEG decoder may round some pixels the
+    bytes and decoding settings (:class:`~gof_warp.core.scene.ImageSource`: another JPEG decoder may round some pixels the
     other way). An image made in memory, or whose file is gone, is identified by its pixels."""
     h = hashlib.sha256()
     for v in views:

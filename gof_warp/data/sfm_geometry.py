@@ -6,7 +6,7 @@ far a match lies from the epipolar geometry of the two given cameras.
 * :func:`sampson_distance` with the fundamental matrix of two known cameras (:func:`_fundamental`) is the
   test that replaces RANSAC in :mod:`gof_warp.data.sfm_colmap` (the relative pose is known).
 
-Conventions (:mod:`gof_warp.camera`): world-to-camera ``R, t``, OpenCV axes, pixel centres at ``i + 0.5``.
+Conventions (:mod:`gof_warp.core.camera`): world-to-camera ``R, t``, OpenCV axes, pixel centres at ``i + 0.5``.
 """
 
 from __future__ import annotations

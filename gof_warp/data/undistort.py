@@ -40,7 +40,7 @@ _NEWTON_TOL = 1e-12  # normalised units; far below a pixel for any focal length 
 
 
 def default_device() -> str:
-    """Warp's name of the default device (:func:`gof_warp.devices.resolve_device`'s rule)."""
+    """Warp's name of the default device (:func:`gof_warp.core.devices.resolve_device`'s rule)."""
     from ..core.devices import warp_device
 
     return warp_device(None)
@@ -48,11 +48,11 @@ def default_device() -> str:
 
 @dataclass(frozen=True)
 class LensCamera(Intrinsics):
-    """A distorted camera (OpenCV model): pinhole :class:`~gof_warp.camera.Intrinsics` (``fx fy cx cy width
+    """A distorted camera (OpenCV model): pinhole :class:`~gof_warp.core.camera.Intrinsics` (``fx fy cx cy width
     height``, keyword-only, declared once there) plus the distortion coefficients, in pixels of a
     ``width × height`` image.
 
-    Pixel coordinates follow :mod:`gof_warp.camera` (pixel centres at ``i + 0.5``). ``k1 k2 k3`` (radial) and
+    Pixel coordinates follow :mod:`gof_warp.core.camera` (pixel centres at ``i + 0.5``). ``k1 k2 k3`` (radial) and
     ``p1 p2`` (tangential) are in normalised camera units; ``model`` is the file's camera model name, for
     messages. Compared by value.
     """
@@ -76,7 +76,7 @@ class LensCamera(Intrinsics):
         return any(v != 0.0 for v in (self.k1, self.k2, self.p1, self.p2, self.k3))
 
     def scaled(self, width: int, height: int) -> "LensCamera":
-        """The same lens for the image resized to ``width × height`` (:meth:`~gof_warp.camera.Intrinsics.resized`;
+        """The same lens for the image resized to ``width × height`` (:meth:`~gof_warp.core.camera.Intrinsics.resized`;
         distortion is in normalised units and does not change)."""
         return self.resized(width, height)
 
@@ -127,7 +127,7 @@ def undistort_normalized(xy_d: np.ndarray, lens: LensCamera) -> np.ndarray:
 
 def undistort_pixels(uv: np.ndarray, lens: LensCamera, fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
     """Pixel coordinates ``[N, 2]`` in the distorted image → pixel coordinates in the pinhole image with
-    intrinsics ``(fx, fy, cx, cy)`` (e.g. a :class:`~gof_warp.camera.Camera` from :func:`undistorted_intrinsics`)."""
+    intrinsics ``(fx, fy, cx, cy)`` (e.g. a :class:`~gof_warp.core.camera.Camera` from :func:`undistorted_intrinsics`)."""
     uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
     xy_d = np.stack([(uv[:, 0] - lens.cx) / lens.fx, (uv[:, 1] - lens.cy) / lens.fy], axis=1)
     xy = undistort_normalized(xy_d, lens)

@@ -2,7 +2,7 @@
 with the exact-vs-exact floor beside every score and ground-plane metrics for whole scenes.
 
 Why: GOF meshes whole scenes (ground, objects, far background). Sampling a whole mesh and cropping the
-samples afterwards (:func:`gof_warp.geometry_metrics.mesh_accuracy_completeness` with ``crop``) leaves the
+samples afterwards (:func:`gof_warp.eval.geometry_metrics.mesh_accuracy_completeness` with ``crop``) leaves the
 scored region with a fraction of the samples and scores surfaces nobody could see (the underside of a box
 resting on the ground, the faces inside a closed box, the shell below the ground). Here:
 
@@ -22,7 +22,7 @@ resting on the ground, the faces inside a closed box, the shell below the ground
 * **Crop, then sample** (:func:`crop_mesh`): triangles are split (4-way, at edge midpoints) until each is
   at most ``coarse`` long, then those whose corners and centroid disagree about the region are split
   again down to ``density``; kept pieces are those inside (by their centroid at the finest level). The kept
-  surface is then sampled at ``density`` (area-weighted, :func:`~gof_warp.geometry_metrics.sample_surface`).
+  surface is then sampled at ``density`` (area-weighted, :func:`~gof_warp.eval.geometry_metrics.sample_surface`).
   The same crop is applied to the seen GT, so both sides are sampled at the same density on the same
   region and the exact mesh scores the sampling floor.
 * **Floor**: the same protocol scoring the GT mesh itself (all of it, cropped by the region) against the
@@ -108,7 +108,7 @@ class Observation:
 def _check_cameras(cameras) -> list:
     cameras = list(cameras)
     if not cameras or not all(isinstance(c, Camera) for c in cameras):
-        raise GofError("region scoring needs a non-empty list of gof_warp.camera.Camera (the training views)")
+        raise GofError("region scoring needs a non-empty list of gof_warp.core.camera.Camera (the training views)")
     return cameras
 
 
@@ -450,7 +450,7 @@ def region_scores(pred, gt, cameras, *, tau=None, density: float | None = None, 
 
     Args:
         pred, gt: meshes (``trimesh.Trimesh``, ``(vertices [V, 3], faces [F, 3])`` or paths); ``gt`` needs faces.
-        cameras: the training :class:`~gof_warp.camera.Camera` list.
+        cameras: the training :class:`~gof_warp.core.camera.Camera` list.
         tau: F-score thresholds (default 0.5 % and 1 % of the diagonal); density: sample spacing (default
             ``~gt_samples`` samples on the scored GT); max_dist: truncation (default 5 % of the diagonal);
             margin: depth behind the GT still in the region (default ``max_dist``); bbox: box of interest
@@ -520,7 +520,7 @@ def region_scores(pred, gt, cameras, *, tau=None, density: float | None = None, 
 def evaluate_region(mesh, gt, scene_dir=None, *, cameras=None, ground: Ground | None = None, **kw) -> dict:
     """:func:`evaluate_mesh`-shaped report scored on the observed region: ``{"mesh", "gt", "metrics",
     "mesh_stats", "gt_stats", "region", "floor", "ground"}`` (``metrics`` keeps every key of
-    :class:`~gof_warp.geometry_metrics.SurfaceMetrics`). Cameras come from ``scene_dir``'s
+    :class:`~gof_warp.eval.geometry_metrics.SurfaceMetrics`). Cameras come from ``scene_dir``'s
     ``transforms_train.json`` (or ``cameras``), the ground plane and footprints from its ``scene.json``
     (or ``ground``). ``kw``: :func:`region_scores`."""
     scene = {}

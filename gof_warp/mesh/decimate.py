@@ -29,7 +29,7 @@ What the library does and does not do (read from its source, ``Simplify.h``, ver
 * It keeps its mesh in module-level C++ state, so calls are serialised by a lock here.
 
 Error means the one-sided distance from the input's vertices to the decimated surface (exact point-to-
-triangle distance, :func:`gof_warp.geometry_metrics.point_mesh_distance`), in world units: max and 95th
+triangle distance, :func:`gof_warp.eval.geometry_metrics.point_mesh_distance`), in world units: max and 95th
 percentile. Above ``error_samples`` vertices it is measured on a seeded random subset of that size, so
 the max is the sample's max. It does not see the other direction (the decimated surface bulging away
 from a region with no input vertex), which quadric collapses keep small on smooth parts.

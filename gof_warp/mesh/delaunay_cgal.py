@@ -1,4 +1,4 @@
-"""CGAL's Delaunay tetrahedralisation (optional extra ``gof_warp[cgal]``, GPLv3), for :func:`gof_warp.delaunay.delaunay`.
+"""CGAL's Delaunay tetrahedralisation (optional extra ``gof_warp[cgal]``, GPLv3), for :func:`gof_warp.mesh.delaunay.delaunay`.
 
 Its Python bindings (pip ``cgal``, SWIG) expose no vertex ids or arrays: the triangulation is written as text at
 full precision and read back, and CGAL's vertices are matched to the input points by their exact coordinates.

@@ -3,7 +3,7 @@ appendix Algorithms 1–3):
 
 * ``tetra`` (GOF): a tetrahedral grid around the Gaussians → opacity field at its points → marching tetrahedra with
   binary search on the crossing edges → (optional) quadric decimation to a face budget. The grid is by default
-  (``TetraConfig.grid = "auto"``) the octree grid (:mod:`gof_warp.octree_tets`: a balanced octree sized by the 3σ
+  (``TetraConfig.grid = "auto"``) the octree grid (:mod:`gof_warp.mesh.octree_tets`: a balanced octree sized by the 3σ
   boxes, split into tetrahedra on the model's device, no Delaunay), or for a small model the official one
   (``"delaunay"``): each Gaussian's centre and 3σ-box corners → (optional level band) → exact Delaunay tetrahedra
   (cell filter) on the CPU.
@@ -40,7 +40,7 @@ from .tetra import TetraConfig, grid_points, level_band, octree_tets_from_gaussi
 from .tsdf import TSDFConfig, extract_tsdf_mesh, fuse_tsdf
 from .visibility import faces_seen
 
-log = logging.getLogger("gof_warp.extract")  # one logger name for the stage and its CLI
+log = logging.getLogger(__name__)
 METHODS = ("tetra", "cubes", "tsdf")
 UNSEEN_MARK = -1.0  # field value marking the points no view sees (the field itself lies in [0, 1])
 # grid nodes along the longest side (cubes, tsdf): marching cubes needs 2; 2048³ dense nodes are already 8.6e9 values
@@ -57,7 +57,7 @@ class MeshConfig:
     cubes_resolution: int = 256  # grid nodes along the longest side (method "cubes")
     crop: tuple[float, ...] | None = None  # (xmin, ymin, zmin, xmax, ymax, zmax): drop faces outside
     min_component_faces: int = 0  # drop connected components with fewer faces (0 = keep all)
-    max_faces: int | None = None  # quadric decimation to at most this many faces per mesh (gof_warp.decimate)
+    max_faces: int | None = None  # quadric decimation to at most this many faces per mesh (gof_warp.mesh.decimate)
     max_error: float | None = None  # ... or to the fewest faces whose vertices stay this close (world units)
     tetra: TetraConfig = field(default_factory=TetraConfig)
     tsdf: TSDFConfig = field(default_factory=TSDFConfig)
@@ -65,7 +65,7 @@ class MeshConfig:
     # tetra: bisection steps served by one opacity-field call (0: on CUDA chosen from the field's measured cost,
     # SearchPlanner, on the CPU one; d >= 1 fixed). The mesh is the same for any value; only the calls change.
     search_steps_per_call: int = 0
-    # drop the faces no training camera sees (gof_warp.visibility): level crossings under a ground, inside objects,
+    # drop the faces no training camera sees (gof_warp.mesh.visibility): level crossings under a ground, inside objects,
     # behind walls, which the octree grid finds and no photo supports. False: GOF's mesh as marched
     drop_hidden: bool = True
 
@@ -120,7 +120,7 @@ class StageTimer:
 
         self.stages: dict[str, dict] = {}
         self.device = torch.device(str(device))
-        self.progress = as_stages(progress)  # gof_warp.progress.Stages: a line (or ticking line) per stage
+        self.progress = as_stages(progress)  # gof_warp.core.progress.Stages: a line (or ticking line) per stage
 
     @contextmanager
     def __call__(self, name: str):
@@ -172,7 +172,7 @@ def meshable(gaussians):
     covariance, the 3D filter's scale and its opacity compensation into inf/NaN. The renderer already skips
     such a Gaussian (NaN opacity), but a grid cannot be sized around it nor a 3σ box triangulated, so it is
     left out here — the mesh is that of the other Gaussians, which is what they render. A model with none
-    left raises :class:`~gof_warp.errors.ModelError`.
+    left raises :class:`~gof_warp.core.errors.ModelError`.
     """
     with torch.no_grad():
         s = gaussians.raw_scales
@@ -270,7 +270,7 @@ def _drop_unseen_cells(values: torch.Tensor, tets, unseen_value: float):
 
 
 def _octree_grid(gaussians, cameras, config: MeshConfig, field_fn, timer: StageTimer):
-    """The tetra path's octree grid (:func:`gof_warp.tetra.octree_tets_from_gaussians`): ``(points, values, tets,
+    """The tetra path's octree grid (:func:`gof_warp.mesh.tetra.octree_tets_from_gaussians`): ``(points, values, tets,
     counts)`` as :func:`_tetra_grid`, but ``tets`` is an :class:`_OctreePieces`: the tetrahedra are made piece by
     piece when marched, never held whole.
 
@@ -303,7 +303,7 @@ def _octree_grid(gaussians, cameras, config: MeshConfig, field_fn, timer: StageT
 
 class _OctreePieces:
     """The octree grid's tetrahedra kept, piece by piece: each piece of :meth:`OctreeTets.pieces
-    <gof_warp.octree_tets.OctreeTets.pieces>` without the tetrahedra that have a corner no view sees (``seen [P]``
+    <gof_warp.mesh.octree_tets.OctreeTets.pieces>` without the tetrahedra that have a corner no view sees (``seen [P]``
     false) and, when the grid has its ``reach`` (``OctreeConfig.reach_filter``), those with no corner inside a
     Gaussian's 3σ box. ``n_pieces(world)``: enough pieces of at most ``piece_tets`` made tetrahedra, and one per rank
     at least."""
@@ -348,7 +348,7 @@ class _WholeTets:
 
 class SearchPlanner:
     """How many bisection steps each opacity-field call of the search serves (``steps_per_call`` of
-    :func:`~gof_warp.marching.marching_tetrahedra`), from the field's own cost on this model and device.
+    :func:`~gof_warp.mesh.marching.marching_tetrahedra`), from the field's own cost on this model and device.
 
     A field call costs a fixed part ``F`` (every view preprocesses and bins every Gaussian) and a part per point
     ``c`` (each point walks its tile's list in every view). ``d`` steps in one call evaluate ``2^d − 1`` points per
@@ -469,15 +469,15 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
     """Extract one mesh per level from trained Gaussians.
 
     Args:
-        gaussians: :class:`~gof_warp.model.Gaussians` (on the device to compute on).
+        gaussians: :class:`~gof_warp.core.model.Gaussians` (on the device to compute on).
         cameras: the training cameras (the opacity field is the minimum over them).
-        views: :class:`~gof_warp.scene.View` list for TSDF masks (optional; cameras alone otherwise).
+        views: :class:`~gof_warp.core.scene.View` list for TSDF masks (optional; cameras alone otherwise).
         grid_cache: a dict kept by the caller for one model (the same ``gaussians``, cameras and render settings):
             the tetra path stores its grid there (points, field values, tetrahedra) and a later call with the same
             grid settings (tetra config, field config, and the levels when the band is on) reuses it, so extractions
             that differ only in search steps, levels or decimation build it once. ``timer.stages["grid_shared"]``
             says so, with the seconds the grid took when it was built.
-        ranks: a :class:`~gof_warp.distributed.Ranks` of several processes (``torchrun``; every rank calls this
+        ranks: a :class:`~gof_warp.training.distributed.Ranks` of several processes (``torchrun``; every rank calls this
             with the same model and cameras). Tetra path: the field at the grid points is shared out by views, the
             Delaunay runs on rank 0 and is broadcast (the octree grid is built alike on every rank), and the
             marching is split by space, each rank marching its share of the tetrahedra (the pieces joined on rank 0

@@ -213,7 +213,7 @@ def marching_tetrahedra(points, tets, values=None, field: Field | None = None, *
         field_input: kind of array passed to ``field`` (``"numpy"``, ``"torch"``, ``"warp"``); default the
             kind of ``points``.
         device: Warp device; default CUDA when available, else CPU.
-        oriented: the tetrahedra are positively oriented (as :func:`gof_warp.delaunay.delaunay` returns them):
+        oriented: the tetrahedra are positively oriented (as :func:`gof_warp.mesh.delaunay.delaunay` returns them):
             faces are wound by their vertex order, not by their volume in ``points`` (which is zero or
             negative for the slivers a perturbed Delaunay leaves on cospherical points).
         field_params: the ``params`` argument of a Warp field function that takes one (a ``wp.struct``

@@ -1,4 +1,4 @@
-"""What marching (:mod:`gof_warp.marching`) takes in: points, values and tetrahedra as numpy, torch or
+"""What marching (:mod:`gof_warp.mesh.marching`) takes in: points, values and tetrahedra as numpy, torch or
 ``wp.array``, and the field as host code or a Warp field function — without importing torch.
 
 Torch is used only when the caller's data is torch (a tensor, or ``field_input="torch"``): the tests
@@ -33,7 +33,7 @@ def is_torch(x) -> bool:
 
 
 def resolve_device(device) -> str:
-    """Warp's name for ``device``. With torch loaded: :mod:`gof_warp.devices`' rule (torch and Warp agree);
+    """Warp's name for ``device``. With torch loaded: :mod:`gof_warp.core.devices`' rule (torch and Warp agree);
     without: Warp's own (None or ``"auto"`` → the current device, so ``wp.ScopedDevice`` is respected)."""
     if loaded_torch() is not None:
         from ..core.devices import warp_device

@@ -21,9 +21,9 @@ the Gaussians' device (torch; CUDA or CPU):
    boxes is left out, as the paper's cell filter leaves out Delaunay cells with edges longer than the Gaussians'
    reach: there the field only changes at the shadow boundaries behind objects, which are not surfaces.
 4. **Reach** (optional, off by default: ``OctreeConfig.reach_filter``, applied by the caller that has the rotations:
-   :func:`gof_warp.tetra.octree_tets_from_gaussians`). An occupied leaf fills the whole cube around a box, also where
+   :func:`gof_warp.mesh.tetra.octree_tets_from_gaussians`). An occupied leaf fills the whole cube around a box, also where
    no Gaussian is (under a ground, between objects); :attr:`OctreeTets.reach` marks the points inside some
-   Gaussian's oriented 3σ box (:mod:`gof_warp.reach`), and the extraction keeps only the tetrahedra with such a
+   Gaussian's oriented 3σ box (:mod:`gof_warp.mesh.reach`), and the extraction keeps only the tetrahedra with such a
    vertex: where the Delaunay grid's points and cell filter reach.
 
 Coordinates are integers on the lattice of the finest level's half cells: ``2^(depth+1)`` units along the root cube,
@@ -36,7 +36,7 @@ neighbours of each refined node of one level at a time). The tetrahedra are made
 records) at a time, twice: once to collect the distinct vertex keys (the grid's points, 8 B each, plus 12 B each for
 their positions), and again, on demand, as **pieces** (:class:`OctreeTets`): consecutive ranges of the one order in
 which the chunks come, written as int32 point indices. The tetrahedra need never be held whole: a caller that marches
-piece by piece (``gof_warp.extraction``) holds one piece (16 B per tetrahedron) and one chunk's int64 work
+piece by piece (``gof_warp.mesh.extraction``) holds one piece (16 B per tetrahedron) and one chunk's int64 work
 (~0.25 GB) beyond the points.
 """
 
@@ -90,7 +90,7 @@ _KUHN = torch.tensor([[[0, 0, 0], list(map(int, [a == 0, a == 1, a == 2])),
 # the octree's cell factor when none is given: 0.5 meshes DTU scan 24 in ~4.2M faces (under the 4.3M-face target;
 # 0.35 gives 7.9M) at the Delaunay grid's accuracy on the synthetic garden's ground-and-objects crop
 DEFAULT_CELL_FACTOR = 0.5
-# ... and, with TetraConfig.grid = "octree" (the default "auto" takes the Delaunay grid there: gof_warp.tetra), for a
+# ... and, with TetraConfig.grid = "octree" (the default "auto" takes the Delaunay grid there: gof_warp.mesh.tetra), for a
 # grid of fewer than OctreeConfig.small_leaves leaves at 0.5, where the finer grid costs a second or two.
 # On the README job's model (40k leaves) 0.35 gives a Chamfer +1.7 % of the Delaunay grid's over five seeds, 0.5
 # +3.2 % (benchmarks/RESULTS.md). colmap_can, fox, background_full (1.0–2.0M leaves at 0.5) and the 400×400 default
@@ -114,7 +114,7 @@ class OctreeConfig:
     # (OctreeTets.pieces), so the tetrahedra are never held whole; the mesh is the same for any value. 2^24: 0.27 GB of
     # indices and the marching's 24 B per tetrahedron (DTU scan 24's 35.7M tetrahedra: three pieces)
     piece_tets: int = 1 << 24
-    # keep only the tetrahedra with a vertex inside some Gaussian's oriented 3σ box (gof_warp.reach). Off by default:
+    # keep only the tetrahedra with a vertex inside some Gaussian's oriented 3σ box (gof_warp.mesh.reach). Off by default:
     # where a surface is made of flat Gaussians, whether any octree vertex falls inside their thin boxes depends on how
     # the lattice happens to lie. Measured: the background model's crop
     # Chamfer +5.5 % of the Delaunay grid's without it, +1.7 % / +5.2 % with unfiltered / 3D-filtered boxes; on
@@ -457,13 +457,13 @@ class OctreeTets:
     points: torch.Tensor  # [P, 3] float32 world positions
     count: int  # tetrahedra
     chunk: int = LEAF_CHUNK
-    # [P] bool: the point lies in some Gaussian's oriented 3σ box (gof_warp.reach), set by the caller that has the
-    # Gaussians' rotations (gof_warp.tetra.octree_tets_from_gaussians with OctreeConfig.reach_filter); None: not asked
+    # [P] bool: the point lies in some Gaussian's oriented 3σ box (gof_warp.mesh.reach), set by the caller that has the
+    # Gaussians' rotations (gof_warp.mesh.tetra.octree_tets_from_gaussians with OctreeConfig.reach_filter); None: not asked
     reach: torch.Tensor | None = None
 
     def pieces(self, n_pieces: int, first: int = 0, last: int | None = None):
         """Yield ``(k, tets [T_k, 4] int32)`` for the pieces ``first <= k < last`` of ``n_pieces`` (the ranges of
-        :func:`~gof_warp.arrays.even_split`: sizes differ by at most one tetrahedron). Every chunk is made (to know
+        :func:`~gof_warp.core.arrays.even_split`: sizes differ by at most one tetrahedron). Every chunk is made (to know
         where each piece starts) but only the wanted pieces' tetrahedra are written as indices, and one piece is held
         at a time."""
         if n_pieces < 1:

@@ -1,6 +1,6 @@
 """Which grid points the Gaussians reach: inside some Gaussian's oriented box ``|Rᵀ (p − μ)| ≤ σ s`` on every axis.
 
-The octree grid (:mod:`gof_warp.octree_tets`) fills the cells its Gaussians' boxes overlap, so it has vertices where
+The octree grid (:mod:`gof_warp.mesh.octree_tets`) fills the cells its Gaussians' boxes overlap, so it has vertices where
 no Gaussian is, under a ground and between objects; GOF's Delaunay grid has points only at the boxes' corners and
 centres. :func:`points_in_boxes` marks the grid points that lie in some Gaussian's box (the Warp kernels of
 :mod:`gof_warp.kernels.reach`: a ``wp.Bvh`` over the boxes' bounds, one thread per point, on the points' device), and

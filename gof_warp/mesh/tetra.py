@@ -61,13 +61,13 @@ class TetraConfig:
     band_neighbours: int = BAND_NEIGHBOURS
     backend: str = "scipy"  # "scipy" (BSD), "cgal" (GPLv3 extra gof_warp[cgal]) or "auto"
     delaunay_workers: int = 0  # threads for scipy's Delaunay in chunks (0: every CPU; 1: one Qhull call)
-    delaunay_chunks: int | None = None  # chunks of the parallel path (None: gof_warp.delaunay's default)
+    delaunay_chunks: int | None = None  # chunks of the parallel path (None: gof_warp.mesh.delaunay's default)
     # the chunks in forked processes where the OS can fork (Linux), else threads: Qhull and the chunks' numpy work
     # hold the GIL for part of the time (DTU scan 24 on a 16-core host: chunks 60.7 s in threads, 35.3 s in processes)
     delaunay_processes: bool = True
     filter_cells: bool = True  # paper's edge filter (the official code does not filter)
     # "octree": a balanced octree sized by the Gaussians' boxes, split into tetrahedra on the model's device
-    # (gof_warp.octree_tets; no Delaunay). "delaunay": the official grid, the Delaunay of the 3σ-box corners and
+    # (gof_warp.mesh.octree_tets; no Delaunay). "delaunay": the official grid, the Delaunay of the 3σ-box corners and
     # centres on the CPU. "auto" (default): the octree, but the Delaunay grid for a small model, one whose octree at the
     # default cell factor would have fewer than octree.small_leaves leaves (and no cell factor is given): there the
     # Delaunay costs seconds and the octree's few large cells cost accuracy. Measured: DTU scan 24 on an H200 7.9 s /
@@ -308,12 +308,12 @@ def grid_points(means, rotations, scales, opacities=None, cameras: Sequence[Came
 
 def octree_tets_from_gaussians(means, rotations, scales, opacities=None, cameras: Sequence[Camera] | None = None,
                                config: TetraConfig | None = None, stats: dict | None = None) -> OctreeTets | None:
-    """The octree grid (:mod:`gof_warp.octree_tets`) over the Gaussians' 3σ boxes (radius ``3 max(s)``), with the
+    """The octree grid (:mod:`gof_warp.mesh.octree_tets`) over the Gaussians' 3σ boxes (radius ``3 max(s)``), with the
     Delaunay grid's selection: ``opacity_min``, and the frustum mask applied to the centres. Returns the grid's
-    :class:`~gof_warp.octree_tets.OctreeTets` (points held, tetrahedra made in pieces) on the means' device, or, with
+    :class:`~gof_warp.mesh.octree_tets.OctreeTets` (points held, tetrahedra made in pieces) on the means' device, or, with
     ``config.grid = "auto"``, None for a small model, whose grid is the Delaunay one (``stats`` says why). With
     ``config.octree.reach_filter`` its ``reach [P]`` marks the points inside some selected Gaussian's oriented 3σ box
-    (:func:`gof_warp.reach.points_in_boxes`; ``stats["octree_points_in_reach"]``).
+    (:func:`gof_warp.mesh.reach.points_in_boxes`; ``stats["octree_points_in_reach"]``).
 
     ``means [N, 3]``, ``rotations [N, 4]`` (wxyz), ``scales [N, 3]`` (standard deviations), ``opacities [N]``."""
     cfg = config or TetraConfig()
@@ -342,7 +342,7 @@ def tetrahedral_grid(means, rotations, scales, opacities=None, cameras: Sequence
                      config: TetraConfig | None = None, stats: dict | None = None
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Points → Delaunay → (optional) cell filter, as ``config`` says (no level band: that needs the field,
-    see :func:`gof_warp.extraction.extract_mesh`). Returns
+    see :func:`gof_warp.mesh.extraction.extract_mesh`). Returns
     ``(points [P, 3] float32, tets [T, 4] int32, owner [P] int32, point_scale [P] float32)``.
 
     ``stats``: when a dict is given, the wall time of each sub-stage is written into it (seconds, keys

@@ -118,8 +118,8 @@ def fuse_tsdf(gaussians, views, config: TSDFConfig | None = None, render_config:
     """Render every view's median depth and fuse them into a TSDF volume.
 
     Args:
-        gaussians: a :class:`~gof_warp.model.Gaussians`.
-        views: sequence of :class:`~gof_warp.scene.View` (camera + optional mask); usually the train views.
+        gaussians: a :class:`~gof_warp.core.model.Gaussians`.
+        views: sequence of :class:`~gof_warp.core.scene.View` (camera + optional mask); usually the train views.
     """
     config = config or TSDFConfig()
     render_config = render_config or RenderConfig()
@@ -157,7 +157,7 @@ class GridSampler:
     """Trilinear samples of a scalar grid ``[X, Y, Z]`` (node ``(i, j, k)`` at ``origin + voxel_size ·
     (i, j, k)``) on a Warp device, with :meth:`TSDFVolume.sample`'s semantics (points clamped onto the
     grid). Calling it with ``points`` (``wp.array`` of ``vec3`` ``[M]``) returns ``wp.array(float32)`` ``[M]``
-    on ``device``: the field of :func:`~gof_warp.marching.marching_cubes` with ``field_input="warp"``.
+    on ``device``: the field of :func:`~gof_warp.mesh.marching.marching_cubes` with ``field_input="warp"``.
     Memory: the grid on the device (4 B/voxel) plus 4 B per sampled point."""
 
     def __init__(self, grid: np.ndarray, origin, voxel_size: float, device):

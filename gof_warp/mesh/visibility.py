@@ -44,7 +44,7 @@ def _checked(verts, faces, cameras) -> tuple[np.ndarray, np.ndarray, list]:
 
 
 def _camera_arrays(cams: Sequence[Camera], near: float) -> dict[str, np.ndarray]:
-    """:func:`~gof_warp.camera.camera_arrays` and each camera's near plane, the larger of ``near`` and its own (as
+    """:func:`~gof_warp.core.camera.camera_arrays` and each camera's near plane, the larger of ``near`` and its own (as
     rendered)."""
     return {**camera_arrays(cams), "near": np.array([max(float(near), float(c.near)) for c in cams], np.float64)}
 

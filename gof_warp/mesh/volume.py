@@ -1,12 +1,12 @@
 """The GOF opacity field baked into a sparse Warp volume (NanoVDB), for queries from inside any Warp kernel.
 
-:func:`bake_opacity_volume` evaluates the exact field (:func:`gof_warp.opacity_field.opacity_field`) on a
+:func:`bake_opacity_volume` evaluates the exact field (:func:`gof_warp.rendering.opacity_field.opacity_field`) on a
 lattice of voxel size ``h`` and stores it in a float ``wp.Volume`` — only where it matters:
 
 1. **Bounds**: the 3σ boxes of the opaque Gaussians (opacity ≥ ``opacity_min``), the outer
    ``bounds_percentile`` % per side dropped (far stragglers), padded by the band.
 2. **Coarse pass**: the field at every ``coarse_step``-th voxel corner of the bounds (points no camera sees,
-   :func:`gof_warp.tetra.frustum_mask`, are not evaluated). A brick (NanoVDB leaf, 8³ voxels) is kept when
+   :func:`gof_warp.mesh.tetra.frustum_mask`, are not evaluated). A brick (NanoVDB leaf, 8³ voxels) is kept when
    some camera sees it and its coarse samples straddle ``level`` or come within ``margin`` of it.
 3. **Band**: kept bricks are dilated by ``ceil((band + 1) / 8)`` bricks, so every point within ``band``
    voxels of a detected crossing has its whole trilinear stencil stored.
@@ -218,7 +218,7 @@ def bake_opacity_volume(gaussians, cameras: Sequence[Camera], *, voxel_size: flo
     """Bake the GOF opacity field into a sparse float ``wp.Volume`` on the Gaussians' device.
 
     Args:
-        gaussians: :class:`~gof_warp.model.Gaussians` (activated values; the 3D filter applies).
+        gaussians: :class:`~gof_warp.core.model.Gaussians` (activated values; the 3D filter applies).
         cameras: the views the field is a minimum over (normally the training cameras).
         voxel_size: voxel edge in world units; ``None``: :func:`derive_voxel_size`, enlarged to fit the budgets.
         band: voxels on each side of a detected level crossing whose trilinear samples are exact-stencil.
@@ -354,7 +354,7 @@ def bake_run(run_dir_or_ply, scene: str | None = None, out_path=None, voxel_size
         scene: the scene folder the PLY was trained on (cameras), as ``extract --scene``.
         out_path: the ``.nvdb`` to write; default ``RUN/opacity_volume.nvdb`` (or ``PLY`` with suffix ``.nvdb``).
         voxel_size, band, config: see :func:`bake_opacity_volume`.
-        device: torch device name (``None``/``"auto"``: the devices rule of :mod:`gof_warp.devices`).
+        device: torch device name (``None``/``"auto"``: the devices rule of :mod:`gof_warp.core.devices`).
     """
     from ..core.devices import resolve_device
     from ..training.run_folder import load_run

@@ -1,4 +1,4 @@
-"""A level-set mesh of a baked opacity volume (:mod:`gof_warp.volume`): marching cubes on the volume's own voxel
+"""A level-set mesh of a baked opacity volume (:mod:`gof_warp.mesh.volume`): marching cubes on the volume's own voxel
 lattice, refined by bisection on the volume's trilinear field.
 
 Lattice: grid node ``n`` (``0 ≤ n < resolution`` per axis) is voxel ``lo + n`` of the volume, at world
@@ -17,11 +17,11 @@ crossing on a fully stored stencil, so real crossings are on the volume's own tr
 
 Bisection: on a lattice edge the trilinear field is the linear interpolation of the edge's two voxels, so the
 binary search converges to marching cubes' linear vertex; ``binary_steps`` is kept for the same call
-signature as :mod:`gof_warp.marching` (and costs one field launch per step on the crossing edges).
+signature as :mod:`gof_warp.mesh.marching` (and costs one field launch per step on the crossing edges).
 
 Memory (host, ``N`` lattice nodes): 4 B/node values + 1 B/node stored mask + 12 B/node nearest-voxel
 indices (``scipy.ndimage.distance_transform_edt``) while filling, then marching cubes' ~52 B/node
-(:mod:`gof_warp.marching`); ``max_nodes`` bounds ``N``.
+(:mod:`gof_warp.mesh.marching`); ``max_nodes`` bounds ``N``.
 """
 
 from __future__ import annotations
@@ -144,15 +144,15 @@ def volume_mesh(volume: wp.Volume, info: dict, *, level: float = 0.5, binary_ste
     """Marching cubes of a baked opacity volume on its own voxel lattice (see the module docstring).
 
     Args:
-        volume: a float ``wp.Volume`` from :func:`gof_warp.volume.bake_opacity_volume` or
-            :func:`gof_warp.volume.load_volume`; the work runs on its device.
+        volume: a float ``wp.Volume`` from :func:`gof_warp.mesh.volume.bake_opacity_volume` or
+            :func:`gof_warp.mesh.volume.load_volume`; the work runs on its device.
         info: the bake's info dict (``bake_opacity_volume``'s second result, or the ``.json`` beside the
             ``.nvdb``): ``origin`` (world position of voxel (0, 0, 0)) and ``voxel_size`` ``h`` (world units).
         level: the level set, in (0, 1) (inside = ``value >= level``; GOF: 0.5).
         binary_steps: bisection steps per vertex on the trilinear field (0 = linear interpolation).
         max_nodes: the most lattice nodes (index box of the stored voxels) to allocate.
         exact_field: optional callable, world points ``[M, 3]`` (numpy) → values ``[M]``, for the bisection
-            instead of the trilinear field (e.g. :func:`gof_warp.opacity_field.opacity_field` of the baked
+            instead of the trilinear field (e.g. :func:`gof_warp.rendering.opacity_field.opacity_field` of the baked
             Gaussians): the lattice's crossings, refined on the field the volume was baked from.
 
     Returns:

@@ -46,7 +46,7 @@ class OpacityFieldConfig:
     unseen_value: float = 1.0  # field of points no view sees (GOF: 1)
     # Points inside fewer than this many training views' frusta count as unseen (GOF: 1). A surface one photo alone
     # sees has no parallax to place it (COLMAP's fusion likewise asks for several views: min_num_pixels); with 2 the
-    # tetra path leaves such space out of the grid (gof_warp.extraction) instead of meshing whatever depth the
+    # tetra path leaves such space out of the grid (gof_warp.mesh.extraction) instead of meshing whatever depth the
     # Gaussians took there.
     min_views: int = 1
     chunk_size: int = 1 << 22  # points per device chunk
@@ -81,15 +81,15 @@ def opacity_field(gaussians, cameras: Sequence[Camera], points, *, config: Opaci
     """Evaluate the opacity field at ``points``.
 
     Args:
-        gaussians: :class:`~gof_warp.model.Gaussians` (activated values are used; the 3D filter applies).
+        gaussians: :class:`~gof_warp.core.model.Gaussians` (activated values are used; the 3D filter applies).
         cameras: the views (normally the training cameras), at the resolution the model was trained at.
         points: ``[M, 3]`` world positions (numpy or torch).
-        config, render_config: see :class:`OpacityFieldConfig` and :class:`~gof_warp.render.RenderConfig`
+        config, render_config: see :class:`OpacityFieldConfig` and :class:`~gof_warp.rendering.render.RenderConfig`
             (near plane, alpha thresholds, k_max — the same rules as rendering).
         return_seen: also return ``[M]`` int32, how many views see each point.
-        ranks: a :class:`~gof_warp.distributed.Ranks` of several processes (``torchrun``): each evaluates
+        ranks: a :class:`~gof_warp.training.distributed.Ranks` of several processes (``torchrun``): each evaluates
             every ``world``-th camera from its ``rank`` and the ranks reduce the minimum and the view counts
-            (:meth:`~gof_warp.distributed.Ranks.reduce_field`) before the unseen points get ``unseen_value``.
+            (:meth:`~gof_warp.training.distributed.Ranks.reduce_field`) before the unseen points get ``unseen_value``.
             Every rank must call with the same points and cameras; each returns the one-process result.
 
     Returns:

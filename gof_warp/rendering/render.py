@@ -350,7 +350,7 @@ class _RasterizeFunction(torch.autograd.Function):
     def backward(ctx, g_rgb, g_alpha, g_accum, g_median, g_normal, g_dist, _g_radii):
         state, stats = ctx.state, ctx.stats
         if state is None:
-            raise RuntimeError("gof_warp.render: backward called twice through the same render (retain_graph is not supported)")
+            raise RuntimeError("gof_warp.rendering.render: backward called twice through the same render (retain_graph is not supported)")
         device = ctx.device
         num_pixels = state.cam.height * state.cam.width
         flat = []
@@ -418,7 +418,7 @@ def rasterize(means, quats, scales, opacities, sh, camera: Camera, *, sh_degree=
             given). scales: ``[N, 3]`` positive. opacities: ``[N]`` in (0, 1). sh: ``[N, K, 3]`` SH
             coefficients, ``K = (D+1)²``, D ≤ 3, or the pair ``(sh_dc [N, 3], sh_rest [N, K−1, 3])`` as a model
             keeps them (no concatenation per render). All float32 on one device (CPU or CUDA).
-        camera: :class:`gof_warp.camera.Camera`.
+        camera: :class:`gof_warp.core.camera.Camera`.
         sh_degree: active SH degree (default: the maximum ``sh`` holds).
         config: :class:`RenderConfig` (default thresholds of GOF).
         stats: optional :class:`DensifyStats` filled by this render's forward and backward.
@@ -437,7 +437,7 @@ def rasterize(means, quats, scales, opacities, sh, camera: Camera, *, sh_degree=
         differentiable).
     """
     if not isinstance(camera, Camera):
-        raise TypeError(f"rasterize: camera must be a gof_warp.camera.Camera, got {type(camera).__name__}")
+        raise TypeError(f"rasterize: camera must be a gof_warp.core.camera.Camera, got {type(camera).__name__}")
     config = RenderConfig() if config is None else config
     if not isinstance(config, RenderConfig):
         raise TypeError(f"rasterize: config must be a RenderConfig, got {type(config).__name__}")
@@ -477,7 +477,7 @@ def render(gaussians, camera: Camera, *, config=None, stats=None, sh_degree=None
            scratch=None) -> dict:
     """Render a Gaussian model (any object with activated ``means``, ``rotations`` (unit wxyz),
     ``scales``, ``opacities``, ``active_sh_degree`` and either ``sh_dc``/``sh_rest`` or ``sh``, e.g.
-    ``gof_warp.model.Gaussians``, whose two SH parameters are read as they are, without concatenating them).
+    ``gof_warp.core.model.Gaussians``, whose two SH parameters are read as they are, without concatenating them).
 
     The activations are torch ops on the raw parameters, so gradients reach the raw parameters
     (log-scales, opacity logits, unnormalised quaternions) by torch's chain rule. ``sh_degree``
@@ -488,13 +488,13 @@ def render(gaussians, camera: Camera, *, config=None, stats=None, sh_degree=None
     model = {attr: getattr(gaussians, attr, _MISSING) for attr in _MODEL_ATTRS}
     for attr, value in model.items():
         if value is _MISSING:
-            raise TypeError(f"render: gaussians has no attribute {attr!r} (expected a gof_warp.model.Gaussians)")
+            raise TypeError(f"render: gaussians has no attribute {attr!r} (expected a gof_warp.core.model.Gaussians)")
     sh = (getattr(gaussians, "sh_dc", _MISSING), getattr(gaussians, "sh_rest", _MISSING))
     if sh[0] is _MISSING or sh[1] is _MISSING:
         sh = getattr(gaussians, "sh", _MISSING)
         if sh is _MISSING:
             raise TypeError("render: gaussians has neither 'sh_dc'/'sh_rest' nor 'sh' "
-                            "(expected a gof_warp.model.Gaussians)")
+                            "(expected a gof_warp.core.model.Gaussians)")
     degree = model["active_sh_degree"] if sh_degree is None else sh_degree
     return rasterize(model["means"], model["rotations"], model["scales"], model["opacities"], sh, camera,
                      sh_degree=degree, config=config, stats=stats, check_values=False, tile_lists=tile_lists,

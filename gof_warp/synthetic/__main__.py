@@ -1,5 +1,5 @@
 """``python -m gof_warp.synthetic``: render a synthetic scene with exact ground truth. The command lives in
-:mod:`gof_warp.cli.synthetic`."""
+:mod:`gof_warp.cli.common.synthetic`."""
 
 import sys
 

@@ -281,7 +281,7 @@ def helix(center=(0, 0, 0), radius=0.5, height=1.0, turns=3.0, wire_radius=0.02,
 def grid_plane(center=(0, 0, 0), half_size=4.0, cell=0.1, material=None, name="ground",
                role="background") -> SyntheticMesh:
     """A square facing +z tessellated into ``cell``-sized squares (two triangles each), so that per-face
-    visibility (``gof_warp.region_metrics.seen_faces``) resolves which parts of it the cameras see; the
+    visibility (``gof_warp.eval.region_metrics.seen_faces``) resolves which parts of it the cameras see; the
     cell count per side is ``round(2 * half_size / cell)``."""
     n = max(1, int(round(2.0 * half_size / cell)))
     s = np.linspace(-half_size, half_size, n + 1)

@@ -65,7 +65,7 @@ class CameraRig:
         return np.asarray(self.target, dtype=np.float64) + self.radius * dirs
 
     def cameras(self, width: int, height: int, n_train: int | None = None, seed: int = 0):
-        """``(train, test)`` lists of :class:`~gof_warp.camera.Camera` named ``r_000``, ``r_001``, ..."""
+        """``(train, test)`` lists of :class:`~gof_warp.core.camera.Camera` named ``r_000``, ``r_001``, ..."""
         n_train = self.n_train if n_train is None else int(n_train)
         azimuth0 = np.random.default_rng(seed).uniform(0.0, 2.0 * np.pi)
         fx = (width / 2.0) / np.tan(np.deg2rad(self.fov_x_deg) / 2.0)
@@ -303,7 +303,7 @@ def list_presets() -> list[str]:
 
 
 def get_preset(name: str) -> Preset:
-    """The preset called ``name`` (a :class:`~gof_warp.errors.SceneError` naming the choices if unknown)."""
+    """The preset called ``name`` (a :class:`~gof_warp.core.errors.SceneError` naming the choices if unknown)."""
     if name not in _PRESETS:
         raise SceneError(f"unknown synthetic preset {name!r}; choose one of: {', '.join(_PRESETS)}")
     return _PRESETS[name]

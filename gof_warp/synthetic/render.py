@@ -1,7 +1,7 @@
 """Render :class:`~gof_warp.synthetic.meshes.SyntheticMesh` parts with Warp ray casting.
 
 :class:`RayCaster` uploads the parts once (one ``wp.Mesh`` + BVH over their union, material tables,
-textures) and renders :class:`~gof_warp.camera.Camera` views: colour with coverage alpha from
+textures) and renders :class:`~gof_warp.core.camera.Camera` views: colour with coverage alpha from
 supersampling, and exact depth/normal/mask from the pixel-centre rays.
 """
 
@@ -24,7 +24,7 @@ _KINDS = {"constant": raycast.MAT_CONSTANT, "texture": raycast.MAT_TEXTURE, "pro
 
 
 def default_device() -> str:
-    """Warp's name of the default device (:func:`gof_warp.devices.resolve_device`'s rule)."""
+    """Warp's name of the default device (:func:`gof_warp.core.devices.resolve_device`'s rule)."""
     from ..core.devices import warp_device
 
     return warp_device(None)

@@ -34,7 +34,7 @@ Rules (GOF_REFERENCE §4; defaults in :class:`DensifyConfig`):
   ``late_prune_interval > 0`` keeps densification's prune (transparent, or larger than ``max_world_scale·E``)
   going every that many iterations until ``filter_3d_until_iter``; ``near_camera_fraction = f > 0`` makes each
   such prune also remove the Gaussians that a training camera's rays meet nearer than ``f`` × the depth of the
-  nearest initial (SfM) point that camera sees (``gof_warp.near_camera``): nothing the photos triangulated lies
+  nearest initial (SfM) point that camera sees (``gof_warp.training.near_camera``): nothing the photos triangulated lies
   that close. Measured on colmap_can: every per-view loss spike after 15k was such a Gaussian (opaque, 0.2–0.6
   in front of the camera, its centre often beside the image) or one that had grown past ``0.1·E`` (scale 4).
 * Optional budget ``max_gaussians``: growth stops at the budget; when there are more candidates than
@@ -54,7 +54,7 @@ Candidate metrics (``DensifyConfig.metric``):
 * ``"standard"``: 3DGS's ``ḡ ≥ τ`` only (ablation).
 
 Whether ``M̄`` sums per-pixel L2 norms (paper) or L1 norms (GOF's CUDA) is the renderer's choice.
-All parameter/optimizer changes go through :func:`gof_warp.optim.replace_params`.
+All parameter/optimizer changes go through :func:`gof_warp.training.optim.replace_params`.
 """
 
 from __future__ import annotations
@@ -108,13 +108,13 @@ class DensifyConfig:
     # camera's rays meet nearer than this fraction of the nearest initial point it sees
     near_camera_fraction: float = 0.0
     # not GOF (off by default): at these iterations remove the Gaussians behind the rendered surface in every training
-    # view (gof_warp.hidden.behind_surface, by more than hidden_margin × its depth), whose tails the opacity field
+    # view (gof_warp.training.hidden.behind_surface, by more than hidden_margin × its depth), whose tails the opacity field
     # counts in front of that surface; of those, only the ones the photos show less than hidden_max_visible of in
-    # their best view (gof_warp.hidden.visible_fraction: ~0 behind an opaque surface; None: the depth test alone)
+    # their best view (gof_warp.training.hidden.visible_fraction: ~0 behind an opaque surface; None: the depth test alone)
     hidden_prune_iters: list[int] = field(default_factory=list)
     hidden_margin: float = 0.01  # hidden prune: behind the surface by more than this fraction of its depth
     hidden_max_visible: float | None = 0.2  # hidden prune: only those seen less than this in their best view
-    # and, unless None, only the ones whose opacity at the rendered surface (gof_warp.hidden.surface_measures' tail:
+    # and, unless None, only the ones whose opacity at the rendered surface (gof_warp.training.hidden.surface_measures' tail:
     # o·exp(-½(Δ/σ_t)²) along the ray, the largest over the views) is above this: what raises GOF's field in front of
     # a surface, not a thin layer under it
     hidden_min_tail: float | None = None

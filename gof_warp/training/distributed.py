@@ -21,7 +21,7 @@ consecutive share of the tetrahedra (:meth:`Ranks.my_range`). The binary search 
 points' field: every rank takes the union of the ranks' crossing edges (:meth:`Ranks.all_gather_objects`) and each
 search step evaluates its views at all their midpoints, the minimum reduced over the ranks (a search step's cost is
 mostly the per-view preparation of every Gaussian, not the points). Rank 0 joins the pieces by their edge keys
-(:meth:`Ranks.gather_to_main`, :func:`gof_warp.marching.merge_keyed_pieces`) into the one-process mesh and writes
+(:meth:`Ranks.gather_to_main`, :func:`gof_warp.mesh.marching.merge_keyed_pieces`) into the one-process mesh and writes
 it.
 
 A single process is the same code with ``Ranks.single()`` (every collective a no-op).
@@ -212,7 +212,7 @@ def ranks_from_environment() -> Ranks:
     if not torch.distributed.is_available():
         raise GofError("this torch build has no torch.distributed: train with one process")
     if not torch.distributed.is_initialized():
-        backend = "nccl" if cuda_available() else "gloo"  # the project's one device rule (gof_warp.devices)
+        backend = "nccl" if cuda_available() else "gloo"  # the project's one device rule (gof_warp.core.devices)
         if backend == "nccl":
             torch.cuda.set_device(local)
         join_process_group(backend=backend)

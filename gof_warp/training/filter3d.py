@@ -7,12 +7,12 @@ the training cameras that see the centre and ``f_max`` the largest ``fx`` over t
 ``z > near`` (0.2) and its projection ``(u, v) = (fx x/z + cx, fy y/z + cy)`` lies in
 ``[−0.15 W, 1.15 W] × [−0.15 H, 1.15 H]`` (a 15 % guard band). Centres no camera sees get the largest
 ``d`` of the seen ones. The renderer then uses ``s_f = sqrt(s² + φ²)`` and the energy-preserving
-opacity (see :class:`gof_warp.model.Gaussians`).
+opacity (see :class:`gof_warp.core.model.Gaussians`).
 
 GOF projects with the principal point at the image centre; we use each camera's own ``(cx, cy)``,
 which is identical for GOF's cameras. GOF recomputes the filter at the start, after every
 densification, and every 100 iterations for 15 000 < it < 29 900 (see
-:attr:`gof_warp.densify.DensifyReport.filter_3d_due`).
+:attr:`gof_warp.training.densify.DensifyReport.filter_3d_due`).
 """
 
 from __future__ import annotations

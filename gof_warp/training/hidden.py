@@ -45,12 +45,12 @@ def surface_depth_ratio(gaussians, cameras: Sequence[Camera], *, config: RenderC
     """``[N]`` float: the least ``z / D`` of each Gaussian's centre over the views that see where it is (``+inf``
     where none does); above 1 the centre lies behind the rendered surface in every such view.
 
-    For each camera, the model's median depth ``D`` (:func:`gof_warp.render.render`) is read at the pixel of each
+    For each camera, the model's median depth ``D`` (:func:`gof_warp.rendering.render.render`) is read at the pixel of each
     centre that projects into the image (camera depth ``z > 0``, pixel ``(⌊u⌋, ⌊v⌋)``). The view *sees where it is*
     when ``D > 0`` there (a surface is rendered). One render per camera, whatever margin is applied afterwards.
 
     Args:
-        gaussians: a model (:class:`gof_warp.model.Gaussians`), on any device.
+        gaussians: a model (:class:`gof_warp.core.model.Gaussians`), on any device.
         cameras: the views to test (the training views).
         config: the renderer's settings (the trainer's).
     """

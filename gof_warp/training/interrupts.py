@@ -1,6 +1,6 @@
 """Ctrl-C or SIGTERM during a long loop: finish the current iteration, then stop cleanly.
 
-:func:`deferred_interrupt` is what :meth:`gof_warp.trainer.Trainer.run` wraps its loop in, so that an
+:func:`deferred_interrupt` is what :meth:`gof_warp.training.trainer.Trainer.run` wraps its loop in, so that an
 interrupted run writes a checkpoint of a whole iteration instead of dying half-way through one. SIGTERM (what
 job schedulers and ``kill`` send) is handled like Ctrl-C.
 """

@@ -16,7 +16,7 @@ median of that view's last ``view_window`` losses and reports the largest jump o
 own median (``max_view_ratio``: a true spike, where training suddenly breaks on a view it fitted) and the
 spread of the per-view medians (``view_median_spread``: hardest view's median / overall median). The first
 ``max_events`` per-view spikes are listed in ``view_spikes`` (iteration, view, ratio, terms), each with what the
-caller attaches to it (the trainer: which Gaussians sat right in front of that camera, :mod:`gof_warp.near_camera`).
+caller attaches to it (the trainer: which Gaussians sat right in front of that camera, :mod:`gof_warp.training.near_camera`).
 """
 
 from __future__ import annotations

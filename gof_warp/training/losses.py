@@ -1,7 +1,7 @@
 """GOF's training loss ``L = L_c + λ_d L_d + λ_n L_n`` (paper Eq. 12; GOF_REFERENCE §4, §9).
 
 * Colour: ``L_c = (1 − λ_dssim)·L1 + λ_dssim·(1 − SSIM)``, SSIM with an 11×11 Gaussian window,
-  σ = 1.5 (:func:`gof_warp.metrics.ssim`), λ_dssim = 0.2.
+  σ = 1.5 (:func:`gof_warp.eval.image_metrics.ssim`), λ_dssim = 0.2.
 * Depth distortion: ``L_d = mean over pixels`` of the renderer's distortion map (GOF's code squares
   NDC-depth differences; the paper writes ``Σ w_i w_j |t_i − t_j|``; the map is the renderer's job).
 * Depth–normal consistency, with ``N`` the normal of the rendered median-depth map
@@ -61,7 +61,7 @@ class LossConfig:
     # "paper": Σ ω_i(1 − n_iᵀN); "gof": 1 − normalize(Σ ω_i n_i)ᵀN
     normal_form: str = field(default="paper", metadata={"set_by": "experimental.normal_form"})
     # a neighbouring photo's patches through the rendered planes (not GOF's; off unless multiview.weight > 0):
-    # gof_warp.multiview, added by the trainer outside the (compiled) terms above
+    # gof_warp.training.multiview, added by the trainer outside the (compiled) terms above
     multiview: MultiViewConfig = field(default_factory=MultiViewConfig, metadata={"set_by": "experimental.multiview"})
 
     def __post_init__(self):
@@ -117,7 +117,7 @@ def depth_to_normal(depth: torch.Tensor, camera: Camera, *, return_valid: bool =
 
     Args:
         depth: ``[H, W]`` z-depth (the renderer's median depth), differentiable.
-        camera: the view's :class:`~gof_warp.camera.Camera` (intrinsics only are used).
+        camera: the view's :class:`~gof_warp.core.camera.Camera` (intrinsics only are used).
         return_valid: also return the ``[H, W]`` bool mask where ``N`` is defined.
     Returns:
         ``[H, W, 3]`` unit normals; 0 on the 1-pixel border and where the two tangents are (nearly)
@@ -247,7 +247,7 @@ def loss_terms(rgb, gt_image, l1_pred, l1_target, alpha, median_depth, normal, d
 def appearance_l1_pair(appearance, rgb: torch.Tensor, gt_image: torch.Tensor,
                        embedding: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """GOF's decoupled-appearance L1 pair ``(gain ⊙ crop(rgb), crop(gt))``, channel-last ``[H', W', 3]`` each, for an
-    :class:`~gof_warp.appearance.AppearanceModel` and the image's embedding row ``[D]``."""
+    :class:`~gof_warp.training.appearance.AppearanceModel` and the image's embedding row ``[D]``."""
     corrected = appearance.apply_for(rgb.permute(2, 0, 1), embedding)
     return corrected.permute(1, 2, 0), appearance.crop(gt_image.permute(2, 0, 1)).permute(1, 2, 0)
 
@@ -279,7 +279,7 @@ class TrainingLoss:
     ``torch.compile`` (tests use ``"aot_eager"``, which traces without generating code). ``cuda_graphs``: on CUDA,
     compile with ``mode="reduce-overhead"``, which replays the compiled forward and backward as CUDA graphs (one launch
     each instead of one per kernel); the terms are then copied out of the graph's memory, which the next replay reuses.
-    ``appearance``: an :class:`~gof_warp.appearance.AppearanceModel` whose embedding ``i`` belongs to camera ``i``;
+    ``appearance``: an :class:`~gof_warp.training.appearance.AppearanceModel` whose embedding ``i`` belongs to camera ``i``;
     views smaller than its 32-pixel crop get the plain L1."""
 
     def __init__(self, config: LossConfig, cameras, device, mode: str = "auto", backend: str = "inductor",

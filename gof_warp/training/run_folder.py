@@ -1,7 +1,7 @@
 """A training run folder: reading its Gaussians, cameras and render settings (library code for the CLIs
 ``extract`` and ``pictures`` and for Python users), and guarding it: its lock, its inputs, its outputs.
 
-``RUN/point_cloud.ply`` (3DGS layout), ``RUN/cameras.json`` (:meth:`~gof_warp.camera.Camera.to_dict` per
+``RUN/point_cloud.ply`` (3DGS layout), ``RUN/cameras.json`` (:meth:`~gof_warp.core.camera.Camera.to_dict` per
 train/test view, written by the trainer) and ``RUN/config.yaml`` (its ``render`` section) — or any Gaussian PLY
 together with the scene folder it was trained on.
 

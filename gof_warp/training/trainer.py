@@ -166,7 +166,7 @@ class TrainConfig:
 
 
 def initial_gaussians(scene: Scene, cfg: ModelConfig, seed: int, device) -> tuple[Gaussians, dict, np.ndarray | None]:
-    """The first Gaussians (:func:`gof_warp.init_points.initial_point_cloud` decides where), what was used, and the
+    """The first Gaussians (:func:`gof_warp.data.init_points.initial_point_cloud` decides where), what was used, and the
     scene's or triangulated points among them (``[P, 3]``; None for a random start)."""
     points, colours, info = initial_point_cloud(scene, cfg.init, random_points=cfg.random_init_points,
                                                 init_box=cfg.init_box, background=cfg.background_points, seed=seed)
@@ -241,7 +241,7 @@ class Trainer:
     """One training run on one scene, writing into ``out_dir``.
 
     Args:
-        scene: the loaded :class:`~gof_warp.scene.Scene`.
+        scene: the loaded :class:`~gof_warp.core.scene.Scene`.
         config: the resolved :class:`TrainConfig`.
         out_dir: the run folder (created; must be writable).
         device: torch device string.
@@ -341,7 +341,7 @@ class Trainer:
 
     def _step(self) -> tuple[IterationScalars, dict[str, torch.Tensor]]:
         """One iteration without reading anything back from the device: its record and its terms as 0-d
-        tensors (``l1 … total``, ``psnr``), for :class:`~gof_warp.step_scalars.PendingScalars`."""
+        tensors (``l1 … total``, ``psnr``), for :class:`~gof_warp.training.step_scalars.PendingScalars`."""
         cfg = self.config
         it = self.iteration + 1
         g = self.gaussians
@@ -564,7 +564,7 @@ class Trainer:
         Ctrl-C during training stops at the end of the current iteration: a checkpoint of that iteration is
         written (atomically, like every checkpoint) and :class:`TrainingInterrupted` is raised; the final
         outputs (``point_cloud.ply``, ``metrics.json``) are not written. :meth:`resume` continues bit-for-bit (with
-        ``experimental.multiview`` on, not quite: see :class:`~gof_warp.multiview.MultiViewTerm`).
+        ``experimental.multiview`` on, not quite: see :class:`~gof_warp.training.multiview.MultiViewTerm`).
         """
         cfg = self.config
         if self.ranks.is_main:
@@ -760,7 +760,7 @@ class Trainer:
     def state_dict(self) -> dict:
         """Everything :meth:`load_state_dict` needs to continue bit-for-bit, as plain data (tensors, numbers,
         strings, None, lists/tuples/dicts: what ``torch.load(weights_only=True)`` reads back; see
-        :mod:`gof_warp.checkpoint`)."""
+        :mod:`gof_warp.training.checkpoint`)."""
         g = self.gaussians
         return {
             "iteration": self.iteration,
@@ -812,7 +812,7 @@ class Trainer:
 
     def save_checkpoint(self, wait: bool = False) -> Path | None:
         """Write ``RUN/checkpoints/ckpt_<it>.pt`` (rank 0 only: other ranks return None) in the background
-        (:class:`~gof_warp.checkpoint.CheckpointWriter`: the state is copied to host memory first, so training
+        (:class:`~gof_warp.training.checkpoint.CheckpointWriter`: the state is copied to host memory first, so training
         may go on); ``wait=True`` returns once the file is in place."""
         if not self.ranks.is_main:
             return None
@@ -830,7 +830,7 @@ class Trainer:
 
         A newer checkpoint that cannot be read (truncated, corrupt, refused as unsafe) is renamed to
         ``<name>.corrupt`` and named in a warning with the one used instead
-        (:func:`gof_warp.checkpoint.load_newest`); :attr:`resumed_from` is the file loaded. :class:`GofError`
+        (:func:`gof_warp.training.checkpoint.load_newest`); :attr:`resumed_from` is the file loaded. :class:`GofError`
         when the checkpoint lacks an entry, lies beyond ``config.iterations``, was written with another config,
         or on another scene (:func:`scene_fingerprint`; checkpoints without one are not compared).
         """

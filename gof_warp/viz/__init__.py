@@ -4,7 +4,7 @@
 (``panels`` holds the drawing, ``curves`` the training curves); ``Viewer`` serves a run in the browser
 (viser), rendered by our renderer from the browser's camera.
 
-Library only: the commands live in ``gof_warp.cli``.
+Library only: the commands live in ``gof_warp.cli.common``.
 """
 
 from ..core.lazy import lazy_exports

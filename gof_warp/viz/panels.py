@@ -1,11 +1,11 @@
-"""Drawing the pictures of :mod:`gof_warp.pictures`: mesh shading, depth and normal colour maps, and tiles
-composed into one labelled picture (library code; the run loading and the CLI are in :mod:`gof_warp.pictures`).
+"""Drawing the pictures of :mod:`gof_warp.viz.pictures`: mesh shading, depth and normal colour maps, and tiles
+composed into one labelled picture (library code; the run loading and the CLI are in :mod:`gof_warp.viz.pictures`).
 
 :func:`view_panels` draws one row per camera, with the columns
 
     photo | Gaussian render | median depth | rendered normal | shaded mesh
 
-* **Gaussian render**: :func:`gof_warp.render.render` with the given render settings.
+* **Gaussian render**: :func:`gof_warp.rendering.render.render` with the given render settings.
 * **median depth**: :func:`colorize_depth`, colour-mapped between the 2nd and 98th percentile of the covered
   pixels (near = bright yellow, far = dark purple), composited on the background by the rendered alpha.
 * **rendered normal**: :func:`colorize_normal`, the renderer's normal map turned to world space, colour
@@ -58,7 +58,7 @@ _DEPTH_ANCHORS = np.array([[0.267, 0.005, 0.329], [0.229, 0.322, 0.546], [0.128,
 
 # ------------------------------------------------------------------------------------------ mesh shading
 def _warp_device(device, *inputs):
-    """The Warp device under :mod:`gof_warp.devices`' rule: ``device`` (a Warp or torch device, or its name) if
+    """The Warp device under :mod:`gof_warp.core.devices`' rule: ``device`` (a Warp or torch device, or its name) if
     given, else that of the first torch tensor / ``wp.array`` among ``inputs``, else the default."""
     import warp as wp
 
@@ -143,7 +143,7 @@ def shade_mesh(vertices, faces, camera: Camera, *, mode: str = "shaded", supersa
 
 def _check_shading(camera, mode: str, supersample) -> None:
     if not isinstance(camera, Camera):
-        raise TypeError(f"shade_mesh: camera must be a gof_warp.camera.Camera, got {type(camera).__name__}")
+        raise TypeError(f"shade_mesh: camera must be a gof_warp.core.camera.Camera, got {type(camera).__name__}")
     if mode not in ("shaded", "normals"):
         raise ValueError(f"shade_mesh: mode must be 'shaded' or 'normals', got {mode!r}")
     if int(supersample) != supersample or supersample < 1:
@@ -164,7 +164,7 @@ def shade_cast_mesh(mesh: CastMesh, camera: Camera, *, mode: str = "shaded", sup
 
     Args:
         mesh: :class:`CastMesh`.
-        camera: :class:`~gof_warp.camera.Camera` (OpenCV axes, world-to-camera).
+        camera: :class:`~gof_warp.core.camera.Camera` (OpenCV axes, world-to-camera).
         mode: ``"shaded"`` or ``"normals"``.
         supersample: samples per pixel axis (≥ 1).
         background: RGB in ``[0, 1]``.
@@ -333,11 +333,11 @@ def view_panels(gaussians, cameras: list[Camera], *, photos: list | None = None,
     would hide the scene behind surfaces the Gaussian render does not have.
 
     Args:
-        gaussians: :class:`~gof_warp.model.Gaussians` (rendered on their own device).
+        gaussians: :class:`~gof_warp.core.model.Gaussians` (rendered on their own device).
         cameras: the views to show (one row each).
         photos: ``[H, W, 3]`` uint8 per camera (None entries: "no photo"), or None for no photo column.
         mesh: ``(vertices [V, 3], faces [F, 3])``, a :class:`CastMesh`, or None for no mesh column.
-        render_config: :class:`~gof_warp.render.RenderConfig` (default thresholds if None).
+        render_config: :class:`~gof_warp.rendering.render.RenderConfig` (default thresholds if None).
         path: if given, the PNG is written there atomically.
         labels: one text per row (default: the camera names).
         max_width: cameras (and photos) are scaled down so the picture is at most this wide.

@@ -11,7 +11,7 @@ list), with the columns
   ``cameras.json``/``config.yaml``, or ``RUN/scene`` as the built-in default run writes it); the column
   is left out, with a log line, when it cannot.
 * **Gaussian render**, **median depth**, **rendered normal**, **shaded mesh**: drawn by
-  :mod:`gof_warp.panels` (:func:`view_panels`, :func:`shade_mesh`, …; those names are importable from here
+  :mod:`gof_warp.viz.panels` (:func:`view_panels`, :func:`shade_mesh`, …; those names are importable from here
   too) with the run's render settings.
 
 Training also writes ``RUN/pictures/views_it<N>.png`` (the same panels and views) for the model at each of
@@ -21,7 +21,7 @@ that view's photo, render, depth, normal and distortion map when the spike was r
 (:func:`spike_picture_or_warning`).
 
 This module finds what to draw — the run's Gaussians, cameras, render settings, the views to show and their
-photos. The command is :mod:`gof_warp.cli.pictures`; library code (``train`` and ``extract``) calls
+photos. The command is :mod:`gof_warp.cli.common.pictures`; library code (``train`` and ``extract``) calls
 :func:`pictures_or_warning`.
 """
 
@@ -37,7 +37,7 @@ import numpy as np
 from ..core.camera import Camera
 from ..core.devices import resolve_device
 from ..core.errors import GofError
-from .panels import (  # noqa: F401 - the drawing lives in panels; re-exported for callers of gof_warp.pictures
+from .panels import (  # noqa: F401 - the drawing lives in panels; re-exported for callers of gof_warp.viz.pictures
     AMBIENT,
     BACK_COLOR,
     BACKGROUND,
@@ -176,7 +176,7 @@ def write_run_pictures(run_dir, *, mesh_path=None, views: int = 3, out_dir=None,
         out_dir: where to write (default ``RUN/pictures``).
         device: torch device for the Gaussians and the ray casting (default: CUDA if available, else CPU).
         scene: scene folder for cameras and photos (default: what the run names, else ``RUN/scene``).
-        gaussians: the run's :class:`~gof_warp.model.Gaussians` already in memory (``extract`` passes its own),
+        gaussians: the run's :class:`~gof_warp.core.model.Gaussians` already in memory (``extract`` passes its own),
             used instead of reading ``point_cloud.ply`` again.
         mesh: the mesh at ``mesh_path`` already in memory, ``(vertices [V, 3], faces [F, 3])``, used instead of
             reading the file again (``mesh_path`` still names the picture).
@@ -252,7 +252,7 @@ def draw_views(gaussians, chosen: list[tuple[Camera, str]], path, *, photos=None
 def write_model_views(gaussians, scene, path, *, render_config=None, views: int = 3,
                       max_width: int = MAX_WIDTH) -> Path:
     """The views picture of an in-memory model (``views.png``'s panels, the same views: the run's test views
-    if any, else train views) over a loaded :class:`~gof_warp.scene.Scene`, whose images are the photos:
+    if any, else train views) over a loaded :class:`~gof_warp.core.scene.Scene`, whose images are the photos:
     what training writes at each snapshot (``RUN/pictures/views_it<N>.png``) without reloading the run."""
     chosen = choose_views(scene.train_cameras, [v.camera for v in scene.test], views)
     by_name = {v.camera.name: v.image for v in scene.all_views}
@@ -266,7 +266,7 @@ def snapshot_picture_name(iteration: int) -> str:
 
 
 def snapshot_pictures_or_warning(trainer, record: dict | None = None, *, views: int = 3) -> list[Path]:
-    """``RUN/pictures/views_it<N>.png`` for a :class:`~gof_warp.trainer.Trainer` at a snapshot (its current
+    """``RUN/pictures/views_it<N>.png`` for a :class:`~gof_warp.training.trainer.Trainer` at a snapshot (its current
     model, scene and render settings; ``record`` is the snapshot's record, unused beyond its iteration). Like
     :func:`pictures_or_warning`, a failure only logs a warning and returns ``[]``: training goes on."""
     iteration = record["iteration"] if record else trainer.iteration
@@ -287,7 +287,7 @@ def spike_picture_name(iteration: int, view: str) -> str:
 
 
 def spike_picture_or_warning(trainer, event: dict) -> list[Path]:
-    """``RUN/pictures/spike_it<N>_<view>.png`` for one listed loss spike of a :class:`~gof_warp.trainer.Trainer`
+    """``RUN/pictures/spike_it<N>_<view>.png`` for one listed loss spike of a :class:`~gof_warp.training.trainer.Trainer`
     (``event``: an entry of ``loss_spikes.view_spikes``): one row, photo | render | median depth | rendered normal |
     distortion, of the trainer's current model (drawn when the spike was read back, a few iterations after it).
     Records the picture's name in ``event["picture"]``. A failure only logs a warning and returns ``[]``."""

@@ -2,13 +2,13 @@
 
 Library part of ``python -m gof_warp.view RUN`` and ``python -m gof_warp.train --viewer`` (both thin CLIs).
 :class:`Viewer` starts a viser server (a web page with a 3D scene and a GUI panel) and keeps, for every
-connected browser, the picture of the Gaussians rendered by :func:`gof_warp.render.render` from that
+connected browser, the picture of the Gaussians rendered by :func:`gof_warp.rendering.render.render` from that
 browser's camera, set as the page's background image; over it viser draws the training cameras as frustums
 and the mesh (``RUN/mesh_*.ply``) when there is one. A GUI dropdown picks what is shown:
 
 * ``render``: the Gaussian render; ``depth``: median depth, colour-mapped as in the run pictures;
   ``normal``: rendered normals in world space, ``(n + 1) / 2``;
-* ``opacity slice``: the GOF opacity field (min over the training views, :func:`gof_warp.opacity_field`) on
+* ``opacity slice``: the GOF opacity field (min over the training views, :func:`gof_warp.rendering.opacity_field`) on
   the plane at ``slice depth`` in front of the browser's camera (black 0 → white 1, unseen points red).
 
 Renders are at most ``max_size`` pixels on the long side (default 256 on a CPU, 1024 on a GPU; a GUI
@@ -321,9 +321,9 @@ class Viewer:
     """A viser server showing one model (see the module docstring).
 
     Args:
-        gaussians: :class:`~gof_warp.model.Gaussians` (a copy is rendered; see :meth:`update`).
+        gaussians: :class:`~gof_warp.core.model.Gaussians` (a copy is rendered; see :meth:`update`).
         cameras: the training cameras (frustums, the initial view, the opacity field).
-        render_config: :class:`~gof_warp.render.RenderConfig` of the run (background, near plane, ...).
+        render_config: :class:`~gof_warp.rendering.render.RenderConfig` of the run (background, near plane, ...).
         mesh: ``(vertices [V, 3], faces [F, 3])`` to show (toggle in the GUI), or None.
         host, port: where to listen (default ``127.0.0.1``, this machine only; ``0.0.0.0``: every interface, with
             a warning; a busy port → the next free one).
