@@ -5,7 +5,8 @@ overwrite what was already written.
 Each case writes a tiny input under ``out/inputs/`` (scene folders of every format, Gaussian PLYs), runs a
 command's ``main([...])`` in-process and reports:
 
-* ``kind``: ``ply`` (extract on a broken model), ``scene`` (inspect on a broken scene folder) or ``config``;
+* ``kind``: ``ply`` (extract on a broken model), ``scene`` (inspect on a broken scene folder), ``config`` or
+  ``options`` (nonsense command options, an output path over an input);
 * ``outcome``: ``"error"`` (exit 2 with an ``error:`` line), ``"warning"`` (exit 0 and a warning logged or
   listed by ``inspect``), ``"ok"`` (exit 0 and nothing said: a silent success), ``"crash"`` (an exception
   escaped, a traceback was printed, or another exit code);
@@ -289,6 +290,38 @@ def _cases(root: Path):
             path.write_bytes(content)
             return {"method": "train", **run_cli(train.main, [scene, "--out", root / name, "--quiet", "--config", path])}
         yield case, "config", "error", f"{case}.yaml", go
+
+
+    # ---- extract and evaluate options that made silent or wrong outputs, and outputs over the inputs
+    from ..cli import evaluate
+
+    def extract_args(name, *args, out=None, watch=None):
+        def go(_):
+            ply = write_ply(root / "good.ply", "good")
+            target = root / f"{name}.ply" if out is None else out(ply)
+            argv = [ply, "--scene", scene, "--out", target, "--binary-steps", 2, "--no-pictures", "--quiet", *args]
+            return {"method": "extract " + " ".join(map(str, args)),
+                    **run_cli(extract.main, argv, watch=ply if watch else None)}
+        return go
+
+    for case, args, needle in (("resolution_0", ["--method", "cubes", "--resolution", 0], "--resolution"),
+                               ("resolution_negative", ["--method", "cubes", "--resolution", -5], "--resolution"),
+                               ("volume_with_method", ["--volume", "--method", "tsdf"], "--volume"),
+                               ("levels_repeated", ["--levels", 0.5, 0.5], "--levels"),
+                               ("binary_steps_1000", ["--binary-steps", 1000], "--binary-steps")):
+        yield case, "options", "error", needle, extract_args(case, *args)
+    yield "extract_out_over_the_model", "options", "error", "", extract_args(
+        "over_model", out=lambda ply: ply, watch=True)
+
+    def empty_mesh(name):
+        mesh = root / f"{name}.ply"
+        mesh.write_bytes(b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                         b"property float z\nend_header\n0 0 0\n1 0 0\n0 1 0\n")
+        gt = write_ply(root / "good.ply", "good")
+        return {"method": "evaluate", **run_cli(evaluate.main, ["--mesh", mesh, "--gt", gt])}
+    yield "evaluate_mesh_without_faces", "options", "error", "has no faces", empty_mesh
+    yield "render_near_negative", "config", "error", "render.near", lambda name: {
+        "method": "train", **run_cli(train.main, [scene, "--out", root / name, "--quiet", "render.near=-1"])}
 
 
 def run_input_cases(out) -> list[dict]:

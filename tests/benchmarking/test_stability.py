@@ -108,8 +108,8 @@ def test_bad_inputs_are_counted_per_kind_with_no_crash_or_nan(reports):
     nothing overwritten, each a clear error or a warning (tests/cli/test_bad_inputs.py ran them a second time for these
     checks; they are here now)."""
     summary, inputs = _saved_inputs["summary"], _saved_inputs["inputs"]
-    assert set(summary) == {"model", "scene", "ply", "config"}
-    assert {r["kind"] for r in inputs} == {"scene", "ply", "config"}
+    assert set(summary) == {"model", "scene", "ply", "config", "options"}
+    assert {r["kind"] for r in inputs} == {"scene", "ply", "config", "options"}
     assert summary["model"]["tried"] == len(CASES) * len(STABILITY_METHODS)
     for kind, c in summary.items():
         assert c["crash"] == 0 and c["nan_inf"] == 0, (kind, c)
@@ -117,3 +117,9 @@ def test_bad_inputs_are_counted_per_kind_with_no_crash_or_nan(reports):
             assert c["overwritten"] == 0 and c["error"] + c["warning"] == c["tried"], (kind, c)
     assert all(r["as_expected"] for r in inputs), [r for r in inputs if not r["as_expected"]]
     assert summary["scene"]["warning"] >= 2 and summary["ply"]["error"] >= 6
+    # the issue's cases: scene files outside the folder, FIFOs, oversized headers, bad matrices and camera files,
+    # bad config files, nonsense extract/evaluate options, an output over the model: each a clear error
+    named = {r["case"] for r in inputs}
+    assert {"path_outside_scene_ingp", "fifo_image_colmap", "header_20000x20000_colmap", "config_latin1",
+            "resolution_negative", "levels_repeated", "binary_steps_1000", "extract_out_over_the_model",
+            "evaluate_mesh_without_faces", "render_near_negative"} <= named
