@@ -10,6 +10,7 @@ import time
 
 import pytest
 
+from _processes import signal_after_first_checkpoint
 from gof_warp.training.checkpoint import list_checkpoints
 
 
@@ -145,19 +146,7 @@ def test_sigterm_checkpoints_and_names_the_resume_command(tiny_train_scene, tmp_
     run = tmp_path / "run"
     cmd = _train(str(tiny_train_scene), "--out", str(run), "--config", "quick", "--device", "cpu", "iterations=400",
                  "checkpoint_every=2", "model.random_init_points=300", "--no-pictures")
-    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGTERM, signal.SIG_DFL))
-    try:
-        deadline = time.monotonic() + 180
-        while not list_checkpoints(run):  # iterating
-            assert proc.poll() is None, f"training ended before its first checkpoint: {proc.communicate()}"
-            assert time.monotonic() < deadline, "no checkpoint after 180 s"
-            time.sleep(0.05)
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=180)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+    proc, err = signal_after_first_checkpoint(cmd, tmp_path, run, signal.SIGTERM, timeout=180)
     assert proc.returncode == 128 + signal.SIGTERM, err
     assert "Traceback" not in err
     last = err.strip().splitlines()[-1]

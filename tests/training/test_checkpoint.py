@@ -22,6 +22,7 @@ from gof_warp.core.errors import GofError
 from gof_warp.training.loss_monitor import LossSpikeMonitor
 from gof_warp.synthetic import make_scene
 from gof_warp.training.trainer import Trainer, TrainingInterrupted
+from _processes import signal_after_first_checkpoint
 from test_trainer import _config
 
 
@@ -229,20 +230,7 @@ def test_cli_ctrl_c_exits_130_keeps_the_checkpoint_and_resumes(tiny_scene, tmp_p
     # checkpoint_every=10: Ctrl-C soon after the first checkpoint (50 waited ~40 more iterations for the same path)
     cmd = [sys.executable, "-m", "gof_warp.train", tiny_scene.source, "--out", str(run), "--config", "quick",
            "--device", "cpu", "iterations=400", "checkpoint_every=10", "model.random_init_points=300", "--no-pictures"]
-    # the child gets the default SIGINT disposition even where this runner ignores SIGINT (a background job)
-    proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
-    try:
-        deadline = time.monotonic() + 120
-        while not list_checkpoints(run):
-            assert proc.poll() is None, f"training ended before its first checkpoint: {proc.communicate()}"
-            assert time.monotonic() < deadline, "no checkpoint after 120 s"
-            time.sleep(0.05)
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=120)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+    proc, err = signal_after_first_checkpoint(cmd, tmp_path, run, signal.SIGINT, timeout=120)
     assert proc.returncode == 130, err
     assert "Traceback" not in err
     last = err.strip().splitlines()[-1]
