@@ -319,6 +319,8 @@ def extract_run(a, ranks, device) -> None:
     if a.method != "tsdf" and a.min_views > len(cameras):
         raise GofError(f"--min-views {a.min_views}, but the run has {len(cameras)} training views: no space would be "
                        "meshed")
+    if a.color == "photos":  # found before the extraction's work; decoded again when the colours are made
+        training_photos(a, run, cameras[:1], views[:1] if views is not None else None, device)
     command = {"load_s": round(time.perf_counter() - t_load, 3)}
     from ..core.progress import Stages
 
@@ -376,14 +378,19 @@ def mesh_vertex_colours(a, run: Path, meshes, gaussians, cameras, views, render_
     from ..core.devices import warp_device
     from ..mesh.colour import mesh_colours
 
-    photos = None
-    if a.color == "photos":
-        photos = [v.image for v in views] if views is not None else run_photos(run, cameras, device)
-        if photos is None:
-            raise GofError(f"--color photos: no photos found for {run} (pass --scene SCENE, the scene the model "
-                           "was trained on)")
+    photos = training_photos(a, run, cameras, views, device) if a.color == "photos" else None
     return [mesh_colours(a.color, v, f, cameras, gaussians=gaussians, photos=photos, render_config=render_config,
                          device=warp_device(device)) for v, f in meshes]
+
+
+def training_photos(a, run: Path, cameras, views, device) -> list:
+    """``--color photos``: the training photos, one uint8 ``[H, W, 3]`` per camera, from ``--scene``'s views or the
+    scene folder the run names; a :class:`GofError` when there are none."""
+    photos = [v.image for v in views] if views is not None else run_photos(run, cameras, device)
+    if photos is None:
+        raise GofError(f"--color photos: no photos found for {run} (pass --scene SCENE, the scene the model was "
+                       "trained on)")
+    return photos
 
 
 def run_photos(run: Path, cameras, device):
