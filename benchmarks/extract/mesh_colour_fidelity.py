@@ -63,6 +63,10 @@ def main(argv=None) -> int:
     result = {"run": str(run), "mesh": mesh_from, "mesh_s": round(time.perf_counter() - t0, 2),
               "device": str(device), "host": platform.node(), "train_views": len(train_cams),
               "test_views": len(test_cams)}
+    metrics_file = run / "metrics.json"
+    if metrics_file.is_file():  # the training that made the run
+        trained = json.loads(metrics_file.read_text())
+        result["run_training"] = {k: trained.get(k) for k in ("iterations", "num_gaussians", "test")}
 
     # the Gaussians' own render on the test views
     renders = list(gaussian_images(gaussians, test_cams, render_config))
