@@ -22,8 +22,12 @@ from .common import HelpFormatter, configure_output, run_command
 from ..core.errors import GofError
 from ..mesh.extraction import (MAX_RESOLUTION, METHODS, MIN_RESOLUTION, MeshConfig, StageTimer,  # noqa: F401
                                empty_mesh_message, extract_mesh, level_name_clash, meshable, save_mesh)
+from ..mesh.export import save_mesh_file
 from ..mesh.marching_inputs import MAX_BINARY_STEPS, MAX_STEPS_PER_CALL
 from ..core.io_utils import write_json_atomic
+from ..mesh.colour import SOURCES as COLOUR_SOURCES
+from ..mesh.export import FORMATS as MESH_FORMATS
+from ..mesh.export import format_of
 from ..training.run_folder import cameras_from_json, load_run  # noqa: F401 - re-exported: extract.load_run is public
 from ..mesh.octree_tets import DEFAULT_CELL_FACTOR, SMALL_CELL_FACTOR, OctreeConfig
 from ..rendering.opacity_field import OpacityFieldConfig
@@ -124,6 +128,15 @@ def parse_args(argv=None) -> argparse.Namespace:
                       default=TetraConfig.delaunay_processes,
                       help="delaunay grid: run the Delaunay chunks in forked processes (the default, where the OS "
                            "can fork: Linux) or, with --no-delaunay-processes, in threads")
+    colour = ap.add_argument_group("colour and file format")
+    colour.add_argument("--color", default="none", choices=("none",) + COLOUR_SOURCES,
+                        help="vertex colours: none (the default), gaussians (the Gaussians rendered from the training "
+                             "cameras that see each vertex) or photos (the training photos, from --scene or the "
+                             "scene the run names; on the built-in scene 1.6 dB closer to the held-out photos than gaussians: "
+                             "benchmarks/extract/results/mesh_colour_fidelity_default_scene_cpu.json)")
+    colour.add_argument("--format", default=None, choices=MESH_FORMATS,
+                        help="mesh file format: ply, glb (one binary glTF file) or obj (vertex colours as 'v x y z r "
+                             "g b') (default: from --out's suffix, .glb or .obj, else ply)")
     volume = ap.add_argument_group("other outputs")
     volume.add_argument("--volume", action="store_true",
                         help="bake the opacity field into a sparse NanoVDB volume (RUN/opacity_volume.nvdb and "
@@ -155,7 +168,7 @@ INT_LIMIT = 2**31 - 1  # the largest count a flag takes: beyond it no mesh's fac
 MAX_VOLUME_BAND = 64  # voxels on each side of the level: eight bricks
 MAX_DELAUNAY_WORKERS = 1024
 # flags that only a mesh uses, and those only the tetra method uses: given where they do nothing, a warning
-MESH_ONLY = ("method", "max_faces", "max_error", "levels", "keep_hidden", "min_views", "grid", "cell_factor",
+MESH_ONLY = ("color", "format", "method", "max_faces", "max_error", "levels", "keep_hidden", "min_views", "grid", "cell_factor",
              "binary_steps", "resolution", "opacity_min", "corner_min_extent", "min_component_faces", "reach_filter",
              "band", "search_steps_per_call", "piece_tets", "delaunay", "delaunay_workers", "delaunay_processes")
 TETRA_ONLY = ("grid", "cell_factor", "opacity_min", "corner_min_extent", "reach_filter", "band",
@@ -231,11 +244,19 @@ def check_args(a: argparse.Namespace) -> None:
         if "method" in given:
             raise GofError(f"--volume writes a NanoVDB opacity volume (.nvdb), not a mesh: it takes no --method "
                            f"(got --method {a.method})")
+        for dest in ("color", "format"):
+            if dest in given:
+                raise GofError(f"--volume writes a NanoVDB opacity volume (.nvdb), not a mesh: it takes no "
+                               f"{_flag(dest)}")
         if a.out is not None and Path(a.out).suffix.lower() != ".nvdb":
             raise GofError(f"--volume writes a NanoVDB volume: --out must end in .nvdb, got {a.out}")
         ignored(MESH_ONLY, "--volume bakes the opacity field, and these are mesh settings")
         return
     ignored(("voxel_size", "volume_band"), "they are --volume settings, and no --volume was given")
+    if a.out is not None and a.format is not None:
+        suffix = Path(a.out).suffix.lower().lstrip(".")
+        if suffix in MESH_FORMATS and suffix != a.format:
+            raise GofError(f"--format {a.format}, but --out {a.out} ends in .{suffix}: give one format")
     if a.method != "tetra":
         ignored(TETRA_ONLY, f"tetra settings, and the method is {a.method}")
     if a.method == "tetra":
@@ -299,6 +320,8 @@ def extract_run(a, ranks, device) -> None:
     if a.method != "tsdf" and a.min_views > len(cameras):
         raise GofError(f"--min-views {a.min_views}, but the run has {len(cameras)} training views: no space would be "
                        "meshed")
+    if a.color == "photos":  # found before the extraction's work; decoded again when the colours are made
+        training_photos(a, run, cameras[:1], views[:1] if views is not None else None, device)
     command = {"load_s": round(time.perf_counter() - t_load, 3)}
     from ..core.progress import Stages
 
@@ -315,12 +338,22 @@ def extract_run(a, ranks, device) -> None:
     if empty:  # before anything is written: an existing mesh of that name stays as it is
         raise GofError(empty_mesh_message(gaussians, a.method, empty, cfg))
     base = mesh_base(a, run)
+    fmt = format_of(base, a.format)
+    colours = [None] * len(meshes)
+    if a.color != "none":
+        t_colour = time.perf_counter()
+        colours = mesh_vertex_colours(a, run, meshes, gaussians, cameras, views, render_config, device)
+        command["colour_s"] = round(time.perf_counter() - t_colour, 3)
     outputs = []
     t_save = time.perf_counter()
-    for level, (v, f) in zip(levels, meshes):
+    for level, (v, f), c in zip(levels, meshes, colours):
         path = mesh_path(base, level, len(meshes))
-        save_mesh(path, v, f)
-        outputs.append({"path": str(path), "level": level, "vertices": int(len(v)), "faces": int(len(f))})
+        if fmt == "ply" and c is None:
+            save_mesh(path, v, f)
+        else:
+            save_mesh_file(path, v, f, c, fmt)
+        outputs.append({"path": str(path), "level": level, "vertices": int(len(v)), "faces": int(len(f)),
+                        "format": fmt, "color": a.color})
         print(f"wrote {path}: {len(v)} vertices, {len(f)} faces")
     command["save_s"] = round(time.perf_counter() - t_save, 3)
     summary = {
@@ -340,9 +373,51 @@ def extract_run(a, ranks, device) -> None:
         write_json_atomic(base.with_suffix(".json"), summary)  # again, with the pictures' time
 
 
+def mesh_vertex_colours(a, run: Path, meshes, gaussians, cameras, views, render_config, device) -> list:
+    """Vertex colours ``[V, 3]`` float32 of each mesh from ``a.color`` (:func:`gof_warp.mesh.colour.mesh_colours`);
+    the photos come from ``views`` (``--scene``) or the scene folder the run names (else ``RUN/scene``)."""
+    from ..core.devices import warp_device
+    from ..mesh.colour import mesh_colours
+
+    photos = training_photos(a, run, cameras, views, device) if a.color == "photos" else None
+    return [mesh_colours(a.color, v, f, cameras, gaussians=gaussians, photos=photos, render_config=render_config,
+                         device=warp_device(device)) for v, f in meshes]
+
+
+def training_photos(a, run: Path, cameras, views, device) -> list:
+    """``--color photos``: the training photos, one uint8 ``[H, W, 3]`` per camera, from ``--scene``'s views or the
+    scene folder the run names; a :class:`GofError` when there are none."""
+    photos = [v.image for v in views] if views is not None else run_photos(run, cameras, device)
+    if photos is None:
+        raise GofError(f"--color photos: no photos found for {run} (pass --scene SCENE, the scene the model was "
+                       "trained on)")
+    return photos
+
+
+def run_photos(run: Path, cameras, device):
+    """The training photos of ``cameras`` from the scene folder a run names, or ``RUN/scene`` (uint8 ``[H, W, 3]``
+    each), or None when none is found."""
+    import json
+
+    from ..core.config import from_dict
+    from ..core.devices import warp_device
+    from ..data import DataConfig
+    from ..viz.pictures import _load_yaml, _scene_candidates, find_photos
+
+    base = run if run.is_dir() else run.parent
+    config = _load_yaml(base / "config.yaml") if run.is_dir() else {}
+    cams_file = base / "cameras.json"
+    cams_json = json.loads(cams_file.read_text()) if run.is_dir() and cams_file.is_file() else {}
+    data_config = from_dict(DataConfig, (config or {}).get("data", {}) or {}, "config.yaml: data")
+    return find_photos(list(cameras), _scene_candidates(base, cams_json, config or {}, None), data_config,
+                       device=warp_device(device))
+
+
 def mesh_base(a, run: Path) -> Path:
-    """The mesh path ``--out`` names, or ``RUN/mesh_<method>.ply`` (beside a PLY given as RUN)."""
-    return Path(a.out) if a.out else (run if run.is_dir() else run.parent) / f"mesh_{a.method}.ply"
+    """The mesh path ``--out`` names, or ``RUN/mesh_<method>.<format>`` (beside a PLY given as RUN; the format
+    ``--format``'s, else ply)."""
+    ext = getattr(a, "format", None) or "ply"
+    return Path(a.out) if a.out else (run if run.is_dir() else run.parent) / f"mesh_{a.method}.{ext}"
 
 
 def mesh_path(base: Path, level: float, count: int) -> Path:

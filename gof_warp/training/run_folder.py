@@ -73,7 +73,7 @@ LOCK_NAME = ".lock"
 #: what a training run and the commands run on it write into ``RUN/`` (removed by :func:`remove_run_outputs`)
 _OUTPUT_FILES = ("config.yaml", "cameras.json", "point_cloud.ply", "metrics.json", "opacity_volume.nvdb",
                  "opacity_volume.json")
-_OUTPUT_PATTERNS = (re.compile(r"^mesh_.*\.(ply|json)$"),)
+_OUTPUT_PATTERNS = (re.compile(r"^mesh_.*\.(ply|glb|obj|json)$"),)
 _OUTPUT_FOLDERS = {"checkpoints": re.compile(r"^(ckpt_\d+\.pt(\.corrupt(\.\d+)?)?|\.ckpt_.*\.tmp)$"),
                    "pictures": re.compile(r"^.*\.png$"),
                    "snapshots": None}  # snapshots/iter_<k>/{point_cloud.ply, snapshot.json}
