@@ -402,14 +402,15 @@ def run_photos(run: Path, cameras, device):
     from ..core.config import from_dict
     from ..core.devices import warp_device
     from ..data import DataConfig
-    from ..viz.pictures import _load_yaml, _scene_candidates, find_photos
+    from ..training.run_folder import read_run_config, scene_candidates
+    from ..viz.pictures import find_photos
 
     base = run if run.is_dir() else run.parent
-    config = _load_yaml(base / "config.yaml") if run.is_dir() else {}
+    config = read_run_config(base / "config.yaml") if run.is_dir() else {}
     cams_file = base / "cameras.json"
     cams_json = json.loads(cams_file.read_text()) if run.is_dir() and cams_file.is_file() else {}
     data_config = from_dict(DataConfig, (config or {}).get("data", {}) or {}, "config.yaml: data")
-    return find_photos(list(cameras), _scene_candidates(base, cams_json, config or {}, None), data_config,
+    return find_photos(list(cameras), scene_candidates(base, cams_json, config or {}, None), data_config,
                        device=warp_device(device))
 
 

@@ -21,6 +21,7 @@ import re
 import shutil
 from pathlib import Path
 
+from ..core.config import load_yaml
 from ..core.camera import Camera
 from ..core.errors import GofError
 from ..rendering.render import RenderConfig
@@ -38,7 +39,6 @@ def load_run(run: Path, scene: str | None, device: str):
             raise GofError(f"{run} has no point_cloud.ply (is it a training output folder?)")
         cfg_file = run / "config.yaml"
         if cfg_file.is_file():
-            from ..core.config import load_yaml
             from .settings import run_render_config
 
             render_config = run_render_config(load_yaml(cfg_file), str(cfg_file))
@@ -169,3 +169,27 @@ def remove_if_empty(run) -> bool:
     except OSError:
         return False
     return True
+
+
+def read_run_config(path: Path) -> dict:
+    """A run's ``config.yaml`` as a mapping ({} when there is none)."""
+    if not path.is_file():
+        return {}
+    data = load_yaml(path)
+    return data if isinstance(data, dict) else {}
+
+
+def scene_candidates(base: Path, cameras_json: dict, config: dict, scene) -> list[Path]:
+    """Scene folders to try for a run's photos, most explicit first: ``scene``, the folder ``cameras.json`` or
+    ``config.yaml`` names (as given and relative to the run), then ``RUN/scene``."""
+    named = [scene] if scene is not None else []
+    for d in (cameras_json, config, config.get("data", {}) if isinstance(config.get("data"), dict) else {}):
+        for key in ("scene", "scene_dir", "source", "path"):
+            if isinstance(d.get(key), str) and d[key]:
+                named.append(d[key])
+    out = []
+    for n in named:
+        p = Path(n).expanduser()
+        out += [p] if p.is_absolute() else [p, base / p]
+    out.append(base / "scene")  # the built-in default run generates its scene there
+    return out

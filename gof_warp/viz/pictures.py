@@ -84,30 +84,6 @@ def choose_views(train: list[Camera], test: list[Camera], k: int) -> list[tuple[
     return [(pool[i], split) for i in idx]
 
 
-def _load_yaml(path: Path) -> dict:
-    if not path.is_file():
-        return {}
-    from ..core.config import load_yaml
-
-    data = load_yaml(path)
-    return data if isinstance(data, dict) else {}
-
-
-def _scene_candidates(base: Path, cameras_json: dict, config: dict, scene) -> list[Path]:
-    """Scene folders to try for the photos, most explicit first."""
-    named = [scene] if scene is not None else []
-    for d in (cameras_json, config, config.get("data", {}) if isinstance(config.get("data"), dict) else {}):
-        for key in ("scene", "scene_dir", "source", "path"):
-            if isinstance(d.get(key), str) and d[key]:
-                named.append(d[key])
-    out = []
-    for n in named:
-        p = Path(n).expanduser()
-        out += [p] if p.is_absolute() else [p, base / p]
-    out.append(base / "scene")  # the built-in default run generates its scene there
-    return out
-
-
 def find_photos(cameras: list[Camera], candidates: list[Path], data_config, device=None) -> list | None:
     """Decode the images of ``cameras`` (matched by name) from the first candidate scene folder that has
     them all, following the run's ``data_config`` (downscale, background). Only these views are decoded.
@@ -183,7 +159,7 @@ def write_run_pictures(run_dir, *, mesh_path=None, views: int = 3, out_dir=None,
     """
     from ..core.config import from_dict
     from ..data import DataConfig
-    from ..training.run_folder import cameras_from_json
+    from ..training.run_folder import cameras_from_json, read_run_config, scene_candidates
     from ..core.model import Gaussians
     from ..training.settings import run_render_config
 
@@ -197,7 +173,7 @@ def write_run_pictures(run_dir, *, mesh_path=None, views: int = 3, out_dir=None,
     else:
         raise GofError(f"{run} is neither a run folder nor a .ply file")
     device = resolve_device(device)
-    config = _load_yaml(base / "config.yaml") if run.is_dir() else {}
+    config = read_run_config(base / "config.yaml") if run.is_dir() else {}
     render_config = run_render_config(config or {}, "config.yaml")
     data_config = from_dict(DataConfig, config.get("data", {}) or {}, "config.yaml: data")
     render_config = dataclasses.replace(render_config, background=tuple(data_config.background))
@@ -222,7 +198,7 @@ def write_run_pictures(run_dir, *, mesh_path=None, views: int = 3, out_dir=None,
         train = cameras_from_json(cams_file)
         test = [Camera.from_dict(c) for c in cams_json.get("test", [])]
         chosen = choose_views(train, test, views)
-        photos = find_photos([c for c, _ in chosen], _scene_candidates(base, cams_json, config, None), data_config,
+        photos = find_photos([c for c, _ in chosen], scene_candidates(base, cams_json, config, None), data_config,
                              device=_warp_device(device))
     else:
         raise GofError(f"no cameras for {run}: pass a scene folder (the scene the model was trained on)")
