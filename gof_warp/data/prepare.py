@@ -118,11 +118,10 @@ def _check_output(out: Path, overwrite: bool) -> None:
         raise PrepareError(f"{out.parent}: the output's parent folder does not exist")
 
 
-def _stage_photos(photos: list[Path], dst: Path, max_size: int) -> tuple[list[str], dict]:
+def _stage_photos(photos: list[Path], dst: Path, max_size: int) -> list[str]:
     """Copy (or downscale, EXIF orientation applied) the photos into ``dst`` under their own names."""
     from PIL import Image, ImageOps
 
-    sizes = {}
     for p in photos:
         try:
             with Image.open(p) as im:
@@ -139,10 +138,74 @@ def _stage_photos(photos: list[Path], dst: Path, max_size: int) -> tuple[list[st
                         oriented = oriented.convert("RGB")
                     kw = {"quality": 95} if p.suffix.lower() in (".jpg", ".jpeg") else {}
                     oriented.save(dst / p.name, **kw)
-                sizes[p.name] = (w, h)
         except OSError as e:
             raise PrepareError(f"{p}: cannot read the image ({e})") from e
-    return [p.name for p in photos], sizes
+    return [p.name for p in photos]
+
+
+EXTRACT_CHUNK = 8  # photos per feature-extraction call: the progress bar's step
+MATCH_CHUNKS = 25  # matching calls (at least MATCH_CHUNK_MIN pairs each): the progress bar's steps
+MATCH_CHUNK_MIN = 50
+
+
+def _extract_features(pycolmap, db_path: Path, image_dir: Path, names: list[str], config: PrepareConfig,
+                      stages: Stages) -> None:
+    """SIFT on the photos in chunks (for the progress bar); with ``single_camera`` every chunk after the first
+    reuses the first chunk's camera."""
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.max_image_size = int(config.max_size) if config.max_size else 100000
+    extraction.num_threads = config.num_threads
+    extraction.sift.max_num_features = config.max_features
+    mode = pycolmap.CameraMode.SINGLE if config.single_camera else pycolmap.CameraMode.PER_IMAGE
+    camera_id = -1
+    with stages.bar(total=len(names), desc="photos", unit="img") as bar:
+        for k in range(0, len(names), EXTRACT_CHUNK):
+            chunk = names[k:k + EXTRACT_CHUNK]
+            reader = pycolmap.ImageReaderOptions(camera_model=config.camera_model)
+            if camera_id >= 0:
+                reader.existing_camera_id = camera_id
+            pycolmap.extract_features(db_path, image_dir, image_names=chunk, camera_mode=mode, reader_options=reader,
+                                      extraction_options=extraction, device=pycolmap.Device.cpu)
+            if config.single_camera and camera_id < 0:
+                db = pycolmap.Database.open(str(db_path))
+                try:
+                    camera_id = int(next(iter(db.read_all_images())).camera_id)
+                finally:
+                    db.close()
+            bar.goto(k + len(chunk))
+
+
+def _pairs(n: int, matcher: str, overlap: int) -> list[tuple[int, int]]:
+    """Photo index pairs to match: every pair (exhaustive), or each photo with the next ``overlap`` ones and the
+    ones ``2**k`` ahead, k < ``overlap`` (sequential, as COLMAP's quadratic overlap)."""
+    if matcher == "exhaustive":
+        return [(i, j) for i in range(n) for j in range(i + 1, n)]
+    pairs = set()
+    for i in range(n):
+        for d in range(1, overlap + 1):
+            if i + d < n:
+                pairs.add((i, i + d))
+        for k in range(overlap):
+            if i + 2**k < n:
+                pairs.add((i, i + 2**k))
+    return sorted(pairs)
+
+
+def _match_pairs(pycolmap, db_path: Path, work: Path, pairs: list[tuple[str, str]], config: PrepareConfig,
+                 stages: Stages) -> None:
+    """Match and verify (RANSAC) the photo pairs in chunks (for the progress bar)."""
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = config.num_threads
+    size = max(MATCH_CHUNK_MIN, -(-len(pairs) // MATCH_CHUNKS))
+    with stages.bar(total=len(pairs), desc="pairs", unit="pair") as bar:
+        for k in range(0, len(pairs), size):
+            chunk = pairs[k:k + size]
+            pairs_file = work / "pairs.txt"
+            pairs_file.write_text("".join(f"{a} {b}\n" for a, b in chunk))
+            pycolmap.match_image_pairs(db_path, matching_options=matching,
+                                       pairing_options=pycolmap.ImportedPairingOptions(match_list_path=pairs_file),
+                                       device=pycolmap.Device.cpu)
+            bar.goto(k + len(chunk))
 
 
 def _why_unregistered(db_path: Path, names: list[str]) -> dict[str, str]:
@@ -157,19 +220,17 @@ def _why_unregistered(db_path: Path, names: list[str]) -> dict[str, str]:
         for pid, g in zip(pair_ids, geometries):
             if len(g.inlier_matches) == 0:
                 continue
-            a, b = pycolmap.pair_id_to_image_pair(pid) if hasattr(pycolmap, "pair_id_to_image_pair") else (None, None)
-            for k in (a, b):
-                if k is not None:
-                    partners[k] = partners.get(k, 0) + 1
+            for k in pycolmap.pair_id_to_image_pair(pid):
+                partners[int(k)] = partners.get(int(k), 0) + 1
         why = {}
         for nm in names:
             if nm not in ids:
                 why[nm] = "COLMAP could not read it"
                 continue
             nf = int(db.num_keypoints_for_image(ids[nm]))
-            npair = partners.get(ids[nm])
-            why[nm] = f"{nf} features" + (f", verified matches with {npair} photo(s)" if npair is not None else
-                                          (", no verified matches with any photo" if partners else ""))
+            npair = partners.get(int(ids[nm]), 0)
+            why[nm] = (f"{nf} features, verified matches with {npair} photo(s)" if npair else
+                       f"{nf} features, no verified matches with any photo")
         return why
     finally:
         db.close()
@@ -192,7 +253,7 @@ def prepare_scene(photos_dir, out, config: PrepareConfig | None = None, stages: 
     photos = list_photos(photos_dir)
     _check_output(out, config.overwrite)
 
-    from ..data.sfm_colmap import _import_pycolmap, _quiet_colmap
+    from .sfm_colmap import _import_pycolmap, _quiet_colmap
 
     pycolmap = _import_pycolmap()
     n = len(photos)
@@ -204,34 +265,18 @@ def prepare_scene(photos_dir, out, config: PrepareConfig | None = None, stages: 
         scene.mkdir()
         db_path = work / "database.db"
         with stages.stage("photos"):
-            names, sizes = _stage_photos(photos, work / "images", config.max_size)
+            names = _stage_photos(photos, work / "images", config.max_size)
 
         with _quiet_colmap():
             with stages.stage("features"):
-                extraction = pycolmap.FeatureExtractionOptions()
-                extraction.max_image_size = int(config.max_size) if config.max_size else 100000
-                extraction.num_threads = config.num_threads
-                extraction.sift.max_num_features = config.max_features
-                reader = pycolmap.ImageReaderOptions(camera_model=config.camera_model)
-                mode = pycolmap.CameraMode.SINGLE if config.single_camera else pycolmap.CameraMode.PER_IMAGE
-                pycolmap.extract_features(db_path, work / "images", image_names=names, camera_mode=mode,
-                                          reader_options=reader, extraction_options=extraction,
-                                          device=pycolmap.Device.cpu)
+                _extract_features(pycolmap, db_path, work / "images", names, config, stages)
 
             matcher = config.matcher
             if matcher == "auto":
                 matcher = "exhaustive" if n <= EXHAUSTIVE_MAX_IMAGES else "sequential"
-            with stages.stage(f"matching ({matcher})"):
-                matching = pycolmap.FeatureMatchingOptions()
-                matching.num_threads = config.num_threads
-                if matcher == "exhaustive":
-                    pycolmap.match_exhaustive(db_path, matching_options=matching, device=pycolmap.Device.cpu)
-                else:
-                    pairing = pycolmap.SequentialPairingOptions()
-                    pairing.overlap = config.sequential_overlap
-                    pairing.loop_detection = False  # loop detection needs a vocabulary tree (a download)
-                    pycolmap.match_sequential(db_path, matching_options=matching, pairing_options=pairing,
-                                              device=pycolmap.Device.cpu)
+            pairs = _pairs(n, matcher, config.sequential_overlap)
+            with stages.stage("matching"):
+                _match_pairs(pycolmap, db_path, work, [(names[i], names[j]) for i, j in pairs], config, stages)
 
             with stages.stage("mapping"):
                 options = pycolmap.IncrementalPipelineOptions()
@@ -248,6 +293,7 @@ def prepare_scene(photos_dir, out, config: PrepareConfig | None = None, stages: 
                     recs = pycolmap.incremental_mapping(db_path, work / "images", work / "sparse", options=options,
                                                         initial_image_pair_callback=lambda: bar.goto(min(2, n)),
                                                         next_image_callback=next_image)
+                    bar.goto(max((r.num_reg_images() for r in recs.values()), default=0))
             if not recs:
                 why = _why_unregistered(db_path, names)
                 raise PrepareError(f"structure from motion found no reconstruction from the {n} photos "
@@ -389,7 +435,7 @@ def pose_errors(est_R, est_C, ref_R, ref_C) -> dict:
 def read_scene_poses(scene) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """``{image name: (world-to-camera R, camera centre)}`` of the COLMAP model in a scene folder ``prepare`` wrote."""
     from .colmap import find_model_dir
-    from ..data.sfm_colmap import _import_pycolmap
+    from .sfm_colmap import _import_pycolmap
 
     pycolmap = _import_pycolmap()
     model = find_model_dir(Path(scene))

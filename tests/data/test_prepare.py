@@ -126,7 +126,10 @@ def test_train_on_plain_photos_says_run_prepare(tmp_path):
 
 # --- end to end ----------------------------------------------------------------------------------------------
 
-VIEWS = 16
+# 24 training views (+ 8 test views, merged: 32 photos) at 256 px: measured on a 2-core CPU (pycolmap 4.2.1)
+# 30/32 registered, median / max rotation error 0.16 / 0.34 deg, position 0.26 / 0.93 % of the spread, 35 s of SfM.
+# (16 views at 256 px registered only 20/24: the two photos at the ends of the spiral overlap too few others.)
+VIEWS = 24
 RESOLUTION = (256, 256)
 MIN_REGISTERED = 0.9
 MAX_POSITION = 0.02  # of the camera spread (RMS distance of the true centres from their centroid)
@@ -151,13 +154,16 @@ def test_prepare_recovers_the_poses_of_a_synthetic_scene(tmp_path):
     t0 = time.perf_counter()
     report = prepare_scene(photos, tmp_path / "scene", PrepareConfig(num_threads=2))
     seconds = time.perf_counter() - t0
-    assert report["registered"] >= MIN_REGISTERED * VIEWS, report
+    n = len(truth.train)
+    assert report["images"] == n and report["registered"] >= MIN_REGISTERED * n, report
     saved = json.loads((tmp_path / "scene" / "prepare.json").read_text())
     assert saved["registered"] == report["registered"] and saved["points"] > 100
     assert saved["mean_reprojection_error_px"] < 2.0
 
     est = read_scene_poses(tmp_path / "scene")
     names = sorted(est)
+    assert sorted(report["unregistered"]) == sorted(set(true_poses) - set(names))
+    assert all("features" in why for why in report["unregistered"].values())
     err = pose_errors([est[k][0] for k in names], [est[k][1] for k in names],
                       [true_poses[k][0] for k in names], [true_poses[k][1] for k in names])
     assert err["max_position_pct"] < MAX_POSITION * 100, (err, report, seconds)
