@@ -361,6 +361,7 @@ def _move_into_place(scene: Path, out: Path) -> None:
     if not any(out.iterdir()):
         for entry in scene.iterdir():
             os.replace(entry, out / entry.name)
+        scene.rmdir()
         return
     old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
     old.rmdir()

@@ -173,3 +173,31 @@ def test_prepare_recovers_the_poses_of_a_synthetic_scene(tmp_path):
     assert detect_format(tmp_path / "scene") == "colmap"
     assert len(scene.train) == report["registered"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["photos", "scene", "synthetic"]
+
+
+def test_pairs_exhaustive_and_sequential():
+    from gof_warp.data.prepare import _pairs
+
+    assert _pairs(4, "exhaustive", 10) == [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)]
+    seq = _pairs(40, "sequential", 3)
+    assert (0, 1) in seq and (0, 3) in seq and (0, 4) in seq and (0, 5) not in seq  # 1..3 ahead, and 1, 2, 4
+    assert all(i < j < 40 for i, j in seq) and len(set(seq)) == len(seq)
+
+
+def test_move_into_place_replaces_only_as_told(tmp_path):
+    from gof_warp.data.prepare import _move_into_place
+
+    def scene(name, text):
+        d = tmp_path / name
+        d.mkdir()
+        (d / "prepare.json").write_text(text)
+        return d
+
+    _move_into_place(scene("a", "1"), tmp_path / "out")  # absent: renamed
+    assert (tmp_path / "out" / "prepare.json").read_text() == "1"
+    _move_into_place(scene("b", "2"), tmp_path / "out")  # an earlier output: swapped
+    assert (tmp_path / "out" / "prepare.json").read_text() == "2"
+    (tmp_path / "empty").mkdir()
+    _move_into_place(scene("c", "3"), tmp_path / "empty")  # empty: filled, the folder itself kept
+    assert (tmp_path / "empty" / "prepare.json").read_text() == "3"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty", "out"]
