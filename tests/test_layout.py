@@ -16,7 +16,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 # Lowest first: a module may import its own layer and those before it.
 LAYERS = ("core", "data", "synthetic", "rendering", "eval", "training", "mesh", "viz", "benchmarking", "cli")
-COMMANDS = ("train", "extract", "evaluate", "bench", "view", "pictures", "inspect")
+COMMANDS = ("train", "extract", "evaluate", "bench", "view", "pictures", "inspect", "prepare")
 RUNS_CLIS = {"gof_warp.benchmarking.stability_inputs"}  # exercises the CLIs in-process: that is its job
 MAX_TOP_LEVEL_MODULES = 12
 

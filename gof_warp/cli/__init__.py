@@ -18,6 +18,7 @@ COMMANDS = {
     "evaluate": ("evaluate", "score a mesh against a ground-truth mesh or point cloud"),
     "pictures": ("pictures", "draw photo | render | depth | normal | mesh for a few views of a run"),
     "view": ("view", "serve a run in the browser (live viewer)"),
+    "prepare": ("prepare", "camera poses for a folder of plain photos (structure from motion) → a scene folder"),
     "inspect": ("inspect_scene", "what gof_warp makes of a scene folder"),
     "bench": ("bench", "benchmark and stability suites"),
     "synthetic": ("synthetic", "render a synthetic scene with exact ground truth"),

@@ -108,6 +108,13 @@ def detect_format(path) -> str:
         return "dtu"
     if find_model_dir(root) is not None:
         return "colmap"
+    from .prepare import folder_has_photos
+
+    if folder_has_photos(root):
+        raise SceneError(
+            f"{root}: this folder holds photos but no camera poses: run `gof-warp prepare PHOTOS --out SCENE` "
+            f"first (python -m gof_warp.prepare {root} --out SCENE), then train on SCENE"
+        )
     raise SceneError(
         f"{root}: no known scene format (looked for transforms_train.json, transforms.json, "
         f"cameras_sphere.npz, sparse/0/cameras.bin|txt)"
