@@ -147,15 +147,27 @@ def write_ply_vertices(path, columns: dict[str, np.ndarray]) -> None:
             f.write(table.tobytes())
 
 
-def write_ply_mesh(path, vertices, faces) -> None:
+def write_ply_mesh(path, vertices, faces, colours=None) -> None:
     """Write a triangle mesh as a binary little-endian PLY, atomically: ``vertices`` ``[V, 3]`` (stored as float32
     ``x y z``), ``faces`` ``[F, 3]`` vertex indices (a ``uchar`` count and three ``int`` per face, the layout every
-    mesh tool reads). Raises :class:`~gof_warp.core.errors.PlyError` for wrong shapes or indices outside the vertices."""
+    mesh tool reads), and optional ``colours`` ``[V, 3]`` uint8 (``uchar red green blue`` after each vertex's
+    position). Raises :class:`~gof_warp.core.errors.PlyError` for wrong shapes or indices outside the vertices."""
     v, f = check_triangles(vertices, faces, path, PlyError)
     if len(v) > np.iinfo(np.int32).max:
         raise PlyError(f"{path}: {len(v)} vertices do not fit PLY int indices")
+    colour_props = []
+    if colours is None:
+        vertex_bytes = np.ascontiguousarray(v, dtype="<f4").tobytes()
+    else:
+        c = np.asarray(colours)
+        if c.shape != (len(v), 3) or c.dtype != np.uint8:
+            raise PlyError(f"{path}: vertex colours must be uint8 [{len(v)}, 3], got {c.dtype} {list(c.shape)}")
+        table = np.empty(len(v), dtype=np.dtype([("p", "<f4", (3,)), ("c", "u1", (3,))]))
+        table["p"], table["c"] = v, c
+        vertex_bytes = table.tobytes()
+        colour_props = ["property uchar red", "property uchar green", "property uchar blue"]
     header = ["ply", "format binary_little_endian 1.0", "comment written by gof_warp", f"element vertex {len(v)}",
-              "property float x", "property float y", "property float z", f"element face {len(f)}",
+              "property float x", "property float y", "property float z", *colour_props, f"element face {len(f)}",
               "property list uchar int vertex_indices", "end_header"]
     table = np.empty(len(f), dtype=np.dtype([("n", "u1"), ("i", "<i4", (3,))]))
     table["n"] = 3
@@ -163,5 +175,5 @@ def write_ply_mesh(path, vertices, faces) -> None:
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as out:
             out.write(("\n".join(header) + "\n").encode("ascii"))
-            out.write(np.ascontiguousarray(v, dtype="<f4").tobytes())
+            out.write(vertex_bytes)
             out.write(table.tobytes())

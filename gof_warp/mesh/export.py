@@ -1,7 +1,7 @@
 """Mesh files with optional vertex colours: PLY (binary, ``uchar red green blue`` per vertex), GLB (one binary glTF
 file, through trimesh's exporter; colours as the ``COLOR_0`` attribute) and OBJ (``v x y z r g b``, the common
-vertex-colour extension, colours in ``[0, 1]``). Every file is written atomically. Without colours a PLY is
-byte-for-byte what :func:`gof_warp.core.ply.write_ply_mesh` writes.
+vertex-colour extension, colours in ``[0, 1]``). Every file is written atomically; PLY through
+:func:`gof_warp.core.ply.write_ply_mesh`.
 """
 
 from __future__ import annotations
@@ -46,10 +46,7 @@ def save_mesh_file(path, vertices, faces, colours=None, fmt: str | None = None) 
     if fmt == "ply":
         from ..core.ply import write_ply_mesh
 
-        if c is None:
-            write_ply_mesh(path, v, f)
-        else:
-            _write_ply_coloured(path, v, f, c)
+        write_ply_mesh(path, v, f, c)
     elif fmt == "obj":
         _write_obj(path, v, f, c)
     else:
@@ -60,26 +57,6 @@ def save_mesh_file(path, vertices, faces, colours=None, fmt: str | None = None) 
                                    [c, np.full((len(c), 1), 255, np.uint8)], 1))
         write_bytes_atomic(path, mesh.export(file_type="glb"))
     return fmt
-
-
-def _write_ply_coloured(path, v, f, c) -> None:
-    if len(v) > np.iinfo(np.int32).max:
-        raise GofError(f"{path}: {len(v)} vertices do not fit PLY int indices")
-    header = ["ply", "format binary_little_endian 1.0", "comment written by gof_warp", f"element vertex {len(v)}",
-              "property float x", "property float y", "property float z", "property uchar red",
-              "property uchar green", "property uchar blue", f"element face {len(f)}",
-              "property list uchar int vertex_indices", "end_header"]
-    verts = np.empty(len(v), dtype=np.dtype([("p", "<f4", (3,)), ("c", "u1", (3,))]))
-    verts["p"] = v
-    verts["c"] = c
-    table = np.empty(len(f), dtype=np.dtype([("n", "u1"), ("i", "<i4", (3,))]))
-    table["n"] = 3
-    table["i"] = f
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as out:
-            out.write(("\n".join(header) + "\n").encode("ascii"))
-            out.write(verts.tobytes())
-            out.write(table.tobytes())
 
 
 def _write_obj(path, v, f, c) -> None:
