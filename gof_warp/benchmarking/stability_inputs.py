@@ -283,6 +283,14 @@ def _cases(root: Path):
     yield "npy_as_npz_dtu", "scene", "error", "cameras_sphere.npz", inspect_case(npy_cameras)
     yield "stale_bin_colmap", "scene", "warning", "cameras.txt beside it is newer", inspect_case(stale_bin)
 
+    def micro(frames):  # the scene at 1e-6 of its size: float32 tolerances are larger than it
+        for f in frames:
+            for r in range(3):
+                f["transform_matrix"][r][3] *= 1e-6
+
+    yield "scene_at_1e-6_scale", "scene", "error", "data.scale=", inspect_case(
+        lambda p: write_transforms(p, cams, edit=micro))
+
     # ---- config files: not UTF-8, nested too deeply
     for case, content in (("config_latin1", b"iterations: 5\n# caf\xe9\n"), ("config_deep", b"[" * 3_000_000)):
         def go(name, content=content):

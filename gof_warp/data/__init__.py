@@ -62,6 +62,12 @@ class DataConfig:
             ``mask_path``, COLMAP image names) that resolve outside the scene folder (COLMAP: its image folder),
             e.g. ``../other/img.png``, absolute paths or links to elsewhere. False (default): such a path is an
             error naming the entry, and the file is not touched.
+        scale: factor applied to the scene's world coordinates when it is loaded (every camera centre and scene
+            point is multiplied by it about the origin; rotations and intrinsics are unchanged). Training works in
+            float32 with absolute tolerances: a scene whose extent (:attr:`Scene.extent`) lies outside
+            ``[EXTENT_MIN, EXTENT_MAX]`` is refused with the ``scale`` that brings it to an extent of 1–10. The
+            model, its ``cameras.json`` and the meshes extracted from it are in the scaled units (divide by
+            ``scale`` to return to the scene's own).
     """
 
     downscale: float = 1.0
@@ -72,6 +78,7 @@ class DataConfig:
     undistort: str = "valid"
     images: str = "images"
     allow_outside_paths: bool = False
+    scale: float = 1.0
 
     def __post_init__(self):
         if not (isinstance(self.downscale, (int, float)) and math.isfinite(self.downscale) and self.downscale >= 1):
@@ -86,6 +93,10 @@ class DataConfig:
             raise ConfigError(f"data.image_memory_budget_gb must be > 0, got {self.image_memory_budget_gb!r}")
         if self.undistort not in UNDISTORT_MODES:
             raise ConfigError(f"data.undistort must be one of {UNDISTORT_MODES}, got {self.undistort!r}")
+        if isinstance(self.scale, bool) or not (isinstance(self.scale, (int, float)) and math.isfinite(self.scale)
+                                                and self.scale > 0):
+            raise ConfigError(f"data.scale must be a finite number > 0, got {self.scale!r}")
+        self.scale = float(self.scale)
 
 
 def _scene_root(path) -> Path:

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.camera import Camera
+from ..core.camera import Camera, camera_extent
 from ..core.errors import SceneError
 from ..core.scene import ImageSource, Scene, View
 from . import images as imio
@@ -114,6 +114,32 @@ def check_files(plan: ScenePlan, use_masks: bool) -> list[_Checked]:
         out.append(_Checked(v, cam, lens, has_mask))
     plan.warnings.extend(sorted(notes))
     return out
+
+
+# The scene extents (:attr:`Scene.extent`) training handles: outside, float32 tolerances (depths, scales, the
+# near plane) are no longer small against the scene, and a run collapses or fails (``DataConfig.scale`` fixes it).
+EXTENT_MIN = 1e-3
+EXTENT_MAX = 1e5
+
+
+def _scaled_pose(camera: Camera, scale: float) -> Camera:
+    """``camera`` in world coordinates multiplied by ``scale``: its centre (so ``t``) and near depth scale."""
+    return dataclasses.replace(camera, t=np.asarray(camera.t, np.float64) * scale, near=camera.near * scale)
+
+
+def check_extent(cameras: list[Camera], source, scale: float = 1.0) -> None:
+    """Raise :class:`SceneError` when the extent of ``cameras`` (:func:`~gof_warp.core.camera.camera_extent`, as
+    :attr:`Scene.extent`) lies outside ``[EXTENT_MIN, EXTENT_MAX]``, naming the ``data.scale`` (a power of ten,
+    times the one already applied) that brings it to 1–10."""
+    extent = camera_extent(cameras)
+    if EXTENT_MIN <= extent <= EXTENT_MAX:
+        return
+    fix = scale * 10.0 ** -math.floor(math.log10(extent))
+    raise SceneError(
+        f"{source}: the scene's extent (1.1 x the largest distance of a camera centre from their mean) is "
+        f"{extent:.3g} world units, outside the {EXTENT_MIN:g}-{EXTENT_MAX:g} that training handles in float32; pass "
+        f"data.scale={fix:.3g} to scale the scene to an extent of {extent * fix / scale:.3g} (the model and meshes are "
+        f"then in the scaled units)")
 
 
 def _output_cameras(checked: list[_Checked], downscale: float) -> list[Camera]:
@@ -216,6 +242,10 @@ def build_scene(plan: ScenePlan, config, device=None) -> Scene:
     check_budget(checked, config.downscale, config.image_memory_budget_gb, plan.source)
     names = unique_names([v.name for v in plan.views])
     out_cams = [dataclasses.replace(c, name=n) for c, n in zip(_output_cameras(checked, config.downscale), names)]
+    scale = getattr(config, "scale", 1.0)
+    if scale != 1.0:
+        out_cams = [_scaled_pose(c, scale) for c in out_cams]
+    check_extent(out_cams, plan.source, scale)  # before decoding: the extent needs only the poses
     log.info("decoding %d images from %s (downscale %g)", len(checked), plan.source, config.downscale)
     views = [_decode_view(k, cam, config.background, config.use_masks, device) for k, cam in zip(checked, out_cams)]
 
@@ -226,15 +256,18 @@ def build_scene(plan: ScenePlan, config, device=None) -> Scene:
     n_masks = sum(v.mask is not None for v in views)
     if 0 < n_masks < len(views):
         warnings.append(f"masks missing for {len(views) - n_masks} of {len(views)} views")
-    if plan.points is not None and len(plan.points):
-        warnings += _visibility_warnings([v.camera for v in views], [v.name for v in views], plan.points)
+    points = plan.points
+    if scale != 1.0 and points is not None:
+        points = np.asarray(points, np.float64) * scale
+    if points is not None and len(points):
+        warnings += _visibility_warnings([v.camera for v in views], [v.name for v in views], points)
     train, test = split_views(plan, views, config.test_every)
     if not train:
         raise SceneError(f"{plan.source}: the test split leaves no training views (test_every={config.test_every})")
-    return Scene(
+    scene = Scene(
         train=train,
         test=test,
-        points=plan.points,
+        points=points,
         point_colors=plan.point_colors,
         background=tuple(float(c) for c in config.background),
         format=plan.format,
@@ -242,3 +275,4 @@ def build_scene(plan: ScenePlan, config, device=None) -> Scene:
         camera_models=sorted(set(plan.camera_models)),
         warnings=warnings,
     )
+    return scene

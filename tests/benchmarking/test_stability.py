@@ -122,4 +122,4 @@ def test_bad_inputs_are_counted_per_kind_with_no_crash_or_nan(reports):
     named = {r["case"] for r in inputs}
     assert {"path_outside_scene_ingp", "fifo_image_colmap", "header_20000x20000_colmap", "config_latin1",
             "resolution_negative", "levels_repeated", "binary_steps_1000", "extract_out_over_the_model",
-            "evaluate_mesh_without_faces", "render_near_negative"} <= named
+            "evaluate_mesh_without_faces", "render_near_negative", "scene_at_1e-6_scale"} <= named
