@@ -200,6 +200,23 @@ def _run(a) -> int:
         raise
 
 
+def _check_device_memory(scene, cfg, device: str) -> None:
+    """Log the run's estimated peak device memory and warn before training when a CUDA device has less free
+    (:mod:`gof_warp.training.memory_estimate`)."""
+    from ..training.memory_estimate import memory_warning, scene_estimate
+
+    if not str(device).startswith("cuda"):
+        return
+    import torch
+
+    estimate = scene_estimate(scene, cfg)
+    free, total = torch.cuda.mem_get_info(torch.device(device))
+    log.info("estimated peak device memory: %s; %s has %.1f GB free", estimate.describe(), device, free / 1e9)
+    warning = memory_warning(estimate, free, total, device)
+    if warning:
+        log.warning("%s", warning)
+
+
 def _main_process() -> bool:
     """Whether this process is rank 0 of a torchrun launch, or the only one."""
     return int(os.environ.get("WORLD_SIZE", "1") or 1) <= 1 or os.environ.get("RANK", "0") == "0"
@@ -244,6 +261,7 @@ def _train(a, out: Path, scenes: list[str], overrides: list[str], builtin: bool)
     ranks.barrier()
     log.info("scene %s: %d train / %d test views, extent %.3f; device %s", scene_dir, len(scene.train), len(scene.test),
              scene.extent, device)
+    _check_device_memory(scene, cfg, device)
     trainer = Trainer(scene, cfg, out, device, scene_path=scene_dir, ranks=ranks)
     if ranks.active:
         log.info("rank %d of %d on %s, %d views per step", ranks.rank, ranks.world, device, trainer.views_per_step)
