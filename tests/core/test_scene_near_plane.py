@@ -6,16 +6,18 @@ import json
 import logging
 
 import numpy as np
+import pytest
 import yaml
 
 from _scene_fixtures import make_blender_scene
 from gof_warp.core.config import merge
+from gof_warp.core.errors import SceneError
 from gof_warp.data import load_scene
 from gof_warp.rendering.render import DEFAULT_NEAR, scene_near
 from gof_warp.training.trainer import TrainConfig, Trainer, _scene_near_plane
 
 SCALE = 1e-6
-TRAIN_SCALE = 1e-3  # trained: float32 training at 1e-6 has other limits than the near plane
+TRAIN_SCALE = 1e-3  # trained: a scene at 1e-6 is refused (DataConfig.scale)
 TINY = {"iterations": 4, "checkpoint_every": 0, "log_every": 2,
         "model": {"sh_degree": 0, "init": "random", "random_init_points": 200},
         "optim": {"means_lr_max_steps": 4}, "loss": {"regularization_from_iter": 100},
@@ -54,9 +56,11 @@ def test_a_normal_scene_keeps_exactly_0_2(tmp_path):
     assert trainer.render_config.near == DEFAULT_NEAR == 0.2 and trainer.config is config
 
 
-def test_the_default_near_at_1e_6_scale_and_an_explicit_larger_one(tmp_path, caplog):
-    scene = _scaled_scene(tmp_path / "tiny", SCALE)
-    assert scene.extent < 1e-5
+def test_a_1e_6_scene_is_refused_and_the_near_plane_follows_a_small_one(tmp_path, caplog):
+    with pytest.raises(SceneError, match="data.scale="):  # float32 training has other limits at 1e-6 (DataConfig.scale)
+        _scaled_scene(tmp_path / "micro", SCALE)
+    scene = _scaled_scene(tmp_path / "tiny", TRAIN_SCALE)
+    assert scene.extent < 0.01
     assert 0 < _scene_near_plane(merge(TrainConfig(), TINY), scene).render.near < scene.extent
     with caplog.at_level(logging.WARNING):
         config = _scene_near_plane(merge(TrainConfig(), {**TINY, "render": {"near": 0.01}}), scene)
