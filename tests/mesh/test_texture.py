@@ -284,3 +284,52 @@ def test_wrong_inputs(baked):
         tx.mesh_texture("paint", v, f, cams)
     with pytest.raises(GofError, match="no faces"):
         tx.make_atlas(v, np.zeros((0, 3), np.int64), 64)
+
+
+# ---------------------------------------------------------------- files
+
+
+@pytest.mark.parametrize("fmt", ["glb", "obj"])
+def test_textured_file_loads_back_in_trimesh(baked, tmp_path, fmt):
+    import trimesh
+
+    from gof_warp.mesh.export import save_textured_mesh, textured_companions
+
+    _, _, _, _, _, t = baked
+    path = tmp_path / f"mesh.{fmt}"
+    assert save_textured_mesh(path, t) == fmt
+    assert all(p.is_file() for p in textured_companions(path)) and len(textured_companions(path)) == (fmt == "obj") * 2
+    m = trimesh.load(path, process=False, force="mesh")
+    assert len(m.faces) == len(t.faces) and m.visual.uv.shape == t.uv.shape
+    img = np.asarray(m.visual.material.baseColorTexture if hasattr(m.visual.material, "baseColorTexture")
+                     else m.visual.material.image)
+    assert img.shape[:2] == t.texture.shape[:2]
+    # a few known points: the loaded texture sampled at the loaded UVs (OpenGL convention, v up) of some vertices
+    # gives the baked texture at those vertices
+    rng = np.random.default_rng(4)
+    pick = rng.choice(len(m.vertices), 30, replace=False)
+    # match loaded vertices to the written ones by position and UV (the loaders may reorder or merge)
+    key = np.concatenate([np.asarray(m.vertices)[pick], np.asarray(m.visual.uv)[pick]], 1)
+    ours = np.concatenate([t.vertices, np.stack([t.uv[:, 0], 1 - t.uv[:, 1]], 1)], 1)
+    d = np.abs(key[:, None, :] - ours[None, :, :]).max(-1)
+    match = d.argmin(1)
+    assert d.min(1).max() < 1e-5
+    loaded_uv = np.asarray(m.visual.uv)[pick]
+    got = tx.sample_texture_np(img[..., :3].astype(np.float64) / 255.0,
+                               np.stack([loaded_uv[:, 0], 1 - loaded_uv[:, 1]], 1))
+    want = tx.sample_texture_np(t.texture_uint8().astype(np.float64) / 255.0, t.uv[match])
+    np.testing.assert_allclose(got, want, atol=1e-6)
+    np.testing.assert_allclose(want, tx.sample_texture_np(t.texture, t.uv[match]), atol=0.5 / 255 + 1e-6)
+
+
+def test_textured_ply_keeps_vertex_colours(baked, tmp_path):
+    import trimesh
+
+    from gof_warp.mesh.export import save_textured_mesh
+
+    v, f, _, _, _, t = baked
+    save_textured_mesh(tmp_path / "mesh.ply", t)
+    m = trimesh.load(tmp_path / "mesh.ply", process=False, force="mesh")
+    assert np.array_equal(np.asarray(m.faces), f) and np.allclose(m.vertices, v, atol=1e-6)
+    expect = np.round(t.vertex_colours() * 255)
+    np.testing.assert_allclose(np.asarray(m.visual.vertex_colors)[:, :3], expect, atol=1)
