@@ -37,7 +37,8 @@ Texture size (:func:`texture_side`): ``S = 4 ceil(sqrt(F * texels_per_face / ATL
 ``[512, 8192]``: :data:`TEXELS_PER_FACE` texels per face once xatlas has filled about :data:`ATLAS_FILL` of the
 square, a multiple of 4 (block-compressible).
 
-Memory: the texture ``S^2 x 12`` B and the texel map ``S^2 x 4`` B; per baked texel ``K x 20 + 40`` B (kept views,
+Memory: the texture ``S^2 x 12`` B, the texel map ``S^2 x 4`` B and the fills' nearest-texel maps (scipy's
+distance transform, ``S^2 x 16`` B while it runs); per baked texel ``K x 20 + 40`` B (kept views,
 point, normal); per view one image (``H W x 12`` B) and ``N x 16`` B of samples; the mesh's ``wp.Mesh``.
 """
 
@@ -609,7 +610,7 @@ def bake_texture(vertices, faces, cameras: Sequence[Camera], images: Iterable, *
     elif not seen.any():
         rgb[:] = UNSEEN_GREY
     size = atlas.size
-    tex = np.zeros((size, size, 3), np.float64)
+    tex = np.zeros((size, size, 3), np.float32)
     baked = np.zeros((size, size), bool)
     tex[texels.xy[:, 1], texels.xy[:, 0]] = rgb
     baked[texels.xy[:, 1], texels.xy[:, 0]] = True
