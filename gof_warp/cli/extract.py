@@ -5,7 +5,8 @@ Mesh extraction from trained Gaussians (the library: :mod:`gof_warp.mesh.extract
 (one GPU each) and rank 0 triangulates and writes (:mod:`gof_warp.training.distributed`). ``RUN`` is a training output
 folder (``point_cloud.ply`` + ``cameras.json``) or any Gaussian PLY in the 3DGS layout together with ``--scene``
 for the cameras. Writes the mesh (PLY) and ``<mesh>.json`` with vertex/face counts and per-stage time and peak
-memory. An empty mesh is an error (exit 2) and writes nothing; Gaussians whose scales overflow (see
+memory; ``--color`` adds vertex colours, ``--texture`` bakes a texture (:mod:`gof_warp.mesh.texture`) written as GLB
+or OBJ + MTL + PNG. An empty mesh is an error (exit 2) and writes nothing; Gaussians whose scales overflow (see
 :func:`gof_warp.mesh.extraction.meshable`) are left out with a warning.
 """
 
@@ -387,8 +388,8 @@ def extract_run(a, ranks, device) -> None:
             save_mesh_file(path, v, f, c, fmt)
         outputs.append({"path": str(path), "level": level, "vertices": int(len(v)), "faces": int(len(f)),
                         "format": fmt, "color": a.color,
-                        **({"texture": {k: tex.info[k] for k in ("size", "texels", "unseen_texels", "charts_fill",
-                                                                 "best_views", "exposure", "gains")},
+                        **({"texture": {k: tex.info[k] for k in ("size", "atlas_vertices", "texels", "unseen_texels",
+                                                                 "charts_fill", "best_views", "exposure", "gains")},
                             "files": [str(p) for p in textured_companions(path, fmt)]} if tex is not None else {})})
         print(f"wrote {path}: {len(v)} vertices, {len(f)} faces")
     command["save_s"] = round(time.perf_counter() - t_save, 3)
