@@ -333,3 +333,36 @@ def test_textured_ply_keeps_vertex_colours(baked, tmp_path):
     assert np.array_equal(np.asarray(m.faces), f) and np.allclose(m.vertices, v, atol=1e-6)
     expect = np.round(t.vertex_colours() * 255)
     np.testing.assert_allclose(np.asarray(m.visual.vertex_colors)[:, :3], expect, atol=1)
+
+
+def test_keep_best_and_blend_match_numpy():
+    """Top-K by weight over views fed one at a time, then the gain-corrected weighted mean, against numpy."""
+    import warp as wp
+
+    rng = np.random.default_rng(5)
+    n, views, k = 300, 7, 3
+    w = rng.uniform(0, 1, (views, n)) * (rng.uniform(0, 1, (views, n)) > 0.3)  # some views do not see a texel
+    c = rng.uniform(0, 1, (views, n, 3))
+    gains = rng.uniform(0.5, 1.5, (views, 3))
+    bw = wp.zeros((n, k), dtype=float, device="cpu")
+    bc = wp.zeros((n, k), dtype=wp.vec3, device="cpu")
+    bv = wp.zeros((n, k), dtype=wp.int32, device="cpu")
+    for view in range(views):
+        wp.launch(tx._keep_best, dim=n, inputs=[wp.array(w[view].astype(np.float32), dtype=float, device="cpu"),
+                                                wp.array(c[view].astype(np.float32), dtype=wp.vec3, device="cpu"),
+                                                view, bw, bc, bv], device="cpu")
+    out = wp.empty(n, dtype=wp.vec3, device="cpu")
+    total = wp.empty(n, dtype=float, device="cpu")
+    wp.launch(tx._blend, dim=n, inputs=[bw, bc, bv, wp.array(gains.astype(np.float32), dtype=wp.vec3, device="cpu"),
+                                        out, total], device="cpu")
+    w32 = w.astype(np.float32).astype(np.float64)
+    order = np.argsort(-w32, axis=0, kind="stable")[:k]  # the k heaviest views per texel
+    top_w = np.take_along_axis(w32, order, 0)
+    top_c = c[order, np.arange(n)[None, :]] / gains[order]
+    ref_total = top_w.sum(0)
+    ref = (top_w[..., None] * top_c).sum(0) / np.maximum(ref_total, 1e-30)[:, None]
+    np.testing.assert_allclose(total.numpy(), ref_total, rtol=1e-5)
+    seen = ref_total > 0
+    assert 0 < seen.sum() < n or seen.all()
+    np.testing.assert_allclose(out.numpy()[seen], ref[seen], atol=1e-5)
+    assert set(np.unique(bv.numpy()[bw.numpy() > 0])) <= set(range(views))
