@@ -5,7 +5,8 @@ Mesh extraction from trained Gaussians (the library: :mod:`gof_warp.mesh.extract
 (one GPU each) and rank 0 triangulates and writes (:mod:`gof_warp.training.distributed`). ``RUN`` is a training output
 folder (``point_cloud.ply`` + ``cameras.json``) or any Gaussian PLY in the 3DGS layout together with ``--scene``
 for the cameras. Writes the mesh (PLY) and ``<mesh>.json`` with vertex/face counts and per-stage time and peak
-memory. An empty mesh is an error (exit 2) and writes nothing; Gaussians whose scales overflow (see
+memory; ``--color`` adds vertex colours, ``--texture`` bakes a texture (:mod:`gof_warp.mesh.texture`) written as GLB
+or OBJ + MTL + PNG. An empty mesh is an error (exit 2) and writes nothing; Gaussians whose scales overflow (see
 :func:`gof_warp.mesh.extraction.meshable`) are left out with a warning.
 """
 
@@ -22,12 +23,14 @@ from .common import HelpFormatter, configure_output, run_command
 from ..core.errors import GofError
 from ..mesh.extraction import (MAX_RESOLUTION, METHODS, MIN_RESOLUTION, MeshConfig, StageTimer,  # noqa: F401
                                empty_mesh_message, extract_mesh, level_name_clash, meshable, save_mesh)
-from ..mesh.export import save_mesh_file
+from ..mesh.export import save_mesh_file, save_textured_mesh, textured_companions
 from ..mesh.marching_inputs import MAX_BINARY_STEPS, MAX_STEPS_PER_CALL
 from ..core.io_utils import write_json_atomic
 from ..mesh.colour import SOURCES as COLOUR_SOURCES
 from ..mesh.export import FORMATS as MESH_FORMATS
 from ..mesh.export import format_of
+from ..mesh.texture import MAX_SIDE as TEXTURE_MAX
+from ..mesh.texture import MIN_SIDE as TEXTURE_MIN
 from ..training.run_folder import cameras_from_json, load_run  # noqa: F401 - re-exported: extract.load_run is public
 from ..mesh.octree_tets import DEFAULT_CELL_FACTOR, SMALL_CELL_FACTOR, OctreeConfig
 from ..rendering.opacity_field import OpacityFieldConfig
@@ -136,7 +139,16 @@ def parse_args(argv=None) -> argparse.Namespace:
                              "benchmarks/extract/results/mesh_colour_fidelity_default_scene_cpu.json)")
     colour.add_argument("--format", default=None, choices=MESH_FORMATS,
                         help="mesh file format: ply, glb (one binary glTF file) or obj (vertex colours as 'v x y z r "
-                             "g b') (default: from --out's suffix, .glb or .obj, else ply)")
+                             "g b'; with --texture, OBJ + MTL + PNG side by side) (default: from --out's suffix, .glb "
+                             "or .obj, else ply; with --texture, glb)")
+    colour.add_argument("--texture", action="store_true",
+                        help="bake a colour texture on a UV atlas (the optional gof_warp[texture] extra: xatlas) from "
+                             "--color's source (default with --texture: photos), after any --max-faces decimation; "
+                             "glb embeds it, obj writes <mesh>.mtl and <mesh>.png beside it, ply takes vertex colours "
+                             "sampled from it (default: off)")
+    colour.add_argument("--texture-size", type=int, default=None,
+                        help="--texture: the texture's side in texels (default: from the face count, 16 texels per "
+                             f"face at 60%% atlas fill, a multiple of 4 in [{TEXTURE_MIN}, {TEXTURE_MAX}])")
     volume = ap.add_argument_group("other outputs")
     volume.add_argument("--volume", action="store_true",
                         help="bake the opacity field into a sparse NanoVDB volume (RUN/opacity_volume.nvdb and "
@@ -148,6 +160,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                         help="--volume: voxels kept on each side of the 0.5 level")
     a = ap.parse_args(argv)
     a.given = given_options(ap, argv)
+    if a.texture and not a.volume:  # --texture's defaults: photos, and a GLB unless --out or --format says otherwise
+        if "color" not in a.given:
+            a.color = "photos"
+        if a.format is None and (a.out is None or Path(a.out).suffix.lower().lstrip(".") not in MESH_FORMATS):
+            a.format = "glb"
     return a
 
 
@@ -168,7 +185,7 @@ INT_LIMIT = 2**31 - 1  # the largest count a flag takes: beyond it no mesh's fac
 MAX_VOLUME_BAND = 64  # voxels on each side of the level: eight bricks
 MAX_DELAUNAY_WORKERS = 1024
 # flags that only a mesh uses, and those only the tetra method uses: given where they do nothing, a warning
-MESH_ONLY = ("color", "format", "method", "max_faces", "max_error", "levels", "keep_hidden", "min_views", "grid", "cell_factor",
+MESH_ONLY = ("color", "format", "texture", "texture_size", "method", "max_faces", "max_error", "levels", "keep_hidden", "min_views", "grid", "cell_factor",
              "binary_steps", "resolution", "opacity_min", "corner_min_extent", "min_component_faces", "reach_filter",
              "band", "search_steps_per_call", "piece_tets", "delaunay", "delaunay_workers", "delaunay_processes")
 TETRA_ONLY = ("grid", "cell_factor", "opacity_min", "corner_min_extent", "reach_filter", "band",
@@ -244,7 +261,7 @@ def check_args(a: argparse.Namespace) -> None:
         if "method" in given:
             raise GofError(f"--volume writes a NanoVDB opacity volume (.nvdb), not a mesh: it takes no --method "
                            f"(got --method {a.method})")
-        for dest in ("color", "format"):
+        for dest in ("color", "format", "texture", "texture_size"):
             if dest in given:
                 raise GofError(f"--volume writes a NanoVDB opacity volume (.nvdb), not a mesh: it takes no "
                                f"{_flag(dest)}")
@@ -253,6 +270,12 @@ def check_args(a: argparse.Namespace) -> None:
         ignored(MESH_ONLY, "--volume bakes the opacity field, and these are mesh settings")
         return
     ignored(("voxel_size", "volume_band"), "they are --volume settings, and no --volume was given")
+    _check_range("texture_size", a.texture_size, 16, TEXTURE_MAX, why=" (texels along the texture's side)")
+    if a.texture and a.color == "none":
+        raise GofError("--texture bakes colours: it needs a colour source (--color photos or gaussians), not --color "
+                       "none")
+    if not a.texture:
+        ignored(("texture_size",), "it is a --texture setting, and no --texture was given")
     if a.out is not None and a.format is not None:
         suffix = Path(a.out).suffix.lower().lstrip(".")
         if suffix in MESH_FORMATS and suffix != a.format:
@@ -322,6 +345,10 @@ def extract_run(a, ranks, device) -> None:
                        "meshed")
     if a.color == "photos":  # found before the extraction's work; decoded again when the colours are made
         training_photos(a, run, cameras[:1], views[:1] if views is not None else None, device)
+    if a.texture:  # the optional package, before the extraction's work
+        from ..mesh.texture import _xatlas
+
+        _xatlas()
     command = {"load_s": round(time.perf_counter() - t_load, 3)}
     from ..core.progress import Stages
 
@@ -340,20 +367,30 @@ def extract_run(a, ranks, device) -> None:
     base = mesh_base(a, run)
     fmt = format_of(base, a.format)
     colours = [None] * len(meshes)
-    if a.color != "none":
+    textures = [None] * len(meshes)
+    if a.texture:
+        t_colour = time.perf_counter()
+        textures = mesh_textures(a, run, meshes, gaussians, cameras, views, render_config, device)
+        command["texture_s"] = round(time.perf_counter() - t_colour, 3)
+    elif a.color != "none":
         t_colour = time.perf_counter()
         colours = mesh_vertex_colours(a, run, meshes, gaussians, cameras, views, render_config, device)
         command["colour_s"] = round(time.perf_counter() - t_colour, 3)
     outputs = []
     t_save = time.perf_counter()
-    for level, (v, f), c in zip(levels, meshes, colours):
+    for level, (v, f), c, tex in zip(levels, meshes, colours, textures):
         path = mesh_path(base, level, len(meshes))
-        if fmt == "ply" and c is None:
+        if tex is not None:
+            save_textured_mesh(path, tex, fmt)
+        elif fmt == "ply" and c is None:
             save_mesh(path, v, f)
         else:
             save_mesh_file(path, v, f, c, fmt)
         outputs.append({"path": str(path), "level": level, "vertices": int(len(v)), "faces": int(len(f)),
-                        "format": fmt, "color": a.color})
+                        "format": fmt, "color": a.color,
+                        **({"texture": {k: tex.info[k] for k in ("size", "atlas_vertices", "texels", "unseen_texels",
+                                                                 "charts_fill", "best_views", "exposure", "gains")},
+                            "files": [str(p) for p in textured_companions(path, fmt)]} if tex is not None else {})})
         print(f"wrote {path}: {len(v)} vertices, {len(f)} faces")
     command["save_s"] = round(time.perf_counter() - t_save, 3)
     summary = {
@@ -382,6 +419,17 @@ def mesh_vertex_colours(a, run: Path, meshes, gaussians, cameras, views, render_
     photos = training_photos(a, run, cameras, views, device) if a.color == "photos" else None
     return [mesh_colours(a.color, v, f, cameras, gaussians=gaussians, photos=photos, render_config=render_config,
                          device=warp_device(device)) for v, f in meshes]
+
+
+def mesh_textures(a, run: Path, meshes, gaussians, cameras, views, render_config, device) -> list:
+    """``--texture``: the :class:`~gof_warp.mesh.texture.TexturedMesh` of each mesh from ``a.color``
+    (:func:`gof_warp.mesh.texture.mesh_texture`), at ``--texture-size`` or the size its face count gives."""
+    from ..core.devices import warp_device
+    from ..mesh.texture import mesh_texture
+
+    photos = training_photos(a, run, cameras, views, device) if a.color == "photos" else None
+    return [mesh_texture(a.color, v, f, cameras, gaussians=gaussians, photos=photos, render_config=render_config,
+                         size=a.texture_size, device=warp_device(device)) for v, f in meshes]
 
 
 def training_photos(a, run: Path, cameras, views, device) -> list:
@@ -440,6 +488,8 @@ def check_outputs(a, run: Path) -> None:
         base = mesh_base(a, run)
         levels = tuple(a.levels) if a.method != "tsdf" else (0.0,)
         paths = [mesh_path(base, level, len(levels)) for level in levels] + [base.with_suffix(".json")]
+        if a.texture:
+            paths += [p for mesh in paths[:-1] for p in textured_companions(mesh, a.format)]
     for path in paths:
         check_output_path(path, protected=protected)
 

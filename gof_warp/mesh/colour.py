@@ -72,19 +72,33 @@ def _cast(mesh: wp.Mesh, camera: Camera) -> dict:
     return {k: hits[k].numpy() for k in ("face", "bary", "depth")}
 
 
-@wp.kernel
-def _points_unblocked(mesh: wp.uint64, points: wp.array(dtype=wp.vec3), origin: wp.vec3, rel_tol: float,
-                      visible: wp.array(dtype=wp.int32)):
-    """``visible[i]`` = 1 when the segment from ``origin`` to ``points[i]`` meets no face before
-    ``(1 - rel_tol)`` of its length, else 0."""
-    i = wp.tid()
-    d = points[i] - origin
+@wp.func
+def segment_unblocked(mesh: wp.uint64, origin: wp.vec3, point: wp.vec3, rel_tol: float) -> bool:
+    """The visibility rule of this module (and of :mod:`gof_warp.mesh.texture`): the segment from ``origin`` to
+    ``point`` meets no face of ``mesh`` before ``(1 - rel_tol)`` of its length (False for a zero-length one)."""
+    d = point - origin
     dist = wp.length(d)
-    visible[i] = 0
     if dist > 0.0:
         q = wp.mesh_query_ray(mesh, origin, d / dist, dist * (1.0 - rel_tol))
         if not q.result:
-            visible[i] = 1
+            return True
+    return False
+
+
+def visibility_tolerance(camera: Camera, depth_tol: float = DEPTH_TOL, depth_tol_px: float = DEPTH_TOL_PX) -> float:
+    """The ``rel_tol`` of :func:`segment_unblocked` for a point seen by ``camera``: ``depth_tol`` plus
+    ``depth_tol_px`` pixel footprints (``1 / f``)."""
+    return depth_tol + depth_tol_px / min(camera.fx, camera.fy)
+
+
+@wp.kernel
+def _points_unblocked(mesh: wp.uint64, points: wp.array(dtype=wp.vec3), origin: wp.vec3, rel_tol: float,
+                      visible: wp.array(dtype=wp.int32)):
+    """``visible[i]`` = 1 when :func:`segment_unblocked` from ``origin`` to ``points[i]``, else 0."""
+    i = wp.tid()
+    visible[i] = 0
+    if segment_unblocked(mesh, origin, points[i], rel_tol):
+        visible[i] = 1
 
 
 def points_unblocked(mesh: wp.Mesh, points: np.ndarray, origin: np.ndarray, rel_tol: float) -> np.ndarray:
@@ -157,7 +171,7 @@ def colours_from_images(vertices: np.ndarray, faces: np.ndarray, cameras: Sequen
             idx = np.flatnonzero(inside)
             if not len(idx):
                 continue
-            ok = points_unblocked(mesh, v[idx], cam.center, depth_tol + depth_tol_px / min(cam.fx, cam.fy))
+            ok = points_unblocked(mesh, v[idx], cam.center, visibility_tolerance(cam, depth_tol, depth_tol_px))
             idx = idx[ok]
             u, vv = uv[idx, 0], uv[idx, 1]
             ray = v[idx] - cam.center
@@ -197,20 +211,26 @@ def gaussian_images(gaussians, cameras: Sequence[Camera], render_config=None):
         yield out["rgb"].clamp(0, 1).detach().cpu().numpy()
 
 
+def source_images(source: str, cameras: Sequence[Camera], *, gaussians=None, photos=None, render_config=None,
+                  what: str = "vertex colours"):
+    """The images a colour ``source`` (:data:`SOURCES`) gives for ``cameras``, one per camera: ``"gaussians"``
+    renders ``gaussians`` (a generator, one render at a time); ``"photos"`` is ``photos``."""
+    if source == "gaussians":
+        if gaussians is None:
+            raise GofError(f"{what} from the Gaussians need the Gaussians")
+        return gaussian_images(gaussians, cameras, render_config)
+    if source == "photos":
+        if photos is None:
+            raise GofError(f"{what} from the photos need the training photos (the scene folder)")
+        return photos
+    raise GofError(f"{what}: the colour source must be one of {SOURCES}, got {source!r}")
+
+
 def mesh_colours(source: str, vertices, faces, cameras: Sequence[Camera], *, gaussians=None, photos=None,
                  render_config=None, device=None) -> np.ndarray:
     """Vertex colours ``[V, 3]`` float32 from ``source`` (:data:`SOURCES`): ``"gaussians"`` renders ``gaussians``
     from ``cameras``; ``"photos"`` samples ``photos`` (one image per camera)."""
-    if source == "gaussians":
-        if gaussians is None:
-            raise GofError("vertex colours from the Gaussians need the Gaussians")
-        images = gaussian_images(gaussians, cameras, render_config)
-    elif source == "photos":
-        if photos is None:
-            raise GofError("vertex colours from the photos need the training photos (the scene folder)")
-        images = photos
-    else:
-        raise GofError(f"vertex colour source must be one of {SOURCES}, got {source!r}")
+    images = source_images(source, cameras, gaussians=gaussians, photos=photos, render_config=render_config)
     return colours_from_images(vertices, faces, cameras, images, device=device)
 
 
@@ -245,21 +265,28 @@ def render_vertex_colours(vertices, faces, colours, camera: Camera, *, backgroun
 def mesh_render_psnr(vertices, faces, colours, cameras: Sequence[Camera], photos: Iterable, *,
                      background=(0.0, 0.0, 0.0), device=None) -> dict:
     """PSNR and SSIM of the vertex-coloured mesh (:func:`render_vertex_colours`) against ``photos`` (one
-    ``[H, W, 3]`` image per camera, uint8 or float in ``[0, 1]``) from ``cameras``, means over the views:
-    ``{"psnr", "ssim"}`` over the whole image (missed pixels are ``background``), ``{"psnr_masked",
-    "ssim_masked"}`` over the pixels the mesh covers, ``"coverage"`` (covered fraction), ``"views"``."""
+    ``[H, W, 3]`` image per camera, uint8 or float in ``[0, 1]``) from ``cameras``: :func:`render_fidelity`."""
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    mesh = _wp_mesh(v, f, warp_device(device))
+    return render_fidelity(lambda cam: render_vertex_colours(v, f, colours, cam, background=background, mesh=mesh),
+                           cameras, photos)
+
+
+def render_fidelity(render_view, cameras: Sequence[Camera], photos: Iterable) -> dict:
+    """PSNR and SSIM of ``render_view(camera) -> (rgb [H, W, 3] float32, hit [H, W] bool)`` against ``photos`` (one
+    ``[H, W, 3]`` image per camera, uint8 or float in ``[0, 1]``), means over the views: ``{"psnr", "ssim"}`` over
+    the whole image (missed pixels as rendered), ``{"psnr_masked", "ssim_masked"}`` over the hit pixels,
+    ``"coverage"`` (hit fraction), ``"views"``."""
     import torch
 
     from ..eval.image_metrics import psnr, ssim
 
-    v = np.asarray(vertices, np.float64)
-    f = np.asarray(faces, np.int64)
-    mesh = _wp_mesh(v, f, warp_device(device))
     rows = []
     for cam, photo in zip(cameras, photos):
         gt = _as_float_image(photo, cam)
-        rgb, hit = render_vertex_colours(v, f, colours, cam, background=background, mesh=mesh)
-        x = torch.from_numpy(rgb).permute(2, 0, 1)
+        rgb, hit = render_view(cam)
+        x = torch.from_numpy(np.ascontiguousarray(rgb, np.float32)).permute(2, 0, 1)
         y = torch.from_numpy(np.ascontiguousarray(gt)).permute(2, 0, 1)
         m = torch.from_numpy(hit.astype(np.float32))
         rows.append({"psnr": float(psnr(x, y)), "ssim": float(ssim(x, y)),

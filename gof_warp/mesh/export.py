@@ -2,6 +2,11 @@
 file, through trimesh's exporter; colours as the ``COLOR_0`` attribute) and OBJ (``v x y z r g b``, the common
 vertex-colour extension, colours in ``[0, 1]``). Every file is written atomically; PLY through
 :func:`gof_warp.core.ply.write_ply_mesh`.
+
+Textured meshes (:class:`gof_warp.mesh.texture.TexturedMesh`, :func:`save_textured_mesh`): GLB with the texture
+embedded as the PBR material's ``baseColorTexture`` (metallic 0, roughness 1, double-sided: viewers show the photo
+colours); OBJ + MTL + PNG side by side (``mesh.obj`` names ``mesh.mtl``, whose ``map_Kd`` names ``mesh.png``;
+written PNG, MTL, then OBJ, each atomically); PLY keeps vertex colours, the texture sampled at each vertex.
 """
 
 from __future__ import annotations
@@ -56,6 +61,62 @@ def save_mesh_file(path, vertices, faces, colours=None, fmt: str | None = None) 
                                vertex_colors=None if c is None else np.concatenate(
                                    [c, np.full((len(c), 1), 255, np.uint8)], 1))
         write_bytes_atomic(path, mesh.export(file_type="glb"))
+    return fmt
+
+
+def textured_companions(path, fmt: str | None = None) -> list[Path]:
+    """The files besides ``path`` that :func:`save_textured_mesh` writes: ``[<stem>.mtl, <stem>.png]`` for OBJ,
+    none for GLB and PLY."""
+    p = Path(path)
+    return [p.with_suffix(".mtl"), p.with_suffix(".png")] if format_of(p, fmt) == "obj" else []
+
+
+def save_textured_mesh(path, textured, fmt: str | None = None) -> str:
+    """Write a :class:`~gof_warp.mesh.texture.TexturedMesh` to ``path`` in ``fmt`` (:func:`format_of`; module
+    docstring). Returns the format written."""
+    fmt = format_of(path, fmt)
+    v = np.asarray(textured.vertices, np.float64)
+    f = np.asarray(textured.faces, np.int64)
+    uv = np.asarray(textured.uv, np.float64)
+    if uv.shape != (len(v), 2):
+        raise GofError(f"textured mesh: uv must be [{len(v)}, 2], got {list(uv.shape)}")
+    tex = textured.texture_uint8()
+    if fmt == "ply":
+        n = int(np.max(textured.vmap)) + 1
+        mesh_v = np.zeros((n, 3), np.float64)
+        mesh_v[textured.vmap] = v
+        mesh_f = np.asarray(textured.vmap, np.int64)[f]
+        return save_mesh_file(path, mesh_v, mesh_f, textured.vertex_colours(), "ply")
+    from PIL import Image
+
+    image = Image.fromarray(tex, "RGB")
+    gl_uv = np.stack([uv[:, 0], 1.0 - uv[:, 1]], 1)  # OpenGL/OBJ convention: v up (trimesh flips it for glTF)
+    if fmt == "glb":
+        import trimesh
+        from trimesh.visual.material import PBRMaterial
+        from trimesh.visual.texture import TextureVisuals
+
+        material = PBRMaterial(name="texture", baseColorTexture=image, metallicFactor=0.0, roughnessFactor=1.0,
+                               doubleSided=True)
+        mesh = trimesh.Trimesh(vertices=v, faces=f, process=False,
+                               visual=TextureVisuals(uv=gl_uv, material=material))
+        write_bytes_atomic(path, mesh.export(file_type="glb"))
+        return fmt
+    mtl, png = textured_companions(path, "obj")
+    with atomic_path(png) as tmp:
+        image.save(tmp, format="PNG")
+    with atomic_path(mtl) as tmp:
+        Path(tmp).write_text("# written by gof_warp\nnewmtl texture\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nillum 1\n"
+                             f"map_Kd {png.name}\n", encoding="ascii")
+    with atomic_path(path) as tmp:
+        with open(tmp, "w", encoding="ascii") as out:
+            out.write(f"# written by gof_warp\nmtllib {mtl.name}\n")
+            np.savetxt(out, v.astype(np.float32), fmt="v %.7g %.7g %.7g")
+            np.savetxt(out, gl_uv, fmt="vt %.7g %.7g")
+            out.write("usemtl texture\n")
+            k = f + 1
+            np.savetxt(out, np.stack([k[:, 0], k[:, 0], k[:, 1], k[:, 1], k[:, 2], k[:, 2]], 1),
+                       fmt="f %d/%d %d/%d %d/%d")
     return fmt
 
 
