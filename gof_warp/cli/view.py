@@ -41,6 +41,7 @@ from ..viz.viewer import FRUSTUM_COLOR
 log = logging.getLogger(__name__)
 
 GUI_PANEL_PX = (340, 250)  # viser's GUI panel: width and height (pixels) at the top right of the page
+MESH_PAGE_TIMEOUT = 300.0  # screenshot: seconds for a page with a mesh (software WebGL draws a big one slowly)
 PAGE_MATCH_LEVELS = 12.0  # shows_frame: median difference (of 255) of a page that shows the frame
 #: JavaScript that hides viser's pop-up notifications (e.g. "software WebGL") before a screenshot.
 HIDE_NOTIFICATIONS_JS = ("(() => { const s = document.createElement('style'); "
@@ -155,8 +156,12 @@ def screenshot(url: str, path, *, width: int = 1200, height: int = 800, ready=No
                 if script:
                     dt.call("Runtime.evaluate", {"expression": script}, session)
                     time.sleep(0.2)
+                def capture() -> str:  # software WebGL may take long over a frame of a big mesh: up to the deadline
+                    return dt.call("Page.captureScreenshot", {"format": "png"}, session,
+                                   timeout=max(deadline - time.monotonic(), 30.0))["data"]
+
                 while True:
-                    data = dt.call("Page.captureScreenshot", {"format": "png"}, session)["data"]
+                    data = capture()
                     if accept is None or accept(_decode_png(data)):
                         break
                     if time.monotonic() > deadline:
@@ -164,7 +169,7 @@ def screenshot(url: str, path, *, width: int = 1200, height: int = 800, ready=No
                     time.sleep(0.5)
                 while stable and time.monotonic() < deadline:
                     time.sleep(0.5)
-                    again = dt.call("Page.captureScreenshot", {"format": "png"}, session)["data"]
+                    again = capture()
                     if np.array_equal(_decode_png(again), _decode_png(data)):
                         break
                     data = again
@@ -347,7 +352,7 @@ def main(argv=None) -> int:
             if a.screenshot:
                 path = screenshot(viewer.url, a.screenshot, ready=lambda: viewer.frames_sent > 0,
                                   accept=lambda page: _page_ready(viewer, page), script=HIDE_NOTIFICATIONS_JS,
-                                  stable=viewer.mesh_shown)
+                                  stable=viewer.mesh_shown, timeout=MESH_PAGE_TIMEOUT if viewer.mesh_shown else 90.0)
                 print(f"wrote {path}")
                 return 0
             print(viewer.how_to_open(), flush=True)

@@ -4,7 +4,8 @@
 image) or GLB through trimesh into a :class:`MeshFile`: the triangles, and the appearance trimesh found —
 
 * per-vertex colours (``ColorVisuals`` of kind ``vertex``: PLY ``red green blue``, OBJ ``v x y z r g b``, glTF
-  ``COLOR_0``), or per-face colours (kind ``face``);
+  ``COLOR_0``, also beside a material without an image), or per-face colours (kind ``face``). All are taken as
+  sRGB, as :func:`gof_warp.mesh.export.save_mesh_file` writes them (a GLB's ``COLOR_0`` too, where glTF says linear);
 * a texture (``TextureVisuals``): per-vertex ``uv`` and the material's base colour image (glTF
   ``baseColorTexture`` times its ``baseColorFactor``; OBJ ``map_Kd`` times ``Kd``);
 * nothing: an uncoloured mesh, drawn shaded.
@@ -144,8 +145,19 @@ def load_mesh_file(path) -> MeshFile:
     path = Path(path)
     if not path.is_file():
         raise GofError(f"mesh {path} does not exist")
+    attribute_colours = None  # COLOR_0 of a glTF primitive that also has a material (trimesh keeps it aside)
     try:
-        m = trimesh.load(path, process=False, force="mesh")
+        m = trimesh.load(path, process=False)
+        if isinstance(m, trimesh.Scene):  # GLB/OBJ: one mesh per node or material, placed by the scene's transforms
+            nodes = m.graph.nodes_geometry
+            if len(nodes) == 1 and isinstance(m.geometry.get(m.graph[nodes[0]][1]), trimesh.Trimesh):
+                transform, name = m.graph[nodes[0]]
+                visual = m.geometry[name].visual
+                attribute_colours = getattr(visual, "vertex_attributes", {}).get("color")  # copies drop it
+                m = m.geometry[name].copy()
+                m.apply_transform(transform)
+            else:
+                m = trimesh.util.concatenate([g for g in m.dump() if isinstance(g, trimesh.Trimesh)])
     except Exception as e:  # trimesh raises many types for unreadable files
         raise GofError(f"{path}: cannot read the mesh: {e}") from None
     if not isinstance(m, trimesh.Trimesh):
@@ -160,8 +172,11 @@ def load_mesh_file(path) -> MeshFile:
     if kind == "texture":
         uv = getattr(visual, "uv", None)
         texture = _texture_of(getattr(visual, "material", None))
+        colours = attribute_colours
         if uv is not None and texture is not None and len(uv) == len(v):
             out.uv, out.texture = np.asarray(uv, np.float64).reshape(-1, 2), texture
+        elif colours is not None and len(colours) == len(v):  # a material without an image, and COLOR_0
+            out.vertex_colors = _rgb8(colours)
     elif kind == "vertex":
         out.vertex_colors = _rgb8(visual.vertex_colors)
     elif kind == "face":

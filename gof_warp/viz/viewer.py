@@ -6,8 +6,8 @@ connected browser, the picture of the Gaussians rendered by :func:`gof_warp.rend
 browser's camera, set as the page's background image; over it viser draws the training cameras as frustums
 and the run's newest mesh when there is one (:func:`~gof_warp.viz.mesh_files.find_mesh`: the last modified of
 ``RUN/mesh_*.ply|glb|obj``), shown from the start (a GUI checkbox hides it). A mesh with vertex colours or a
-texture is sent to the browser as GLB with them (trimesh's export of the mesh as read, ``add_mesh_trimesh``; the
-page draws it with three.js's GLTFLoader), an uncoloured one as a plain grey surface. While the mesh is shown the
+texture is sent to the browser as GLB with them, unlit (:func:`browser_glb`; the page draws it with three.js's
+GLTFLoader), an uncoloured one as a lit grey surface. While the mesh is shown the
 render is sent without its depth, as a backdrop behind the mesh: the mesh lies on the Gaussians' surface, and
 compositing the two by depth would let each break through the other. A GUI dropdown picks what is shown:
 
@@ -332,18 +332,85 @@ def load_mesh(path) -> MeshFile:
     return load_mesh_file(path)
 
 
+UNLIT = "KHR_materials_unlit"
+GLB_MAGIC, GLB_JSON, GLB_BIN = 0x46546C67, 0x4E4F534A, 0x004E4942
+
+
+def srgb_to_linear(c: np.ndarray) -> np.ndarray:
+    """sRGB-encoded values in ``[0, 1]`` → linear (the sRGB transfer function, IEC 61966-2-1)."""
+    c = np.asarray(c, np.float64)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def browser_glb(mesh: MeshFile) -> bytes:
+    """The GLB the viewer sends for a coloured :class:`~gof_warp.viz.mesh_files.MeshFile`: the mesh drawn in its own
+    colours, unlit (``KHR_materials_unlit``, as the pictures' coloured-mesh column; photo colours already hold the
+    scene's light), from both sides.
+
+    Vertex (or face) colours, sRGB like the photos they come from, go as glTF ``COLOR_0``, which glTF defines as
+    linear: they are converted (8 bits), so that a glTF viewer's sRGB output gives back the file's colours. A texture
+    goes as the material's ``baseColorTexture`` (sRGB in glTF: as is). Built with trimesh's exporter, then every
+    material made unlit and double-sided (primitives without one get one). viser's page tone-maps what it draws
+    (ACES filmic): colours show with a little more contrast than the file's."""
+    import json
+    import struct
+
+    m = mesh.mesh.copy()
+    kind = mesh.appearance
+    if kind in ("vertex", "face"):
+        if kind == "face":  # a colour per face: corners of their own
+            m = trimesh_unmerged(m)
+            rgb = np.repeat(mesh.face_colors, 3, axis=0)
+        else:
+            rgb = mesh.vertex_colors
+        linear = np.round(srgb_to_linear(rgb / 255.0) * 255.0).astype(np.uint8)
+        m.visual.vertex_colors = np.concatenate([linear, np.full((len(linear), 1), 255, np.uint8)], 1)
+    glb = m.export(file_type="glb")
+    magic, _, _ = struct.unpack_from("<III", glb, 0)
+    json_len, json_type = struct.unpack_from("<II", glb, 12)
+    if magic != GLB_MAGIC or json_type != GLB_JSON:
+        raise GofError("trimesh wrote a GLB the viewer cannot read back")
+    doc = json.loads(glb[20:20 + json_len])
+    materials = doc.setdefault("materials", [])
+    for mesh_entry in doc.get("meshes", []):
+        for prim in mesh_entry.get("primitives", []):
+            if "material" not in prim:
+                materials.append({"pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 1.0}})
+                prim["material"] = len(materials) - 1
+    for material in materials:
+        material.setdefault("extensions", {})[UNLIT] = {}
+        material["doubleSided"] = True
+    used = doc.setdefault("extensionsUsed", [])
+    if UNLIT not in used:
+        used.append(UNLIT)
+    text = json.dumps(doc, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)
+    body = struct.pack("<II", len(text), GLB_JSON) + text + glb[20 + json_len:]
+    return struct.pack("<III", GLB_MAGIC, 2, 12 + len(body)) + body
+
+
+def trimesh_unmerged(m):
+    """A copy of the trimesh mesh ``m`` with three vertices of its own per face (face ``i`` → vertices
+    ``3i, 3i+1, 3i+2``)."""
+    import trimesh
+
+    faces = np.asarray(m.faces)
+    return trimesh.Trimesh(np.asarray(m.vertices)[faces.ravel()], np.arange(faces.size).reshape(-1, 3),
+                           process=False)
+
+
 def add_mesh(scene, name: str, mesh, visible: bool = True):
     """Put ``mesh`` into a viser ``scene`` as ``name``; returns viser's handle.
 
-    A :class:`~gof_warp.viz.mesh_files.MeshFile` with colours or a texture goes as GLB with them
-    (``add_mesh_trimesh`` of the trimesh mesh as read: vertex colours become glTF ``COLOR_0``, a texture the
-    material's ``baseColorTexture``); an uncoloured one, or ``(vertices [V, 3], faces [F, 3])``, as a plain
-    :data:`MESH_COLOR` surface seen from both sides."""
+    A :class:`~gof_warp.viz.mesh_files.MeshFile` with colours or a texture goes as the GLB of :func:`browser_glb`
+    (viser's page reads it with three.js's GLTFLoader); an uncoloured one, or ``(vertices [V, 3], faces [F, 3])``,
+    as a lit :data:`MESH_COLOR` surface seen from both sides. Neither casts nor receives the page's shadows (the
+    shadow maps would draw a big mesh again per cascade, slow in a browser without a GPU)."""
     if isinstance(mesh, MeshFile) and mesh.coloured:
-        return scene.add_mesh_trimesh(name, mesh.mesh, visible=visible)
+        return scene.add_glb(name, browser_glb(mesh), visible=visible, cast_shadow=False, receive_shadow=False)
     v, f = (mesh.vertices, mesh.faces) if isinstance(mesh, MeshFile) else mesh
     return scene.add_mesh_simple(name, np.asarray(v, np.float32), np.asarray(f, np.uint32), color=MESH_COLOR,
-                                 side="double", visible=visible)
+                                 side="double", visible=visible, cast_shadow=False, receive_shadow=False)
 
 
 # ------------------------------------------------------------------------------------------ the viewer

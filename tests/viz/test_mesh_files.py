@@ -174,3 +174,16 @@ def test_the_mesh_column_is_coloured_for_a_coloured_mesh_and_shaded_otherwise(tm
     np.testing.assert_array_equal(panels.image[y0:y1, x0:x1], tiles["c"])
     with pytest.raises(GofError, match="vertex colours must be"):
         view_panels(g, [FRONT], mesh=(QUAD_V, QUAD_F, np.zeros((3, 3))), device="cpu")
+
+
+def test_a_glb_with_a_material_and_colour_0_reads_its_vertex_colours(tmp_path):
+    """The viewer's GLB (an unlit material beside COLOR_0, which trimesh keeps as a vertex attribute) reads back
+    with those colours: the values stored, taken as they are."""
+    from gof_warp.viz.viewer import browser_glb, srgb_to_linear
+
+    colours = np.array([[210, 40, 30], [20, 200, 90], [128, 128, 128], [5, 6, 7]], np.uint8)
+    save_mesh_file(tmp_path / "c.glb", QUAD_V, QUAD_F, colours)
+    (tmp_path / "unlit.glb").write_bytes(browser_glb(load_mesh_file(tmp_path / "c.glb")))
+    m = load_mesh_file(tmp_path / "unlit.glb")
+    assert m.appearance == "vertex"
+    np.testing.assert_array_equal(m.vertex_colors, np.round(srgb_to_linear(colours / 255.0) * 255).astype(np.uint8))
