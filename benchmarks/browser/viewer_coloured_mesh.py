@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import shutil
 import subprocess
@@ -40,7 +41,11 @@ def main(argv=None) -> int:
     if chromium is None:
         print("no Chromium: apt-get install chromium-headless-shell", file=sys.stderr)
         return 2
-    record = {"run": run.name, "machine": platform.node(), "python": platform.python_version()}
+    from gof_warp.core.config import load_yaml
+
+    config = load_yaml(run / "config.yaml") if (run / "config.yaml").is_file() else {}
+    record = {"run": run.name, "iterations": config.get("iterations"), "machine": platform.node(),
+              "cpus": os.cpu_count(), "python": platform.python_version()}
     if not list(run.glob("mesh_*.glb")):
         t0 = time.perf_counter()
         subprocess.run([sys.executable, "-m", "gof_warp.extract", str(run), "--binary-steps", "4", "--color", "photos",
