@@ -327,13 +327,8 @@ def render_mode(gaussians, camera: Camera, mode: str, *, render_config=None, tra
     return image, depth
 
 
-def load_mesh(path) -> MeshFile:
-    """A mesh file (PLY/OBJ/GLB) with its colours or texture: :func:`gof_warp.viz.mesh_files.load_mesh_file`."""
-    return load_mesh_file(path)
-
-
 UNLIT = "KHR_materials_unlit"
-GLB_MAGIC, GLB_JSON, GLB_BIN = 0x46546C67, 0x4E4F534A, 0x004E4942
+GLB_MAGIC, GLB_JSON = 0x46546C67, 0x4E4F534A  # the GLB header's magic and its JSON chunk's type
 
 
 def srgb_to_linear(c: np.ndarray) -> np.ndarray:
@@ -350,21 +345,24 @@ def browser_glb(mesh: MeshFile) -> bytes:
     Vertex (or face) colours, sRGB like the photos they come from, go as glTF ``COLOR_0``, which glTF defines as
     linear: they are converted (8 bits), so that a glTF viewer's sRGB output gives back the file's colours. A texture
     goes as the material's ``baseColorTexture`` (sRGB in glTF: as is). Built with trimesh's exporter, then every
-    material made unlit and double-sided (primitives without one get one). viser's page tone-maps what it draws
-    (ACES filmic): colours show with a little more contrast than the file's."""
+    material made unlit and double-sided (primitives without one get one). viser's page tone-maps the meshes it
+    draws (ACES filmic): more contrast than the file's colours, and strongly saturated ones shift (the tests in
+    ``tests/viz/test_viewer_mesh.py`` measure it)."""
     import json
     import struct
 
-    m = mesh.mesh.copy()
+    import trimesh
+
     kind = mesh.appearance
-    if kind in ("vertex", "face"):
+    if kind == "texture":
+        m = mesh.mesh
+    else:
+        v, f, rgb = mesh.vertices, mesh.faces, mesh.vertex_colors
         if kind == "face":  # a colour per face: corners of their own
-            m = trimesh_unmerged(m)
-            rgb = np.repeat(mesh.face_colors, 3, axis=0)
-        else:
-            rgb = mesh.vertex_colors
+            v, f, rgb = v[f.ravel()], np.arange(f.size).reshape(-1, 3), np.repeat(mesh.face_colors, 3, axis=0)
         linear = np.round(srgb_to_linear(rgb / 255.0) * 255.0).astype(np.uint8)
-        m.visual.vertex_colors = np.concatenate([linear, np.full((len(linear), 1), 255, np.uint8)], 1)
+        m = trimesh.Trimesh(v, f, vertex_colors=np.concatenate([linear, np.full((len(v), 1), 255, np.uint8)], 1),
+                            process=False)
     glb = m.export(file_type="glb")
     magic, _, _ = struct.unpack_from("<III", glb, 0)
     json_len, json_type = struct.unpack_from("<II", glb, 12)
@@ -387,16 +385,6 @@ def browser_glb(mesh: MeshFile) -> bytes:
     text += b" " * (-len(text) % 4)
     body = struct.pack("<II", len(text), GLB_JSON) + text + glb[20 + json_len:]
     return struct.pack("<III", GLB_MAGIC, 2, 12 + len(body)) + body
-
-
-def trimesh_unmerged(m):
-    """A copy of the trimesh mesh ``m`` with three vertices of its own per face (face ``i`` → vertices
-    ``3i, 3i+1, 3i+2``)."""
-    import trimesh
-
-    faces = np.asarray(m.faces)
-    return trimesh.Trimesh(np.asarray(m.vertices)[faces.ravel()], np.arange(faces.size).reshape(-1, 3),
-                           process=False)
 
 
 def add_mesh(scene, name: str, mesh, visible: bool = True):

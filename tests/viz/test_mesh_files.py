@@ -187,3 +187,18 @@ def test_a_glb_with_a_material_and_colour_0_reads_its_vertex_colours(tmp_path):
     m = load_mesh_file(tmp_path / "unlit.glb")
     assert m.appearance == "vertex"
     np.testing.assert_array_equal(m.vertex_colors, np.round(srgb_to_linear(colours / 255.0) * 255).astype(np.uint8))
+
+
+def test_face_colours_and_a_glb_read_back_go_to_the_browser_too(tmp_path):
+    from gof_warp.viz.viewer import browser_glb
+
+    faces_coloured = trimesh.Trimesh(QUAD_V, QUAD_F, process=False, face_colors=[[255, 0, 0, 255], [0, 0, 255, 255]])
+    faces_coloured.export(tmp_path / "f.ply")
+    m = load_mesh_file(tmp_path / "f.ply")
+    assert m.appearance == "face"
+    (tmp_path / "f.glb").write_bytes(browser_glb(m))
+    back = load_mesh_file(tmp_path / "f.glb")  # three corners per face, each with its face's (linear) colour
+    assert back.appearance == "vertex" and len(back.vertices) == 6
+    np.testing.assert_array_equal(back.vertex_colors, [[255, 0, 0]] * 3 + [[0, 0, 255]] * 3)
+    again = browser_glb(back)  # a GLB with a material beside COLOR_0, sent again
+    assert again[:4] == b"glTF"
