@@ -156,6 +156,7 @@ def screenshot(url: str, path, *, width: int = 1200, height: int = 800, ready=No
                 if script:
                     dt.call("Runtime.evaluate", {"expression": script}, session)
                     time.sleep(0.2)
+
                 def capture() -> str:  # software WebGL may take long over a frame of a big mesh: up to the deadline
                     return dt.call("Page.captureScreenshot", {"format": "png"}, session,
                                    timeout=max(deadline - time.monotonic(), 30.0))["data"]
@@ -352,7 +353,8 @@ def main(argv=None) -> int:
             if a.screenshot:
                 path = screenshot(viewer.url, a.screenshot, ready=lambda: viewer.frames_sent > 0,
                                   accept=lambda page: _page_ready(viewer, page), script=HIDE_NOTIFICATIONS_JS,
-                                  stable=viewer.mesh_shown, timeout=MESH_PAGE_TIMEOUT if viewer.mesh_shown else 90.0)
+                                  stable=viewer.mesh_shown,
+                                  timeout=MESH_PAGE_TIMEOUT if viewer.mesh_shown else 90.0)
                 print(f"wrote {path}")
                 return 0
             print(viewer.how_to_open(), flush=True)
