@@ -402,9 +402,9 @@ def extract_run(a, ranks, device) -> None:
         from ..viz.pictures import pictures_or_warning
 
         t_pictures = time.perf_counter()
-        for o, m in zip(outputs, meshes):  # the model and meshes in memory: no second read of the files
+        for o, m, c in zip(outputs, meshes, colours):  # the model and meshes in memory: no second read of the files
             for p in pictures_or_warning(run, mesh_path=o["path"], device=device, scene=a.scene, gaussians=gaussians,
-                                         mesh=m):
+                                         mesh=m if c is None else (*m, c)):
                 print(f"wrote {p}")
         command["pictures_s"] = round(time.perf_counter() - t_pictures, 3)
         write_json_atomic(base.with_suffix(".json"), summary)  # again, with the pictures' time

@@ -1,4 +1,5 @@
-"""``python -m gof_warp.pictures RUN``: the pictures of a run on demand (photo | render | depth | normal | mesh)."""
+"""``python -m gof_warp.pictures RUN``: the pictures of a run on demand (photo | render | depth | normal | mesh, the
+mesh in its colours or texture when it has them)."""
 
 from __future__ import annotations
 
@@ -12,15 +13,17 @@ from .common import HelpFormatter, configure_output, run_command
 
 DESCRIPTION = """\
 Pictures of a run, to see what training and extraction produced: one PNG with a row per view and
-the columns photo | Gaussian render | median depth | rendered normal | shaded mesh, written to
-RUN/pictures/views.png (no mesh) or RUN/pictures/mesh_<stem>.png."""
+the columns photo | Gaussian render | median depth | rendered normal | mesh (in its colours or
+texture when it has them, else shaded), written to RUN/pictures/views.png (no mesh) or
+RUN/pictures/mesh_<stem>.png."""
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m gof_warp.pictures", description=DESCRIPTION,
                                  formatter_class=HelpFormatter)
     ap.add_argument("run", help="training output folder (or a Gaussian PLY with --scene)")
-    ap.add_argument("--mesh", default=None, help="mesh to shade in the last column, PLY or OBJ (default: none, no mesh column)")
+    ap.add_argument("--mesh", default=None, help="mesh for the last column, PLY, OBJ or GLB: drawn in its vertex colours "
+                                              "or texture when it has them, else shaded (default: none, no mesh column)")
     ap.add_argument("--views", type=int, default=3, help="number of views (rows); test views first")
     ap.add_argument("--out", default=None, help="output folder (default: RUN/pictures)")
     ap.add_argument("--scene", default=None, help="scene folder for cameras and photos (default: found from the run)")

@@ -3,7 +3,8 @@
 
 A live web viewer of a training run: open the printed address in a browser to fly around the Gaussians
 rendered by gof_warp's own renderer (render / depth / normal / opacity-field slice), with the training
-cameras and the run's newest mesh (``RUN/mesh_*.ply``). See :mod:`gof_warp.viz.viewer`.
+cameras and the run's newest mesh (the last modified ``RUN/mesh_*.ply|glb|obj``) in its colours or texture, shown
+from the start; the page opens at a training camera. See :mod:`gof_warp.viz.viewer`.
 
 It listens on 127.0.0.1 (this machine only) and prints its address, which carries a random access token: the
 page's WebSocket must present it (see :mod:`gof_warp.viz.viewer`). On a remote GPU machine, start it there and
@@ -40,6 +41,7 @@ from ..viz.viewer import FRUSTUM_COLOR
 log = logging.getLogger(__name__)
 
 GUI_PANEL_PX = (340, 250)  # viser's GUI panel: width and height (pixels) at the top right of the page
+MESH_PAGE_TIMEOUT = 300.0  # screenshot: seconds for a page with a mesh (software WebGL draws a big one slowly)
 PAGE_MATCH_LEVELS = 12.0  # shows_frame: median difference (of 255) of a page that shows the frame
 #: JavaScript that hides viser's pop-up notifications (e.g. "software WebGL") before a screenshot.
 HIDE_NOTIFICATIONS_JS = ("(() => { const s = document.createElement('style'); "
@@ -109,7 +111,8 @@ class _DevTools:
 
 
 def screenshot(url: str, path, *, width: int = 1200, height: int = 800, ready=None, accept=None, timeout: float = 90.0,
-               settle: float = 1.0, script: str | None = None, chromium: str | None = None) -> Path:
+               settle: float = 1.0, script: str | None = None, chromium: str | None = None,
+               stable: bool = False) -> Path:
     """Load ``url`` in a headless Chromium and write a PNG screenshot ``[height, width]`` to ``path``.
 
     Args:
@@ -120,6 +123,8 @@ def screenshot(url: str, path, *, width: int = 1200, height: int = 800, ready=No
         accept: a function of the screenshot (``[height, width, 3]`` uint8) saying whether the page shows what it
             should yet (a slow software-WebGL browser draws late); captures are repeated every 0.5 s until it
             does, up to ``timeout``. None: the first capture.
+        stable: after that, capture every 0.5 s until two captures in a row are the same picture (the page has
+            finished drawing, e.g. a mesh the browser was still loading), up to ``timeout``.
         chromium: the binary (default :func:`find_chromium`).
     Raises :class:`GofError` when there is no Chromium or the page cannot be captured.
     """
@@ -151,13 +156,24 @@ def screenshot(url: str, path, *, width: int = 1200, height: int = 800, ready=No
                 if script:
                     dt.call("Runtime.evaluate", {"expression": script}, session)
                     time.sleep(0.2)
+
+                def capture() -> str:  # software WebGL may take long over a frame of a big mesh: up to the deadline
+                    return dt.call("Page.captureScreenshot", {"format": "png"}, session,
+                                   timeout=max(deadline - time.monotonic(), 30.0))["data"]
+
                 while True:
-                    data = dt.call("Page.captureScreenshot", {"format": "png"}, session)["data"]
+                    data = capture()
                     if accept is None or accept(_decode_png(data)):
                         break
                     if time.monotonic() > deadline:
                         raise GofError(f"the page {url} did not show the expected picture within {timeout:.0f} s")
                     time.sleep(0.5)
+                while stable and time.monotonic() < deadline:
+                    time.sleep(0.5)
+                    again = capture()
+                    if np.array_equal(_decode_png(again), _decode_png(data)):
+                        break
+                    data = again
             finally:
                 dt.close()
         finally:
@@ -217,13 +233,15 @@ def _devtools_url(proc: subprocess.Popen, timeout: float) -> str:
     raise GofError("Chromium did not start its DevTools endpoint: " + " | ".join(seen[-5:]))
 
 
-def page_difference(page: np.ndarray, frame: np.ndarray) -> np.ndarray:
+def page_difference(page: np.ndarray, frame: np.ndarray, covered: np.ndarray | None = None) -> np.ndarray:
     """How far a screenshot of the viewer's page is from the rendered ``frame`` it should show, per frame pixel.
 
     ``page``: ``[H, W, 3]`` uint8 screenshot (the canvas fills the window; the image is stretched over it);
-    ``frame``: ``[h, w, 3]`` uint8 render. The page is box-filtered down to ``h × w``; returns the mean absolute
-    difference (0–255) of the pixels clear of the GUI panel (:data:`GUI_PANEL_PX`, top right), of the orange
-    camera frustums and of the border, as a 1-D array.
+    ``frame``: ``[h, w, 3]`` uint8 render; ``covered``: ``[h, w]`` bool, the frame's pixels the mesh hides on the
+    page (:meth:`gof_warp.viz.viewer.Viewer.mesh_coverage`), or None. The page is box-filtered down to ``h × w``;
+    returns the mean absolute difference (0–255) of the pixels clear of the GUI panel (:data:`GUI_PANEL_PX`, top
+    right), of the orange camera frustums, of the mesh (``covered`` and its 1-pixel rim) and of the border, as a
+    1-D array.
     """
     from PIL import Image
 
@@ -236,21 +254,54 @@ def page_difference(page: np.ndarray, frame: np.ndarray) -> np.ndarray:
     keep[: math.ceil(h * ph / H), int(w * (W - pw) / W):] = False
     keep[[0, -1], :] = False
     keep[:, [0, -1]] = False
+    if covered is not None:
+        keep &= ~grow_mask(np.asarray(covered, bool))
     return np.abs(small - frame.astype(np.int32)).mean(-1)[keep]
 
 
-def shows_frame(page, frame) -> bool:
-    """Whether a screenshot ``[H, W, 3]`` of the viewer's page shows ``frame`` (None: nothing rendered yet)."""
+def grow_mask(mask: np.ndarray) -> np.ndarray:
+    """``mask`` ``[h, w]`` bool with its 8 neighbours of every True pixel set too."""
+    out = mask.copy()
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            out[max(dy, 0):mask.shape[0] + min(dy, 0), max(dx, 0):mask.shape[1] + min(dx, 0)] |= \
+                mask[max(-dy, 0):mask.shape[0] + min(-dy, 0), max(-dx, 0):mask.shape[1] + min(-dx, 0)]
+    return out
+
+
+def shows_frame(page, frame, covered=None) -> bool:
+    """Whether a screenshot ``[H, W, 3]`` of the viewer's page shows ``frame`` (None: nothing rendered yet) where the
+    mesh does not hide it (``covered``, see :func:`page_difference`): on at least half of those pixels, with a median
+    difference under :data:`PAGE_MATCH_LEVELS`. A frame the mesh hides almost entirely (under 2 % left) cannot be
+    checked: then any frame counts."""
     if frame is None:
         return False
-    diff = page_difference(page, frame)
-    return diff.size > 0.5 * frame.shape[0] * frame.shape[1] and float(np.median(diff)) < PAGE_MATCH_LEVELS
+    h, w = frame.shape[:2]
+    open_pixels = h * w if covered is None else int((~grow_mask(np.asarray(covered, bool))).sum())
+    if open_pixels < 0.02 * h * w:
+        return True
+    diff = page_difference(page, frame, covered)
+    return diff.size > 0.5 * open_pixels and float(np.median(diff)) < PAGE_MATCH_LEVELS
+
+
+def _page_ready(viewer, page) -> bool:
+    """Whether the screenshot ``page`` shows the viewer's newest render where the mesh (if shown) leaves it open."""
+    camera = viewer.last_camera
+    frame = viewer.last_frame
+    if frame is None or camera is None:
+        return False
+    covered = viewer.mesh_coverage(camera) if viewer.mesh_shown else None
+    if covered is not None and covered.shape != frame.shape[:2]:  # a newer frame came in between: next capture
+        return False
+    return shows_frame(page, frame, covered)
 
 
 DESCRIPTION = """\
 A live web viewer of a training run: open the printed address in a browser to fly around the
 Gaussians rendered by gof_warp's own renderer (render, depth, normal, opacity-field slice), with the
-training cameras and the run's newest mesh (RUN/mesh_*.ply)."""
+training cameras and the run's newest mesh (the last modified RUN/mesh_*.ply|glb|obj, in its colours
+or texture, shown from the start). The page opens at the training camera that looks most directly at
+the scene's centre."""
 EPILOG = """\
 It listens on 127.0.0.1 (this machine only) and prints its address, with a random access token that
 the page's connection must present. On a remote GPU machine, start it there and forward the port
@@ -271,7 +322,8 @@ def main(argv=None) -> int:
     ap.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto")
     ap.add_argument("--max-size", type=int, default=None, help="render size, long side in pixels (default 256 on "
                                                                 "CPU, 1024 on GPU; also a slider in the page)")
-    ap.add_argument("--mesh", default=None, help="mesh to show (default: the run's newest mesh_*.ply)")
+    ap.add_argument("--mesh", default=None, help="mesh to show, PLY, OBJ or GLB, with its colours or texture "
+                                                  "(default: the run's last modified mesh_*.ply|glb|obj)")
     ap.add_argument("--no-mesh", action="store_true", help="show no mesh")
     ap.add_argument("--screenshot", default=None, metavar="PNG", help="write a screenshot of the page (headless "
                                                                        "Chromium) and exit (default: serve until Ctrl-C)")
@@ -288,7 +340,9 @@ def main(argv=None) -> int:
             from ..core.io_utils import check_output_path
             from ..training.run_folder import run_inputs
 
-            meshes = [Path(a.mesh)] if a.mesh else sorted(Path(a.run).glob("mesh_*.ply"))
+            from ..viz.mesh_files import run_meshes
+
+            meshes = [Path(a.mesh)] if a.mesh else run_meshes(a.run)
             check_output_path(a.screenshot, protected=run_inputs(Path(a.run)) + meshes)
         require_viser()
         if a.screenshot and find_chromium() is None:
@@ -298,7 +352,9 @@ def main(argv=None) -> int:
         with viewer:
             if a.screenshot:
                 path = screenshot(viewer.url, a.screenshot, ready=lambda: viewer.frames_sent > 0,
-                                  accept=lambda page: shows_frame(page, viewer.last_frame), script=HIDE_NOTIFICATIONS_JS)
+                                  accept=lambda page: _page_ready(viewer, page), script=HIDE_NOTIFICATIONS_JS,
+                                  stable=viewer.mesh_shown,
+                                  timeout=MESH_PAGE_TIMEOUT if viewer.mesh_shown else 90.0)
                 print(f"wrote {path}")
                 return 0
             print(viewer.how_to_open(), flush=True)

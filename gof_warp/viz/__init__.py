@@ -1,6 +1,6 @@
 """Pictures and the live viewer of a run.
 
-``write_run_pictures`` draws photo | Gaussian render | depth | normal | shaded mesh for a few views
+``write_run_pictures`` draws photo | Gaussian render | depth | normal | mesh (shaded, or in its colours) for a few views
 (``panels`` holds the drawing, ``curves`` the training curves); ``Viewer`` serves a run in the browser
 (viser), rendered by our renderer from the browser's camera.
 

@@ -15,6 +15,9 @@ composed into one labelled picture (library code; the run loading and the CLI ar
 * **shaded mesh**: :func:`shade_mesh` — the mesh ray cast with Warp's BVH from the same camera, lit by a
   headlight plus ambient light; faces seen from behind (inside-out parts, holes into the interior) are
   tinted red.
+* **coloured mesh** / **textured mesh** (instead of the shaded mesh when the mesh carries colours: per-vertex or
+  per-face colours, or a texture, :class:`~gof_warp.viz.mesh_files.MeshFile`): the same ray cast, each sample
+  showing the surface's own colour at its hit, unlit (front and back alike), so that it compares with the photo.
 
 Wide images are downscaled (cameras scaled exactly, photos resampled) so that the picture stays at most
 ``max_width`` (2000) pixels wide. The mesh is made ready for ray casting once (:class:`CastMesh`: its BVH) and
@@ -51,6 +54,7 @@ DEPTH_PERCENTILES = (2.0, 98.0)  # robust depth range: ignores a few stray near/
 COVERED_ALPHA = 0.5  # a pixel is "covered" by the Gaussians (for the depth range) above this alpha
 COLUMN_TITLES = {"photo": "photo", "render": "Gaussian render", "depth": "median depth", "normal": "rendered normal",
                  "distortion": "distortion (sqrt)", "mesh": "shaded mesh"}
+MESH_TITLES = {"none": "shaded mesh", "vertex": "coloured mesh", "face": "coloured mesh", "texture": "textured mesh"}
 # Viridis sampled at 0, 1/4, 1/2, 3/4, 1 (far → near); linear in between is close enough for a preview.
 _DEPTH_ANCHORS = np.array([[0.267, 0.005, 0.329], [0.229, 0.322, 0.546], [0.128, 0.567, 0.551],
                            [0.369, 0.789, 0.383], [0.993, 0.906, 0.144]], np.float32)
@@ -99,27 +103,73 @@ def _sample_directions(camera: Camera, samples: int) -> np.ndarray:
 class CastMesh:
     """A triangle mesh made ready for ray casting once (checked, uploaded, its ``wp.Mesh`` BVH built), then drawn
     from any number of cameras by :func:`shade_cast_mesh`. ``vertices`` ``[V, 3]`` float64 and ``faces`` ``[F, 3]``
-    int64 are host copies (the face normals of the hit faces come from them); ``bvh`` lives on ``device``."""
+    int64 are host copies (the face normals of the hit faces come from them); ``bvh`` lives on ``device``.
+    ``colours``: the mesh's appearance, a :class:`~gof_warp.viz.mesh_files.MeshFile` of these triangles that
+    carries colours or a texture (its :meth:`~gof_warp.viz.mesh_files.MeshFile.colour_at` gives the colour at a
+    hit), or None for an uncoloured mesh."""
 
     vertices: np.ndarray
     faces: np.ndarray
     bvh: object | None  # wp.Mesh; None for a mesh with no faces
     device: object
+    colours: object = None
+
+    @property
+    def appearance(self) -> str:
+        """``"none"`` (uncoloured), ``"vertex"``, ``"face"`` or ``"texture"``."""
+        return "none" if self.colours is None else self.colours.appearance
 
     @classmethod
-    def build(cls, vertices, faces, device=None) -> "CastMesh":
+    def build(cls, vertices, faces, device=None, colours=None) -> "CastMesh":
         """Check ``vertices`` ``[V, 3]`` / ``faces`` ``[F, 3]`` (numpy, torch or array-like) and build the BVH on
-        ``device`` (Warp/torch device name; default: the device of ``vertices`` if it is a tensor, else CPU)."""
+        ``device`` (Warp/torch device name; default: the device of ``vertices`` if it is a tensor, else CPU).
+        ``colours``: a :class:`~gof_warp.viz.mesh_files.MeshFile` of the same triangles (kept only when it carries
+        colours), or vertex colours ``[V, 3]`` (uint8, or float in ``[0, 1]``), or None."""
         import warp as wp
 
         dev = _warp_device(device, vertices)
         v, f = _check_mesh(vertices, faces)
+        colours = _as_appearance(colours, v, f)
         bvh = None
         if len(f):
             points = wp.array(v.astype(np.float32), dtype=wp.vec3, device=dev)
             indices = wp.array(f.astype(np.int32).ravel(), dtype=wp.int32, device=dev)
             bvh = wp.Mesh(points=points, indices=indices)
-        return cls(vertices=v, faces=f, bvh=bvh, device=dev)
+        return cls(vertices=v, faces=f, bvh=bvh, device=dev, colours=colours)
+
+    @classmethod
+    def of(cls, mesh, device=None) -> "CastMesh":
+        """A :class:`CastMesh` of what :func:`view_panels` accepts as ``mesh``: a :class:`CastMesh` (as is), a
+        :class:`~gof_warp.viz.mesh_files.MeshFile`, or ``(vertices, faces)`` / ``(vertices, faces, colours [V, 3])``."""
+        if isinstance(mesh, CastMesh):
+            return mesh
+        if hasattr(mesh, "vertices") and hasattr(mesh, "faces") and hasattr(mesh, "colour_at"):
+            return cls.build(mesh.vertices, mesh.faces, device, colours=mesh)
+        if not isinstance(mesh, (tuple, list)) or len(mesh) not in (2, 3):
+            raise GofError("a mesh to draw must be (vertices, faces), (vertices, faces, colours), a MeshFile or a "
+                           f"CastMesh, got {type(mesh).__name__}")
+        return cls.build(mesh[0], mesh[1], device, colours=mesh[2] if len(mesh) == 3 else None)
+
+
+def _as_appearance(colours, vertices: np.ndarray, faces: np.ndarray):
+    """``colours`` of :meth:`CastMesh.build` as a coloured :class:`~gof_warp.viz.mesh_files.MeshFile`, or None."""
+    from .mesh_files import MeshFile
+
+    if colours is None:
+        return None
+    if isinstance(colours, MeshFile):
+        if not colours.coloured:
+            return None
+        if len(colours.vertices) != len(vertices) or len(colours.faces) != len(faces):
+            raise GofError(f"{colours.path}: its colours are for another mesh ({len(colours.vertices)} vertices, "
+                           f"{len(colours.faces)} faces; drawing {len(vertices)}, {len(faces)})")
+        return colours
+    c = _as_numpy(colours, None)
+    if c.shape != (len(vertices), 3):
+        raise GofError(f"vertex colours must be [{len(vertices)}, 3], got {list(c.shape)}")
+    if c.dtype != np.uint8:
+        c = np.round(np.clip(c.astype(np.float64), 0.0, 1.0) * 255.0).astype(np.uint8)
+    return MeshFile(path="vertex colours", vertices=vertices, faces=faces, vertex_colors=c)
 
 
 def shade_mesh(vertices, faces, camera: Camera, *, mode: str = "shaded", supersample: int = 2, device=None,
@@ -141,11 +191,14 @@ def shade_mesh(vertices, faces, camera: Camera, *, mode: str = "shaded", supersa
                            background=background, near=near)
 
 
+SHADE_MODES = ("shaded", "normals", "colour")
+
+
 def _check_shading(camera, mode: str, supersample) -> None:
     if not isinstance(camera, Camera):
         raise TypeError(f"shade_mesh: camera must be a gof_warp.core.camera.Camera, got {type(camera).__name__}")
-    if mode not in ("shaded", "normals"):
-        raise ValueError(f"shade_mesh: mode must be 'shaded' or 'normals', got {mode!r}")
+    if mode not in SHADE_MODES:
+        raise ValueError(f"shade_mesh: mode must be one of {SHADE_MODES}, got {mode!r}")
     if int(supersample) != supersample or supersample < 1:
         raise ValueError(f"shade_mesh: supersample must be an integer >= 1, got {supersample}")
 
@@ -159,13 +212,16 @@ def shade_cast_mesh(mesh: CastMesh, camera: Camera, *, mode: str = "shaded", sup
     ``(p1 - p0) × (p2 - p0)`` points towards the camera is shaded ``FRONT_COLOR``, one seen from behind
     ``BACK_COLOR`` (two-sided: inside-out parts and holes show red); both times
     ``AMBIENT + (1 - AMBIENT) · |n · d|`` (a headlight). ``mode="normals"`` colours the camera-facing
-    world normal as ``(n + 1) / 2`` instead (back faces mixed half with red). Misses get ``background``.
+    world normal as ``(n + 1) / 2`` instead (back faces mixed half with red). ``mode="colour"`` (a mesh with
+    colours only) gives each sample the surface colour at its hit (:meth:`MeshFile.colour_at
+    <gof_warp.viz.mesh_files.MeshFile.colour_at>`: vertex colours interpolated, a face's colour, or the texture
+    looked up at the interpolated uv), unlit, on both sides. Misses get ``background``.
     Pixels average their samples. Only the faces some ray hits have their normals computed.
 
     Args:
         mesh: :class:`CastMesh`.
         camera: :class:`~gof_warp.core.camera.Camera` (OpenCV axes, world-to-camera).
-        mode: ``"shaded"`` or ``"normals"``.
+        mode: ``"shaded"``, ``"normals"`` or ``"colour"``.
         supersample: samples per pixel axis (≥ 1).
         background: RGB in ``[0, 1]``.
         near: depth in front of which nothing is drawn (the camera's clip; 0: none).
@@ -174,6 +230,8 @@ def shade_cast_mesh(mesh: CastMesh, camera: Camera, *, mode: str = "shaded", sup
         ``[H, W, 3]`` uint8 image.
     """
     _check_shading(camera, mode, supersample)
+    if mode == "colour" and mesh.colours is None:
+        raise ValueError("shade_mesh: mode 'colour' needs a mesh with colours or a texture")
     s = int(supersample)
     bg = np.asarray(background, np.float32)
     h, w = camera.height, camera.width
@@ -193,7 +251,9 @@ def shade_cast_mesh(mesh: CastMesh, camera: Camera, *, mode: str = "shaded", sup
     d = _sample_directions(camera, s)[hit]
     cos = -np.einsum("ij,ij->i", n, d)  # > 0: the face's normal points towards the camera
     back = cos < 0
-    if mode == "shaded":
+    if mode == "colour":
+        col = mesh.colours.colour_at(face[hit], hits["bary"].numpy()[hit])
+    elif mode == "shaded":
         base = np.where(back[:, None], np.asarray(BACK_COLOR, np.float32), np.asarray(FRONT_COLOR, np.float32))
         col = base * (AMBIENT + (1.0 - AMBIENT) * np.abs(cos))[:, None]
     else:
@@ -326,7 +386,8 @@ def _resize(image: np.ndarray, width: int, height: int) -> np.ndarray:
 def view_panels(gaussians, cameras: list[Camera], *, photos: list | None = None, mesh=None, render_config=None,
                 path=None, labels: list[str] | None = None, max_width: int = MAX_WIDTH, device=None,
                 distortion: bool = False) -> Panels:
-    """One row per camera: photo | Gaussian render | median depth | rendered normal | [distortion |] shaded mesh.
+    """One row per camera: photo | Gaussian render | median depth | rendered normal | [distortion |] mesh (shaded, or
+    in its own colours).
 
     The mesh is drawn from the same near plane as the render beside it (the larger of ``render_config.near`` and the
     camera's own clip, :attr:`Camera.near`): what lies in front of that plane the photo never showed, and drawing it
@@ -336,7 +397,9 @@ def view_panels(gaussians, cameras: list[Camera], *, photos: list | None = None,
         gaussians: :class:`~gof_warp.core.model.Gaussians` (rendered on their own device).
         cameras: the views to show (one row each).
         photos: ``[H, W, 3]`` uint8 per camera (None entries: "no photo"), or None for no photo column.
-        mesh: ``(vertices [V, 3], faces [F, 3])``, a :class:`CastMesh`, or None for no mesh column.
+        mesh: ``(vertices [V, 3], faces [F, 3])``, ``(vertices, faces, vertex colours [V, 3])``, a
+            :class:`~gof_warp.viz.mesh_files.MeshFile`, a :class:`CastMesh`, or None for no mesh column. A mesh with
+            colours or a texture is drawn in them (the "coloured mesh" / "textured mesh" column), else shaded.
         render_config: :class:`~gof_warp.rendering.render.RenderConfig` (default thresholds if None).
         path: if given, the PNG is written there atomically.
         labels: one text per row (default: the camera names).
@@ -355,16 +418,17 @@ def view_panels(gaussians, cameras: list[Camera], *, photos: list | None = None,
     scale = fit_scale(len(columns), [c.width for c in cameras], max_width)
     cams = [c if scale == 1.0 else c.scaled(scale) for c in cameras]
     width, height, boxes = panel_layout(columns, [(c.width, c.height) for c in cams])
+    mesh_device = device if device is not None else getattr(gaussians, "device", None)
+    if mesh is not None:
+        mesh = CastMesh.of(mesh, mesh_device)  # once for every row
+    titles = dict(COLUMN_TITLES, mesh=MESH_TITLES[mesh.appearance]) if mesh is not None else COLUMN_TITLES
     canvas = np.empty((height, width, 3), np.uint8)
     canvas[:] = PANEL_COLOR
     col_w = max(c.width for c in cams)
     for name in columns:
         x0 = boxes[(0, name)][0]
-        canvas[MARGIN:MARGIN + HEADER_H, x0:x0 + col_w] = _text_strip(COLUMN_TITLES[name], col_w, HEADER_H)
+        canvas[MARGIN:MARGIN + HEADER_H, x0:x0 + col_w] = _text_strip(titles[name], col_w, HEADER_H)
     labels = labels or [c.name for c in cameras]
-    mesh_device = device if device is not None else getattr(gaussians, "device", None)
-    if mesh is not None and not isinstance(mesh, CastMesh):
-        mesh = CastMesh.build(mesh[0], mesh[1], mesh_device)  # once for every row
     clip = render_config or RenderConfig()
     for r, cam in enumerate(cams):
         tiles = render_columns(gaussians, cam, render_config, distortion=distortion)
@@ -373,7 +437,8 @@ def view_panels(gaussians, cameras: list[Camera], *, photos: list | None = None,
             tiles["photo"] = (np.full((cam.height, cam.width, 3), np.round(np.asarray(BACKGROUND) * 255), np.uint8)
                               if p is None else _resize(np.asarray(p, np.uint8), cam.width, cam.height))
         if mesh is not None:
-            tiles["mesh"] = shade_cast_mesh(mesh, cam, near=clip.clip_near(cam))
+            tiles["mesh"] = shade_cast_mesh(mesh, cam, near=clip.clip_near(cam),
+                                            mode="shaded" if mesh.colours is None else "colour")
         x0, y0, _, _ = boxes[(r, columns[0])]
         canvas[y0 - LABEL_H:y0, x0:width - MARGIN] = _text_strip(labels[r], width - MARGIN - x0, LABEL_H)
         for name in columns:

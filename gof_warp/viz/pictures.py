@@ -5,12 +5,14 @@
 It holds one row per chosen view (the test views if the run has any, else train views spread over the
 list), with the columns
 
-    photo | Gaussian render | median depth | rendered normal | shaded mesh
+    photo | Gaussian render | median depth | rendered normal | mesh
 
 * **photo**: the training image, when the scene folder can be found (``--scene``, a ``scene`` entry in
   ``cameras.json``/``config.yaml``, or ``RUN/scene`` as the built-in default run writes it); the column
   is left out, with a log line, when it cannot.
-* **Gaussian render**, **median depth**, **rendered normal**, **shaded mesh**: drawn by
+* **mesh** (with ``--mesh``: PLY, OBJ or GLB): the mesh in its own colours, unlit, when the file carries vertex
+  colours or a texture (``extract --color``; column "coloured mesh" / "textured mesh"), else shaded ("shaded mesh").
+* **Gaussian render**, **median depth**, **rendered normal**, **mesh**: drawn by
   :mod:`gof_warp.viz.panels` (:func:`view_panels`, :func:`shade_mesh`, …; those names are importable from here
   too) with the run's render settings.
 
@@ -120,19 +122,6 @@ def find_photos(cameras: list[Camera], candidates: list[Path], data_config, devi
     return None
 
 
-def _load_mesh(path: Path):
-    import trimesh
-
-    if not path.is_file():
-        raise GofError(f"mesh {path} does not exist")
-    try:
-        m = trimesh.load(path, process=False, force="mesh")
-    except Exception as e:  # trimesh raises many types for unreadable files
-        raise GofError(f"{path}: cannot read the mesh: {e}") from None
-    faces = np.asarray(getattr(m, "faces", np.zeros((0, 3))), np.int64).reshape(-1, 3)
-    return np.asarray(m.vertices, np.float64).reshape(-1, 3), faces
-
-
 def mesh_picture_stem(mesh_path) -> str:
     """``mesh_<stem>`` for a mesh file, without doubling the prefix (``mesh_tetra.ply`` → ``mesh_tetra``)."""
     stem = Path(mesh_path).stem
@@ -146,16 +135,17 @@ def write_run_pictures(run_dir, *, mesh_path=None, views: int = 3, out_dir=None,
     Args:
         run_dir: training output folder (``point_cloud.ply`` + ``cameras.json``), or a Gaussian PLY
             together with ``scene``.
-        mesh_path: a mesh to show in the last column (``mesh_<stem>.png``, see :func:`mesh_picture_stem`);
-            None: ``views.png``.
+        mesh_path: a mesh file (PLY, OBJ, GLB) to show in the last column (``mesh_<stem>.png``, see
+            :func:`mesh_picture_stem`), in its colours or texture when it has them, else shaded; None: ``views.png``.
         views: number of views (rows).
         out_dir: where to write (default ``RUN/pictures``).
         device: torch device for the Gaussians and the ray casting (default: CUDA if available, else CPU).
         scene: scene folder for cameras and photos (default: what the run names, else ``RUN/scene``).
         gaussians: the run's :class:`~gof_warp.core.model.Gaussians` already in memory (``extract`` passes its own),
             used instead of reading ``point_cloud.ply`` again.
-        mesh: the mesh at ``mesh_path`` already in memory, ``(vertices [V, 3], faces [F, 3])``, used instead of
-            reading the file again (``mesh_path`` still names the picture).
+        mesh: the mesh at ``mesh_path`` already in memory, ``(vertices [V, 3], faces [F, 3])`` or with its vertex
+            colours ``(vertices, faces, colours [V, 3])``, used instead of reading the file again (``mesh_path`` still
+            names the picture).
     """
     from ..core.config import from_dict
     from ..data import DataConfig
@@ -182,7 +172,9 @@ def write_run_pictures(run_dir, *, mesh_path=None, views: int = 3, out_dir=None,
     if gaussians is None:
         gaussians = Gaussians.load_ply(ply, device=device)
     if mesh is None and mesh_path is not None:
-        mesh = _load_mesh(Path(mesh_path))
+        from .mesh_files import load_mesh_file
+
+        mesh = load_mesh_file(mesh_path)
 
     cams_file = base / "cameras.json"
     cams_json: dict = {}

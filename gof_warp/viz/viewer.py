@@ -4,12 +4,22 @@ Library part of ``python -m gof_warp.view RUN`` and ``python -m gof_warp.train -
 :class:`Viewer` starts a viser server (a web page with a 3D scene and a GUI panel) and keeps, for every
 connected browser, the picture of the Gaussians rendered by :func:`gof_warp.rendering.render.render` from that
 browser's camera, set as the page's background image; over it viser draws the training cameras as frustums
-and the mesh (``RUN/mesh_*.ply``) when there is one. A GUI dropdown picks what is shown:
+and the run's newest mesh when there is one (:func:`~gof_warp.viz.mesh_files.find_mesh`: the last modified of
+``RUN/mesh_*.ply|glb|obj``), shown from the start (a GUI checkbox hides it). A mesh with vertex colours or a
+texture is sent to the browser as GLB with them, unlit (:func:`browser_glb`; the page draws it with three.js's
+GLTFLoader), an uncoloured one as a lit grey surface. While the mesh is shown the
+render is sent without its depth, as a backdrop behind the mesh: the mesh lies on the Gaussians' surface, and
+compositing the two by depth would let each break through the other. A GUI dropdown picks what is shown:
 
 * ``render``: the Gaussian render; ``depth``: median depth, colour-mapped as in the run pictures;
   ``normal``: rendered normals in world space, ``(n + 1) / 2``;
 * ``opacity slice``: the GOF opacity field (min over the training views, :func:`gof_warp.rendering.opacity_field`) on
   the plane at ``slice depth`` in front of the browser's camera (black 0 → white 1, unseen points red).
+
+The page opens at a training camera (:func:`start_camera`: the one whose optical axis points most directly at
+the scene's centre, the per-axis median of the Gaussians' centres): its pose exactly, and its vertical field of
+view (the browser's aspect ratio decides the horizontal one); orbiting turns about the point of its axis nearest
+that centre.
 
 Renders are at most ``max_size`` pixels on the long side (default 256 on a CPU, 1024 on a GPU; a GUI
 slider changes it) and run in one worker thread, newest camera first: a browser that moves faster than
@@ -43,6 +53,7 @@ import numpy as np
 
 from ..core.camera import Camera
 from ..core.errors import GofError
+from .mesh_files import MeshFile, find_mesh, load_mesh_file  # noqa: F401 - find_mesh: the viewer's rule, re-exported
 
 log = logging.getLogger(__name__)
 
@@ -57,8 +68,7 @@ UNSEEN_COLOR = (200, 40, 40)  # opacity slice: points no training view sees
 MESH_COLOR = (200, 200, 190)
 FRUSTUM_COLOR = (255, 150, 40)
 FAR_DEPTH = 160.0  # depth of empty pixels for the browser's compositing (viser's depth range ends at 167.77)
-START_PULL_BACK = 1.3  # the first view: the first training camera, moved back from its orbit centre by this
-START_TURN = math.radians(12.0)  # factor and turned about the scene's up axis by this angle (off every frustum)
+MIN_LOOK_DISTANCE = 0.1  # the orbit centre of the first view lies at least this far along its camera's axis
 
 
 def require_viser():
@@ -232,10 +242,28 @@ def viewer_pose(camera: Camera) -> tuple[np.ndarray, np.ndarray, float, float]:
     return matrix_to_quat(R_c2w), position, 2.0 * math.atan(0.5 * camera.height / camera.fy), camera.width / camera.height
 
 
-def _rotate(v: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
-    """``v [3]`` rotated by ``angle`` (radians) about the unit ``axis [3]`` (Rodrigues)."""
-    return (v * math.cos(angle) + np.cross(axis, v) * math.sin(angle)
-            + axis * float(axis @ v) * (1 - math.cos(angle)))
+def start_camera(cameras: list[Camera], centre) -> int:
+    """Index of the training camera the page opens at: the one whose optical axis (``+z``) makes the smallest angle
+    with the direction from its centre to ``centre`` ``[3]`` (the scene's centre); ties: the first. Cameras that
+    sit on ``centre`` count as looking away."""
+    centre = np.asarray(centre, np.float64)
+    best, best_cos = 0, -np.inf
+    for i, cam in enumerate(cameras):
+        to = centre - cam.center
+        n = np.linalg.norm(to)
+        cos = float(cam.R[2] @ to / n) if n > 0 else -1.0
+        if cos > best_cos + 1e-12:
+            best, best_cos = i, cos
+    return best
+
+
+def viewer_look_at(camera: Camera, distance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(position, look_at, up)`` [3] each, world coordinates, that put viser's camera exactly at ``camera``'s pose:
+    its centre, the point ``distance`` along its axis, and its image's up (``-y``) direction (orthogonal to the axis,
+    so that the page's "look at with up" gives back the same roll)."""
+    R_c2w = camera.R.T
+    position = camera.center
+    return position, position + R_c2w[:, 2] * float(distance), -R_c2w[:, 1]
 
 
 def scene_up(cameras: list[Camera]) -> np.ndarray:
@@ -299,21 +327,78 @@ def render_mode(gaussians, camera: Camera, mode: str, *, render_config=None, tra
     return image, depth
 
 
-def find_mesh(run_dir) -> Path | None:
-    """The newest ``RUN/mesh_*.ply`` (what ``python -m gof_warp.extract`` writes), or None."""
-    meshes = sorted(Path(run_dir).glob("mesh_*.ply"), key=lambda p: p.stat().st_mtime)
-    return meshes[-1] if meshes else None
+UNLIT = "KHR_materials_unlit"
+GLB_MAGIC, GLB_JSON = 0x46546C67, 0x4E4F534A  # the GLB header's magic and its JSON chunk's type
 
 
-def load_mesh(path) -> tuple[np.ndarray, np.ndarray]:
-    """``(vertices [V, 3] float32, faces [F, 3] uint32)`` of a mesh file (PLY/OBJ/...), with a clear error."""
+def srgb_to_linear(c: np.ndarray) -> np.ndarray:
+    """sRGB-encoded values in ``[0, 1]`` → linear (the sRGB transfer function, IEC 61966-2-1)."""
+    c = np.asarray(c, np.float64)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def browser_glb(mesh: MeshFile) -> bytes:
+    """The GLB the viewer sends for a coloured :class:`~gof_warp.viz.mesh_files.MeshFile`: the mesh drawn in its own
+    colours, unlit (``KHR_materials_unlit``, as the pictures' coloured-mesh column; photo colours already hold the
+    scene's light), from both sides.
+
+    Vertex (or face) colours, sRGB like the photos they come from, go as glTF ``COLOR_0``, which glTF defines as
+    linear: they are converted (8 bits), so that a glTF viewer's sRGB output gives back the file's colours. A texture
+    goes as the material's ``baseColorTexture`` (sRGB in glTF: as is). Built with trimesh's exporter, then every
+    material made unlit and double-sided (primitives without one get one). viser's page tone-maps the meshes it
+    draws (ACES filmic): more contrast than the file's colours, and strongly saturated ones shift (the tests in
+    ``tests/viz/test_viewer_mesh.py`` measure it)."""
+    import json
+    import struct
+
     import trimesh
 
-    try:
-        m = trimesh.load(Path(path), process=False, force="mesh")
-    except Exception as e:  # trimesh raises many types for unreadable files
-        raise GofError(f"{path}: cannot read the mesh: {e}") from None
-    return np.asarray(m.vertices, np.float32).reshape(-1, 3), np.asarray(m.faces, np.uint32).reshape(-1, 3)
+    kind = mesh.appearance
+    if kind == "texture":
+        m = mesh.mesh
+    else:
+        v, f, rgb = mesh.vertices, mesh.faces, mesh.vertex_colors
+        if kind == "face":  # a colour per face: corners of their own
+            v, f, rgb = v[f.ravel()], np.arange(f.size).reshape(-1, 3), np.repeat(mesh.face_colors, 3, axis=0)
+        linear = np.round(srgb_to_linear(rgb / 255.0) * 255.0).astype(np.uint8)
+        m = trimesh.Trimesh(v, f, vertex_colors=np.concatenate([linear, np.full((len(v), 1), 255, np.uint8)], 1),
+                            process=False)
+    glb = m.export(file_type="glb")
+    magic, _, _ = struct.unpack_from("<III", glb, 0)
+    json_len, json_type = struct.unpack_from("<II", glb, 12)
+    if magic != GLB_MAGIC or json_type != GLB_JSON:
+        raise GofError("trimesh wrote a GLB the viewer cannot read back")
+    doc = json.loads(glb[20:20 + json_len])
+    materials = doc.setdefault("materials", [])
+    for mesh_entry in doc.get("meshes", []):
+        for prim in mesh_entry.get("primitives", []):
+            if "material" not in prim:
+                materials.append({"pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 1.0}})
+                prim["material"] = len(materials) - 1
+    for material in materials:
+        material.setdefault("extensions", {})[UNLIT] = {}
+        material["doubleSided"] = True
+    used = doc.setdefault("extensionsUsed", [])
+    if UNLIT not in used:
+        used.append(UNLIT)
+    text = json.dumps(doc, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)
+    body = struct.pack("<II", len(text), GLB_JSON) + text + glb[20 + json_len:]
+    return struct.pack("<III", GLB_MAGIC, 2, 12 + len(body)) + body
+
+
+def add_mesh(scene, name: str, mesh, visible: bool = True):
+    """Put ``mesh`` into a viser ``scene`` as ``name``; returns viser's handle.
+
+    A :class:`~gof_warp.viz.mesh_files.MeshFile` with colours or a texture goes as the GLB of :func:`browser_glb`
+    (viser's page reads it with three.js's GLTFLoader); an uncoloured one, or ``(vertices [V, 3], faces [F, 3])``,
+    as a lit :data:`MESH_COLOR` surface seen from both sides. Neither casts nor receives the page's shadows (the
+    shadow maps would draw a big mesh again per cascade, slow in a browser without a GPU)."""
+    if isinstance(mesh, MeshFile) and mesh.coloured:
+        return scene.add_glb(name, browser_glb(mesh), visible=visible, cast_shadow=False, receive_shadow=False)
+    v, f = (mesh.vertices, mesh.faces) if isinstance(mesh, MeshFile) else mesh
+    return scene.add_mesh_simple(name, np.asarray(v, np.float32), np.asarray(f, np.uint32), color=MESH_COLOR,
+                                 side="double", visible=visible, cast_shadow=False, receive_shadow=False)
 
 
 # ------------------------------------------------------------------------------------------ the viewer
@@ -324,7 +409,8 @@ class Viewer:
         gaussians: :class:`~gof_warp.core.model.Gaussians` (a copy is rendered; see :meth:`update`).
         cameras: the training cameras (frustums, the initial view, the opacity field).
         render_config: :class:`~gof_warp.rendering.render.RenderConfig` of the run (background, near plane, ...).
-        mesh: ``(vertices [V, 3], faces [F, 3])`` to show (toggle in the GUI), or None.
+        mesh: a :class:`~gof_warp.viz.mesh_files.MeshFile` (shown with its colours or texture) or
+            ``(vertices [V, 3], faces [F, 3])`` (grey) to show, visible from the start (a GUI checkbox), or None.
         host, port: where to listen (default ``127.0.0.1``, this machine only; ``0.0.0.0``: every interface, with
             a warning; a busy port → the next free one).
         max_size: render size, long side in pixels (default 256 on CPU, 1024 on CUDA).
@@ -357,10 +443,13 @@ class Viewer:
         self.server = None
         self.frames_sent = 0
         self.last_frame: np.ndarray | None = None  # [H, W, 3] uint8: the newest image sent to a browser
+        self.last_camera: Camera | None = None  # the camera (from the browser's) that image was rendered from
+        self._cast_mesh = None  # the mesh made ready for ray casting (mesh_coverage), built on first use
         self.last_render_s = float("nan")
         self.errors: list[str] = []
         centres = np.stack([c.center for c in self.cameras])
         self.scene_size = float(np.linalg.norm(centres - centres.mean(0), axis=1).max()) or 1.0
+        self.start_index = start_camera(self.cameras, self._scene_centre())  # the page's first view
 
     # ------------------------------------------------------------------ life cycle
     def start(self) -> "Viewer":
@@ -475,42 +564,67 @@ class Viewer:
                                                        thickness=0.01 * scale))
         self._mesh_handle = None
         if self.mesh is not None:
-            v, f = self.mesh
-            self._mesh_handle = s.add_mesh_simple("/mesh", np.asarray(v, np.float32), np.asarray(f, np.uint32),
-                                                  color=MESH_COLOR, side="double", visible=False)
-        first = self.cameras[0]
-        wxyz, pos, fov, _ = viewer_pose(first)
-        forward, d = quat_to_matrix(wxyz)[:, 2], self._look_distance(first)
-        look = pos + forward * d
-        pos = look + _rotate(pos - look, scene_up(self.cameras), START_TURN) * START_PULL_BACK
+            self._mesh_handle = add_mesh(s, "/mesh", self.mesh)
+        first = self.cameras[self.start_index]
+        pos, look, up = viewer_look_at(first, self._look_distance(first))
         cam = self.server.initial_camera
-        cam.position, cam.look_at, cam.up, cam.fov = tuple(pos), tuple(look), tuple(-first.R[1]), fov
+        cam.position, cam.look_at, cam.up, cam.fov = tuple(pos), tuple(look), tuple(up), viewer_pose(first)[2]
+
+    def _scene_centre(self) -> np.ndarray:
+        """The scene's centre ``[3]``: the per-axis median of the Gaussians' centres (robust to far floaters)."""
+        return self._gaussians.means.detach().median(0).values.cpu().numpy().astype(np.float64)
 
     def _look_distance(self, camera: Camera) -> float:
-        """Distance from ``camera`` to the Gaussians' centroid along its axis (the orbit centre), at least 0.1."""
-        centroid = self._gaussians.means.detach().mean(0).cpu().numpy().astype(np.float64)
-        return max(float(camera.R[2] @ centroid + camera.t[2]), 0.1)
+        """Depth of the scene's centre (:meth:`_scene_centre`) in ``camera`` (the orbit centre lies that far along its
+        axis), at least :data:`MIN_LOOK_DISTANCE`."""
+        return max(float(camera.R[2] @ self._scene_centre() + camera.t[2]), MIN_LOOK_DISTANCE)
 
     def _build_gui(self) -> None:
         g = self.server.gui
         # The ranges declared here are the server's own: a browser's values are clamped to them when used
         # (render_settings), whatever it sends, and written back to the GUI.
         self._slice_range = (MIN_SLICE_DEPTH, max(round(4 * self.scene_size, 2), MIN_SLICE_DEPTH))
-        self._slice_default = clamp_number(round(self._look_distance(self.cameras[0]), 2), *self._slice_range, 1.0)
+        self._slice_default = clamp_number(round(self._look_distance(self.cameras[self.start_index]), 2),
+                                           *self._slice_range, 1.0)
         self._mode = g.add_dropdown("show", MODES, initial_value="render")
         self._slice = g.add_slider("slice depth", min=self._slice_range[0], max=self._slice_range[1],
                                    step=round(self.scene_size / 100, 4) or 0.01, initial_value=self._slice_default)
         self._size = g.add_slider("max size (px)", min=MIN_SIZE, max=MAX_SIZE, step=32, initial_value=self.max_size)
         self._show_cams = g.add_checkbox("training cameras", initial_value=True)
-        self._show_mesh = g.add_checkbox("mesh", initial_value=False, disabled=self.mesh is None)
+        self._show_mesh = g.add_checkbox("mesh", initial_value=self.mesh is not None, disabled=self.mesh is None)
         self._info = g.add_markdown("")
         for handle in (self._mode, self._slice, self._size):
             handle.on_update(lambda _: self._settings_changed())
         self._show_cams.on_update(lambda _: [setattr(f, "visible", self._show_cams.value is True)
                                              for f in self._frustums])
         if self._mesh_handle is not None:
-            self._show_mesh.on_update(lambda _: setattr(self._mesh_handle, "visible", self._show_mesh.value is True))
+            self._show_mesh.on_update(lambda _: self._mesh_toggled())
         self._refresh_info()
+
+    def _mesh_toggled(self) -> None:
+        """The mesh checkbox changed: show or hide the mesh, and render again (with or without depth)."""
+        self._mesh_handle.visible = self.mesh_shown
+        self.rerender()
+
+    @property
+    def mesh_shown(self) -> bool:
+        """Whether the mesh is on the page (the checkbox ticked; False without a mesh or a server)."""
+        return self._mesh_handle is not None and self._show_mesh.value is True
+
+    def mesh_coverage(self, camera: Camera) -> np.ndarray:
+        """``[H, W]`` bool: the pixels of ``camera`` whose centre ray meets the mesh (all False without a mesh), by
+        ray casting (:func:`gof_warp.viz.panels.shade_cast_mesh`). What the page shows there is the mesh, not the
+        render (``view --screenshot`` compares the page with the render elsewhere)."""
+        from .panels import CastMesh, shade_cast_mesh
+
+        if self.mesh is None:
+            return np.zeros((camera.height, camera.width), bool)
+        if self._cast_mesh is None:
+            v, f = (self.mesh.vertices, self.mesh.faces) if isinstance(self.mesh, MeshFile) else self.mesh
+            self._cast_mesh = CastMesh.build(v, f, "cpu")
+        marker = (1.0, 0.0, 1.0)  # a background no shaded mesh pixel has (the shaded mesh is grey or red)
+        image = shade_cast_mesh(self._cast_mesh, camera, supersample=1, background=marker)
+        return np.any(image != np.array([255, 0, 255], np.uint8), axis=-1)
 
     def render_settings(self) -> tuple[str, int, float]:
         """``(mode, max_size, slice_depth)`` from the GUI, each within the range the GUI declares: a mode not in
@@ -591,15 +705,18 @@ class Viewer:
         image, depth = render_mode(gaussians, camera, mode, render_config=self.render_config,
                                    train_cameras=self.cameras, slice_depth=slice_depth)
         self.last_render_s = time.perf_counter() - t0
+        if self.mesh_shown:  # a backdrop behind the mesh, which lies on the same surface (module docstring)
+            depth = None
         client.scene.set_background_image(image, format="jpeg", jpeg_quality=JPEG_QUALITY, depth=depth)
-        self.last_frame = image
+        self.last_frame, self.last_camera = image, camera
         self.frames_sent += 1
         self._refresh_info()
 
 
 def open_run(run_dir, *, device: str = "cpu", mesh_path=None, **viewer_kwargs) -> Viewer:
     """A :class:`Viewer` (not started) of a training run folder: its Gaussians, training cameras, render
-    settings and its newest ``mesh_*.ply`` (or ``mesh_path``; ``False``: no mesh)."""
+    settings and its newest mesh (:func:`~gof_warp.viz.mesh_files.find_mesh`; or ``mesh_path``; ``False``: no mesh),
+    with its colours or texture."""
     from ..training.run_folder import load_run
 
     run = Path(run_dir)
@@ -615,10 +732,9 @@ def open_run(run_dir, *, device: str = "cpu", mesh_path=None, **viewer_kwargs) -
     if mesh_path is not False:
         path = Path(mesh_path) if mesh_path else find_mesh(run)
         if path is not None:
-            if not path.is_file():
-                raise GofError(f"mesh {path} does not exist")
-            mesh = load_mesh(path)
-            log.info("mesh %s: %d vertices, %d faces", path, len(mesh[0]), len(mesh[1]))
+            mesh = load_mesh_file(path)
+            log.info("mesh %s: %d vertices, %d faces, colours: %s", path, len(mesh.vertices), len(mesh.faces),
+                     mesh.appearance)
     return Viewer(gaussians, cameras, render_config=render_config, mesh=mesh, title=f"gof_warp · {run.name}",
                   **viewer_kwargs)
 

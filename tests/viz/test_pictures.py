@@ -322,3 +322,28 @@ def test_extract_writes_the_mesh_picture_unless_told_not_to(tiny_run, tmp_path, 
     with caplog.at_level("WARNING", logger="gof_warp.cli.extract"):
         assert extract.main(args) == 0
     assert out.is_file() and "no pictures today" in caplog.text
+
+
+@pytest.mark.slow
+def test_run_pictures_draw_a_coloured_glb_in_its_colour(tiny_run, tmp_path):
+    """``pictures --mesh X.glb``: the file's vertex colours reach the mesh column (a flat-coloured mesh: every covered
+    pixel exactly its colour), titled "coloured mesh"."""
+    import trimesh
+
+    from gof_warp.mesh.export import save_mesh_file
+
+    run, scene = tiny_run
+    gt = trimesh.load(run / "scene" / "gt_mesh.ply", process=False, force="mesh")
+    colour = np.array([30, 160, 220], np.uint8)
+    save_mesh_file(tmp_path / "mesh_flat.glb", gt.vertices, gt.faces, np.tile(colour, (len(gt.vertices), 1)))
+    assert pictures_main([str(run), "--mesh", str(tmp_path / "mesh_flat.glb"), "--views", "1", "--out",
+                          str(tmp_path / "p"), "--device", "cpu", "--quiet"]) == 0
+    columns = ["photo", "render", "depth", "normal", "mesh"]
+    img, boxes, _ = _columns_of(tmp_path / "p" / "mesh_flat.png", columns, scene, 1)
+    x0, y0, x1, y1 = boxes[(0, "mesh")]
+    tile = img[y0:y1, x0:x1].reshape(-1, 3)
+    is_colour, is_bg = (tile == colour).all(1), (tile == BG).all(1)
+    assert is_colour.mean() > 0.05, "the mesh is drawn in its colour"
+    # edge pixels average the colour with the background: every pixel is a mix of the two
+    mix = (tile.astype(float) - BG) / (colour.astype(float) - BG)
+    assert np.abs(mix - mix[:, :1]).max() < 0.05 and (is_colour | is_bg).mean() > 0.8

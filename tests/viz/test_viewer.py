@@ -16,7 +16,7 @@ from PIL import Image
 from gof_warp.core.camera import look_at
 from gof_warp.core.errors import GofError
 from gof_warp.core.model import Gaussians
-from gof_warp.cli.view import find_chromium, page_difference
+from gof_warp.cli.view import find_chromium, grow_mask, page_difference
 from gof_warp.viz.viewer import (
     FAR_DEPTH,
     FRUSTUM_COLOR,
@@ -28,6 +28,8 @@ from gof_warp.viz.viewer import (
     quat_to_matrix,
     render_mode,
     require_viser,
+    start_camera,
+    viewer_look_at,
     viewer_pose,
 )
 
@@ -72,6 +74,33 @@ def test_browser_camera_becomes_our_camera_and_back():
     assert (tall.width, tall.height) == (50, 100)
     with pytest.raises(GofError, match="bad viewer camera"):
         camera_from_viewer(position, wxyz, 0.0, 1.0, 100)
+
+
+def _pose_from_look_at(position, look, up):
+    """Camera-to-world rotation ``[3, 3]`` (OpenCV axes) of a camera at ``position`` looking at ``look`` with ``up``
+    up in the image, as three.js's ``lookAt`` (viser's page) builds it: ``z`` forward, ``-y`` the part of ``up``
+    across the axis, ``x = y × z``."""
+    z = np.asarray(look, float) - np.asarray(position, float)
+    z /= np.linalg.norm(z)
+    up = np.asarray(up, float)
+    y = -(up - (up @ z) * z)
+    y /= np.linalg.norm(y)
+    return np.stack([np.cross(y, z), y, z], 1)
+
+
+def test_the_first_view_is_the_training_camera_looking_most_directly_at_the_centre():
+    centre = np.array([0.3, -0.2, 0.1])
+    cams = [look_at([3.0, 0.0, 1.0], centre + [0.0, 0.8, 0.0], fx=50.0, width=64, height=48, name="off"),
+            look_at([-1.0, 2.5, 1.5], centre + [0.05, 0.0, 0.0], up=(0.3, 0.0, 1.0), fx=50.0, width=64, height=48,
+                    name="near"),
+            look_at([0.0, -3.0, 0.5], centre + [0.0, 0.0, 0.6], fx=50.0, width=64, height=48, name="above")]
+    assert start_camera(cams, centre) == 1
+    assert start_camera([cams[0], cams[0]], centre) == 0, "ties: the first"
+    cam = cams[1]
+    position, look, up = viewer_look_at(cam, 2.0)
+    np.testing.assert_allclose(position, cam.center, atol=1e-12)
+    assert np.linalg.norm(look - position) == pytest.approx(2.0)
+    np.testing.assert_allclose(_pose_from_look_at(position, look, up), cam.R.T, atol=1e-12)  # roll included
 
 
 # ------------------------------------------------------------------------------------------ pictures
@@ -181,15 +210,28 @@ def test_headless_browser_screenshot_shows_the_rendered_scene(tiny_run, tmp_path
     assert f"wrote {png}" in capsys.readouterr().out
     shot = np.asarray(Image.open(png).convert("RGB"))
     assert shot.shape == (800, 1200, 3)
-    frame = made[0].last_frame  # our renderer's image, as sent to the browser
+    viewer = made[0]
+    frame, camera = viewer.last_frame, viewer.last_camera  # our renderer's image, as sent to the browser
     h, w = frame.shape[:2]
     assert w == 128 and abs(w / h - 1.5) < 0.02, "rendered at the page's aspect ratio, 128 px wide"
-    # The page shows that image stretched over the whole canvas, under the GUI panel (top right) and the
-    # orange camera frustums: scaled back to the frame's size it must match it where neither covers it.
+    start = viewer.cameras[viewer.start_index]  # the browser's camera, as it reported it: the start camera's pose
+    np.testing.assert_allclose(camera.R, start.R, atol=2e-3)
+    np.testing.assert_allclose(camera.center, start.center, atol=2e-3 * viewer.scene_size)
+    assert camera.fy / camera.height == pytest.approx(start.fy / start.height, rel=2e-3), "its vertical field of view"
+    # The page shows that image stretched over the whole canvas, under the GUI panel (top right), the orange
+    # camera frustums and the mesh (shown from the start): scaled back to the frame's size it must match it where
+    # none of them covers it.
     orange = np.abs(shot.astype(int) - FRUSTUM_COLOR).sum(-1) < 90
     assert orange.sum() > 30, "the training cameras are drawn as orange frustums"
-    diff = page_difference(shot, frame)
-    assert diff.size > 0.5 * h * w
+    covered = viewer.mesh_coverage(camera)
+    assert 0.02 < covered.mean() < 0.8, "the run's mesh is in view"
+    inner = ~grow_mask(~covered)  # the mesh's pixels clear of its rim, scaled up to the page
+    inner = np.asarray(Image.fromarray(inner).resize((1200, 800), Image.Resampling.NEAREST))
+    mesh_pixels = shot[inner].astype(int)
+    assert len(mesh_pixels) > 1000 and np.median(np.abs(mesh_pixels[:, 0] - mesh_pixels[:, 2])) < 12, \
+        "the uncoloured mesh is drawn grey where the ray cast says it is"
+    diff = page_difference(shot, frame, covered)
+    assert diff.size > 0.3 * h * w
     assert np.median(diff) < 12 and diff.mean() < 20, f"the page does not show our render ({diff.mean():.1f} levels off)"
     empty = page_difference(np.full_like(shot, 255), frame)  # viser's page without our image is near-white
     assert empty.mean() > 3 * diff.mean() + 30, "the render is indistinguishable from an empty page"
@@ -235,7 +277,7 @@ def test_viewer_shows_a_copy_of_the_newest_model(tiny_run):
     from gof_warp.viz.viewer import open_run
 
     viewer = open_run(tiny_run, device="cpu", host="127.0.0.1", port=_free_port())
-    assert viewer.mesh is not None and len(viewer.mesh[1]) == 320, "the run's mesh_*.ply is found"
+    assert viewer.mesh is not None and len(viewer.mesh.faces) == 320, "the run's mesh_*.ply is found"
     with viewer:
         g = Gaussians.random_in_box(7, sh_degree=0, device="cpu")
         viewer.update(g, iteration=3)
