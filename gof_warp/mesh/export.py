@@ -1,11 +1,12 @@
 """Mesh files with optional vertex colours: PLY (binary, ``uchar red green blue`` per vertex), GLB (one binary glTF
-file, through trimesh's exporter; colours as the ``COLOR_0`` attribute) and OBJ (``v x y z r g b``, the common
+file, through trimesh's exporter; colours as the ``COLOR_0`` attribute, linear as glTF defines it, with an unlit
+matte material: :func:`coloured_glb`) and OBJ (``v x y z r g b``, the common
 vertex-colour extension, colours in ``[0, 1]``). Every file is written atomically; PLY through
 :func:`gof_warp.core.ply.write_ply_mesh`.
 
 Textured meshes (:class:`gof_warp.mesh.texture.TexturedMesh`, :func:`save_textured_mesh`): GLB with the texture
-embedded as the PBR material's ``baseColorTexture`` (metallic 0, roughness 1, double-sided: viewers show the photo
-colours); OBJ + MTL + PNG side by side (``mesh.obj`` names ``mesh.mtl``, whose ``map_Kd`` names ``mesh.png``;
+embedded as the PBR material's ``baseColorTexture`` (unlit, with a metallic 0 / roughness 1 fallback, double-sided:
+viewers show the photo colours); OBJ + MTL + PNG side by side (``mesh.obj`` names ``mesh.mtl``, whose ``map_Kd`` names ``mesh.png``;
 written PNG, MTL, then OBJ, each atomically); PLY keeps vertex colours, the texture sampled at each vertex.
 """
 
@@ -42,6 +43,66 @@ def _uint8(colours, n: int) -> np.ndarray:
     return np.round(np.clip(c.astype(np.float64), 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
+UNLIT = "KHR_materials_unlit"
+GLB_MAGIC, GLB_JSON = 0x46546C67, 0x4E4F534A  # the GLB header's magic and its JSON chunk's type
+
+
+def srgb_to_linear(c) -> np.ndarray:
+    """sRGB-encoded values in ``[0, 1]`` → linear (the sRGB transfer function, IEC 61966-2-1)."""
+    c = np.asarray(c, np.float64)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+def linear_to_srgb(c) -> np.ndarray:
+    """Linear values in ``[0, 1]`` → sRGB-encoded (the inverse of :func:`srgb_to_linear`)."""
+    c = np.clip(np.asarray(c, np.float64), 0.0, 1.0)
+    return np.where(c <= 0.0031308, c * 12.92, 1.055 * c ** (1.0 / 2.4) - 0.055)
+
+
+def unlit_glb(glb: bytes) -> bytes:
+    """``glb`` (a GLB trimesh wrote) with every material drawn in its own colours: ``KHR_materials_unlit`` (photo
+    colours already hold the scene's light), a matte PBR fallback (metallic 0, roughness 1) for viewers without the
+    extension, double-sided; primitives without a material get one."""
+    import json
+    import struct
+
+    magic, _, _ = struct.unpack_from("<III", glb, 0)
+    json_len, json_type = struct.unpack_from("<II", glb, 12)
+    if magic != GLB_MAGIC or json_type != GLB_JSON:
+        raise GofError("trimesh wrote a GLB that cannot be read back")
+    doc = json.loads(glb[20:20 + json_len])
+    materials = doc.setdefault("materials", [])
+    for mesh_entry in doc.get("meshes", []):
+        for prim in mesh_entry.get("primitives", []):
+            if "material" not in prim:
+                materials.append({})
+                prim["material"] = len(materials) - 1
+    for material in materials:
+        pbr = material.setdefault("pbrMetallicRoughness", {})
+        pbr["metallicFactor"], pbr["roughnessFactor"] = 0.0, 1.0
+        material.setdefault("extensions", {})[UNLIT] = {}
+        material["doubleSided"] = True
+    used = doc.setdefault("extensionsUsed", [])
+    if UNLIT not in used:
+        used.append(UNLIT)
+    text = json.dumps(doc, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)
+    body = struct.pack("<II", len(text), GLB_JSON) + text + glb[20 + json_len:]
+    return struct.pack("<III", GLB_MAGIC, 2, 12 + len(body)) + body
+
+
+def coloured_glb(vertices, faces, colours) -> bytes:
+    """A GLB of ``vertices [V, 3]``, ``faces [F, 3]`` and sRGB ``colours [V, 3]`` (uint8) as glTF defines vertex
+    colours: ``COLOR_0`` linear (8 bits: the darkest sRGB levels round by a few steps), unlit (:func:`unlit_glb`)."""
+    import trimesh
+
+    linear = np.round(srgb_to_linear(np.asarray(colours, np.float64) / 255.0) * 255.0).astype(np.uint8)
+    mesh = trimesh.Trimesh(vertices=np.asarray(vertices, np.float64), faces=np.asarray(faces, np.int64),
+                           process=False,
+                           vertex_colors=np.concatenate([linear, np.full((len(linear), 1), 255, np.uint8)], 1))
+    return unlit_glb(mesh.export(file_type="glb"))
+
+
 def save_mesh_file(path, vertices, faces, colours=None, fmt: str | None = None) -> str:
     """Write ``vertices [V, 3]``, ``faces [F, 3]`` and optional ``colours [V, 3]`` (uint8, or float in ``[0, 1]``)
     to ``path`` in ``fmt`` (:func:`format_of`). Returns the format written."""
@@ -54,13 +115,13 @@ def save_mesh_file(path, vertices, faces, colours=None, fmt: str | None = None) 
         write_ply_mesh(path, v, f, c)
     elif fmt == "obj":
         _write_obj(path, v, f, c)
+    elif c is not None:
+        write_bytes_atomic(path, coloured_glb(v, f, c))
     else:
         import trimesh
 
-        mesh = trimesh.Trimesh(vertices=np.asarray(v, np.float64), faces=f, process=False,
-                               vertex_colors=None if c is None else np.concatenate(
-                                   [c, np.full((len(c), 1), 255, np.uint8)], 1))
-        write_bytes_atomic(path, mesh.export(file_type="glb"))
+        write_bytes_atomic(path, trimesh.Trimesh(vertices=np.asarray(v, np.float64), faces=f,
+                                                 process=False).export(file_type="glb"))
     return fmt
 
 
@@ -100,7 +161,7 @@ def save_textured_mesh(path, textured, fmt: str | None = None) -> str:
                                doubleSided=True)
         mesh = trimesh.Trimesh(vertices=v, faces=f, process=False,
                                visual=TextureVisuals(uv=gl_uv, material=material))
-        write_bytes_atomic(path, mesh.export(file_type="glb"))
+        write_bytes_atomic(path, unlit_glb(mesh.export(file_type="glb")))
         return fmt
     mtl, png = textured_companions(path, "obj")
     with atomic_path(png) as tmp:

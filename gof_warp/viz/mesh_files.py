@@ -4,8 +4,9 @@
 image) or GLB through trimesh into a :class:`MeshFile`: the triangles, and the appearance trimesh found —
 
 * per-vertex colours (``ColorVisuals`` of kind ``vertex``: PLY ``red green blue``, OBJ ``v x y z r g b``, glTF
-  ``COLOR_0``, also beside a material without an image), or per-face colours (kind ``face``). All are taken as
-  sRGB, as :func:`gof_warp.mesh.export.save_mesh_file` writes them (a GLB's ``COLOR_0`` too, where glTF says linear);
+  ``COLOR_0``, also beside a material without an image), or per-face colours (kind ``face``), returned sRGB: PLY and
+  OBJ colours are sRGB as they stand, a GLB's are linear as glTF defines them (and as
+  :func:`gof_warp.mesh.export.save_mesh_file` writes them) and are converted;
 * a texture (``TextureVisuals``): per-vertex ``uv`` and the material's base colour image (glTF
   ``baseColorTexture`` times its ``baseColorFactor``; OBJ ``map_Kd`` times ``Kd``);
 * nothing: an uncoloured mesh, drawn shaded.
@@ -26,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import GofError
+from ..mesh.export import linear_to_srgb
 
 MESH_SUFFIXES = (".ply", ".glb", ".obj")  # what ``extract --format`` writes
 
@@ -181,4 +183,9 @@ def load_mesh_file(path) -> MeshFile:
         out.vertex_colors = _rgb8(visual.vertex_colors)
     elif kind == "face":
         out.face_colors = _rgb8(visual.face_colors)
+    if path.suffix.lower() in (".glb", ".gltf"):  # glTF colours are linear
+        for attr in ("vertex_colors", "face_colors"):
+            c = getattr(out, attr)
+            if c is not None:
+                setattr(out, attr, np.round(linear_to_srgb(c / 255.0) * 255.0).astype(np.uint8))
     return out

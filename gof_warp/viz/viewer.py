@@ -327,64 +327,21 @@ def render_mode(gaussians, camera: Camera, mode: str, *, render_config=None, tra
     return image, depth
 
 
-UNLIT = "KHR_materials_unlit"
-GLB_MAGIC, GLB_JSON = 0x46546C67, 0x4E4F534A  # the GLB header's magic and its JSON chunk's type
-
-
-def srgb_to_linear(c: np.ndarray) -> np.ndarray:
-    """sRGB-encoded values in ``[0, 1]`` → linear (the sRGB transfer function, IEC 61966-2-1)."""
-    c = np.asarray(c, np.float64)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
-
-
 def browser_glb(mesh: MeshFile) -> bytes:
     """The GLB the viewer sends for a coloured :class:`~gof_warp.viz.mesh_files.MeshFile`: the mesh drawn in its own
-    colours, unlit (``KHR_materials_unlit``, as the pictures' coloured-mesh column; photo colours already hold the
-    scene's light), from both sides.
-
-    Vertex (or face) colours, sRGB like the photos they come from, go as glTF ``COLOR_0``, which glTF defines as
-    linear: they are converted (8 bits), so that a glTF viewer's sRGB output gives back the file's colours. A texture
-    goes as the material's ``baseColorTexture`` (sRGB in glTF: as is). Built with trimesh's exporter, then every
-    material made unlit and double-sided (primitives without one get one). viser's page tone-maps the meshes it
-    draws (ACES filmic): more contrast than the file's colours, and strongly saturated ones shift (the tests in
+    colours, unlit, from both sides (:func:`gof_warp.mesh.export.coloured_glb`: vertex or face colours, sRGB like the
+    photos they come from, as glTF's linear ``COLOR_0``; a texture as the material's ``baseColorTexture``, sRGB in
+    glTF, as is: :func:`~gof_warp.mesh.export.unlit_glb`). viser's page tone-maps the meshes it draws (ACES filmic):
+    more contrast than the file's colours, and strongly saturated ones shift (the tests in
     ``tests/viz/test_viewer_mesh.py`` measure it)."""
-    import json
-    import struct
+    from ..mesh.export import coloured_glb, unlit_glb
 
-    import trimesh
-
-    kind = mesh.appearance
-    if kind == "texture":
-        m = mesh.mesh
-    else:
-        v, f, rgb = mesh.vertices, mesh.faces, mesh.vertex_colors
-        if kind == "face":  # a colour per face: corners of their own
-            v, f, rgb = v[f.ravel()], np.arange(f.size).reshape(-1, 3), np.repeat(mesh.face_colors, 3, axis=0)
-        linear = np.round(srgb_to_linear(rgb / 255.0) * 255.0).astype(np.uint8)
-        m = trimesh.Trimesh(v, f, vertex_colors=np.concatenate([linear, np.full((len(v), 1), 255, np.uint8)], 1),
-                            process=False)
-    glb = m.export(file_type="glb")
-    magic, _, _ = struct.unpack_from("<III", glb, 0)
-    json_len, json_type = struct.unpack_from("<II", glb, 12)
-    if magic != GLB_MAGIC or json_type != GLB_JSON:
-        raise GofError("trimesh wrote a GLB the viewer cannot read back")
-    doc = json.loads(glb[20:20 + json_len])
-    materials = doc.setdefault("materials", [])
-    for mesh_entry in doc.get("meshes", []):
-        for prim in mesh_entry.get("primitives", []):
-            if "material" not in prim:
-                materials.append({"pbrMetallicRoughness": {"metallicFactor": 0.0, "roughnessFactor": 1.0}})
-                prim["material"] = len(materials) - 1
-    for material in materials:
-        material.setdefault("extensions", {})[UNLIT] = {}
-        material["doubleSided"] = True
-    used = doc.setdefault("extensionsUsed", [])
-    if UNLIT not in used:
-        used.append(UNLIT)
-    text = json.dumps(doc, separators=(",", ":")).encode()
-    text += b" " * (-len(text) % 4)
-    body = struct.pack("<II", len(text), GLB_JSON) + text + glb[20 + json_len:]
-    return struct.pack("<III", GLB_MAGIC, 2, 12 + len(body)) + body
+    if mesh.appearance == "texture":
+        return unlit_glb(mesh.mesh.export(file_type="glb"))
+    v, f, rgb = mesh.vertices, mesh.faces, mesh.vertex_colors
+    if mesh.appearance == "face":  # a colour per face: corners of their own
+        v, f, rgb = v[f.ravel()], np.arange(f.size).reshape(-1, 3), np.repeat(mesh.face_colors, 3, axis=0)
+    return coloured_glb(v, f, rgb)
 
 
 def add_mesh(scene, name: str, mesh, visible: bool = True):

@@ -13,6 +13,7 @@ from gof_warp.core.camera import look_at
 from gof_warp.core.errors import GofError
 from gof_warp.core.model import Gaussians
 from gof_warp.mesh.export import format_of, save_mesh_file
+from gof_warp.viz.mesh_files import load_mesh_file
 
 
 def _ring_cameras(n=8, size=40):
@@ -53,16 +54,24 @@ def test_default_bytes_unchanged_and_coloured_files_load_back(colour_run, tmp_pa
         _extract(cli_in_process, colour_run, "--out", str(out), "--color", "gaussians", *extra)
         stats = json.loads(out.with_suffix(".json").read_text())
         assert stats["meshes"][0]["color"] == "gaussians" and "colour_s" in stats["command"]
-        m = trimesh.load(out, process=False, force="mesh", file_type=format_of(out, "glb" if extra else None))
+        if format_of(out, "glb" if extra else None) == "glb":  # glTF's linear COLOR_0, read back to sRGB
+            glb = out.with_suffix(".glb")
+            if glb != out:
+                glb.write_bytes(out.read_bytes())
+            m = load_mesh_file(glb)
+            rgb = m.vertex_colors
+        else:
+            m = trimesh.load(out, process=False, force="mesh")
+            rgb = np.asarray(m.visual.vertex_colors)[:, :3]
         assert len(m.vertices) == len(base.vertices) and len(m.faces) == len(base.faces)
-        rgb = np.asarray(m.visual.vertex_colors)[:, :3]
         assert rgb.std() > 0 or rgb.mean() > 0  # coloured, not trimesh's default grey
         if name == "c.ply":
             ply_rgb = rgb
-    # the same colours through every format (OBJ's floats round back to the same bytes)
-    for name in ("c.glb", "c.obj"):
-        m = trimesh.load(tmp_path / name, process=False, force="mesh")
-        np.testing.assert_array_equal(np.asarray(m.visual.vertex_colors)[:, :3], ply_rgb)
+    # the same colours through every format (OBJ's floats round back to the same bytes; GLB's linear 8 bits within
+    # their rounding)
+    m = trimesh.load(tmp_path / "c.obj", process=False, force="mesh")
+    np.testing.assert_array_equal(np.asarray(m.visual.vertex_colors)[:, :3], ply_rgb)
+    assert np.abs(load_mesh_file(tmp_path / "c.glb").vertex_colors.astype(int) - ply_rgb.astype(int)).max() <= 6
 
 
 def test_export_round_trip(tmp_path):
@@ -73,10 +82,13 @@ def test_export_round_trip(tmp_path):
     for fmt in ("ply", "glb", "obj"):
         path = tmp_path / f"m.{fmt}"
         assert save_mesh_file(path, v, f, c) == fmt
-        m = trimesh.load(path, process=False, force="mesh")
+        m = load_mesh_file(path)
         assert len(m.vertices) == 30 and len(m.faces) == 40
         np.testing.assert_allclose(m.vertices, v, atol=1e-5)
-        np.testing.assert_array_equal(np.asarray(m.visual.vertex_colors)[:, :3], c)
+        if fmt == "glb":
+            assert np.abs(m.vertex_colors.astype(int) - c.astype(int)).max() <= 6
+        else:
+            np.testing.assert_array_equal(m.vertex_colors, c)
     with pytest.raises(GofError, match="colours"):
         save_mesh_file(tmp_path / "bad.ply", v, f, c[:3])
 

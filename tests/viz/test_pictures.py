@@ -336,6 +336,10 @@ def test_run_pictures_draw_a_coloured_glb_in_its_colour(tiny_run, tmp_path):
     gt = trimesh.load(run / "scene" / "gt_mesh.ply", process=False, force="mesh")
     colour = np.array([30, 160, 220], np.uint8)
     save_mesh_file(tmp_path / "mesh_flat.glb", gt.vertices, gt.faces, np.tile(colour, (len(gt.vertices), 1)))
+    from gof_warp.viz.mesh_files import load_mesh_file
+
+    colour = load_mesh_file(tmp_path / "mesh_flat.glb").vertex_colors[0]  # through glTF's linear 8 bits
+    assert np.abs(colour.astype(int) - [30, 160, 220]).max() <= 2
     assert pictures_main([str(run), "--mesh", str(tmp_path / "mesh_flat.glb"), "--views", "1", "--out",
                           str(tmp_path / "p"), "--device", "cpu", "--quiet"]) == 0
     columns = ["photo", "render", "depth", "normal", "mesh"]
