@@ -1,7 +1,8 @@
 """Mesh files with optional vertex colours: PLY (binary, ``uchar red green blue`` per vertex), GLB (one binary glTF
-file, through trimesh's exporter; colours as the ``COLOR_0`` attribute) and OBJ (``v x y z r g b``, the common
-vertex-colour extension, colours in ``[0, 1]``). Every file is written atomically; PLY through
-:func:`gof_warp.core.ply.write_ply_mesh`.
+file, through trimesh's exporter; colours as the ``COLOR_0`` attribute), OBJ (``v x y z r g b``, the common
+vertex-colour extension, colours in ``[0, 1]``) and USD (``.usd``/``.usdc`` binary, ``.usda`` text; the mesh alone
+here, the stage with cameras and a collision mesh through :func:`gof_warp.mesh.usd_export.write_usd`). Every file is
+written atomically; PLY through :func:`gof_warp.core.ply.write_ply_mesh`.
 """
 
 from __future__ import annotations
@@ -14,16 +15,19 @@ from ..core.arrays import check_triangles
 from ..core.errors import GofError
 from ..core.io_utils import atomic_path, write_bytes_atomic
 
-FORMATS = ("ply", "glb", "obj")
+FORMATS = ("ply", "glb", "obj", "usd")
+USD_SUFFIXES = (".usd", ".usda", ".usdc")
 
 
 def format_of(path, fmt: str | None = None) -> str:
-    """The file format: ``fmt`` when given, else the suffix of ``path`` when it is ``.glb`` or ``.obj``, else
-    ``ply``."""
+    """The file format: ``fmt`` when given, else the suffix of ``path`` when it is ``.glb`` or ``.obj``, ``usd``
+    for ``.usd``, ``.usda`` and ``.usdc``, else ``ply``."""
     if fmt is not None:
         if fmt not in FORMATS:
             raise GofError(f"mesh format must be one of {FORMATS}, got {fmt!r}")
         return fmt
+    if Path(path).suffix.lower() in USD_SUFFIXES:
+        return "usd"
     suffix = Path(path).suffix.lower().lstrip(".")
     return suffix if suffix in ("glb", "obj") else "ply"
 
@@ -47,6 +51,10 @@ def save_mesh_file(path, vertices, faces, colours=None, fmt: str | None = None) 
         from ..core.ply import write_ply_mesh
 
         write_ply_mesh(path, v, f, c)
+    elif fmt == "usd":
+        from .usd_export import write_usd
+
+        write_usd(path, v, f, colours=c)
     elif fmt == "obj":
         _write_obj(path, v, f, c)
     else:
