@@ -152,6 +152,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     collision.add_argument("--collision-resolution", type=int, default=CollisionConfig.resolution,
                            help="--collision: grid cells along the longest side of the Gaussians' box (default "
                                 "%(default)s)")
+    collision.add_argument("--collision-bounds", type=float, nargs=6, default=None,
+                           metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
+                           help="--collision: the box to make solid, in world units (default: the box of the "
+                                "Gaussians the cameras see; give it for a scene with a background, whose space seen "
+                                "only through the walls would otherwise be solid)")
     volume = ap.add_argument_group("other outputs")
     volume.add_argument("--volume", action="store_true",
                         help="bake the opacity field into a sparse NanoVDB volume (RUN/opacity_volume.nvdb and "
@@ -186,7 +191,7 @@ MAX_DELAUNAY_WORKERS = 1024
 MESH_ONLY = ("color", "format", "method", "max_faces", "max_error", "levels", "keep_hidden", "min_views", "grid", "cell_factor",
              "binary_steps", "resolution", "opacity_min", "corner_min_extent", "min_component_faces", "reach_filter",
              "band", "search_steps_per_call", "piece_tets", "delaunay", "delaunay_workers", "delaunay_processes",
-             "collision_faces", "collision_resolution")
+             "collision_faces", "collision_resolution", "collision_bounds")
 TETRA_ONLY = ("grid", "cell_factor", "opacity_min", "corner_min_extent", "reach_filter", "band",
               "search_steps_per_call", "piece_tets", "delaunay", "delaunay_workers", "delaunay_processes")
 
@@ -253,6 +258,11 @@ def check_args(a: argparse.Namespace) -> None:
     _check_range("collision_faces", a.collision_faces, 4, INT_LIMIT)
     _check_range("collision_resolution", a.collision_resolution, 2, MAX_COLLISION_RESOLUTION,
                  why=" (grid cells along the longest side)")
+    if a.collision_bounds is not None:
+        b = a.collision_bounds
+        if not all(math.isfinite(x) for x in b) or not all(b[i + 3] > b[i] for i in range(3)):
+            raise GofError(f"--collision-bounds must be 6 finite numbers XMIN YMIN ZMIN XMAX YMAX ZMAX with each max "
+                           f"above its min, got {' '.join(f'{x:g}' for x in b)}")
 
     def ignored(dests, why):
         names = [_flag(d) for d in dests if d in given]
@@ -273,7 +283,7 @@ def check_args(a: argparse.Namespace) -> None:
         return
     ignored(("voxel_size", "volume_band"), "they are --volume settings, and no --volume was given")
     if not a.collision:
-        ignored(("collision_faces", "collision_resolution"), "they are --collision settings, and no --collision "
+        ignored(("collision_faces", "collision_resolution", "collision_bounds"), "they are --collision settings, and no --collision "
                                                              "was given")
     if a.out is not None and a.format is not None:
         suffix = Path(a.out).suffix.lower().lstrip(".")
@@ -423,7 +433,8 @@ def make_collision_mesh(a, gaussians, cameras, render_config):
     ``--collision``."""
     from ..mesh.collision import collision_mesh
 
-    config = CollisionConfig(resolution=a.collision_resolution, max_faces=a.collision_faces, min_views=a.min_views)
+    config = CollisionConfig(resolution=a.collision_resolution, max_faces=a.collision_faces, min_views=a.min_views,
+                             bounds=None if a.collision_bounds is None else tuple(a.collision_bounds))
     return collision_mesh(gaussians, cameras, config, render_config=render_config)
 
 

@@ -20,7 +20,8 @@ where no photo looks. A collision mesh must be solid, so it is made differently:
    ``IsoSurfaceMarchingCubes``, one vertex per crossing grid edge, linear placement) closes every surface that
    reaches the box on the box's faces. Warp's case table shares each crossing edge's vertex between the cubes
    that meet there, so every edge of its output bounds exactly two faces, wound from inside (high opacity) to
-   outside.
+   outside. Where the solid reaches the box, the surface lies between the last grid node and the padding, within
+   one cell outside the box.
 4. **Pieces.** Connected pieces (by shared edges) whose signed volume is not positive (the walls of internal
    voids, which are filled) or below ``min_component_fraction`` of the largest piece's volume (floaters) are
    removed.

@@ -51,6 +51,15 @@ def test_collision_ply_beside_the_mesh(small_run, tmp_path, capsys):
                                    "faces": len(m.faces), "format": "ply"}
 
 
+def test_collision_bounds(small_run, tmp_path, cli_in_process):
+    """A box that cuts the Gaussians in half: the solid is closed on the cut, within the box."""
+    out = tmp_path / "b.ply"
+    _extract(cli_in_process, small_run, "--out", str(out), "--collision", "--collision-resolution", "24", "--quiet",
+             "--collision-bounds", "-1", "-1", "-1", "0.1", "1", "1")
+    m = trimesh.load(tmp_path / "b_collision.ply", process=False)
+    assert m.is_volume and m.bounds[1][0] < 0.1 + 2.0 / 24
+
+
 def test_usd_stage_with_cameras_and_collision(small_run, tmp_path, cli_in_process):
     pytest.importorskip("pxr", reason="USD output needs usd-core (the gof_warp[usd] extra; in the test extra)")
     from pxr import Usd, UsdGeom, UsdPhysics
@@ -77,6 +86,7 @@ def test_usd_stage_with_cameras_and_collision(small_run, tmp_path, cli_in_proces
     (["--format", "ply", "--out", "m.usda"], "one format"),
     (["--collision-faces", "3"], "--collision-faces"),
     (["--collision-resolution", "1"], "--collision-resolution"),
+    (["--collision", "--collision-bounds", "0", "0", "0", "1", "1", "0"], "--collision-bounds"),
 ])
 def test_combinations_that_mean_nothing_are_errors(argv, match, tmp_path, cli_in_process):
     rc, err = cli_in_process(extract.main, str(tmp_path / "run"), "--device", "cpu", *argv)
