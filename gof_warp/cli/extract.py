@@ -332,6 +332,10 @@ def extract_run(a, ranks, device) -> None:
         print(f"wrote {info['nvdb']}: {info['active_voxels']} voxels of {info['voxel_size']:.4g}, "
               f"{info['bytes'] / 2**20:.1f} MiB, {info['time_s']['total']:.1f} s")
         return
+    if format_of(mesh_base(a, run), a.format) == "usd":  # usd-core missing: said before the extraction's work
+        from ..mesh.usd_export import pxr
+
+        pxr()
     cfg = MeshConfig(method=a.method, levels=tuple(a.levels), binary_steps=a.binary_steps,
                      drop_hidden=not a.keep_hidden,
                      min_component_faces=a.min_component_faces, max_faces=a.max_faces, max_error=a.max_error,

@@ -30,7 +30,11 @@ where no photo looks. A collision mesh must be solid, so it is made differently:
    ``is_watertight``, ``is_winding_consistent`` and ``is_volume``). When the check fails, ``trimesh.repair``
    (normals, holes) is tried, and if that fails too, the mesh is remade by marching cubes on every ``k``-th grid
    node for the smallest ``k`` that meets the budget, which is closed by construction and needs no decimation
-   (``info["route"]`` names which of the three was kept; a warning says when none passes).
+   (``info["route"]`` names which of the three was kept; a warning says when none passes). The pieces rule of step 4
+   runs again after decimation (a collapse can pinch a thin part off as a sliver). Where decimation made two parts of
+   the surface touch, :func:`~gof_warp.mesh.decimate.decimate` splits the shared vertex
+   (``info["decimate"]["pinch_vertices_split"]``): every edge still bounds two faces, but the solid touches itself
+   there.
 
 The surface sits on the 0.5 level (``level``) to within the linear interpolation along one grid edge: at most
 one cell, much less where the field is smooth.
@@ -284,6 +288,8 @@ def closed_mesh_from_grid(values: np.ndarray, lower, spacing: float, config: Col
         return v, f, {**info, "route": "marching_cubes", "check": check, "solid": is_solid(check)}
     dv, df, dinfo = decimate(v, f, max_faces=int(budget), measure=False)
     info["decimate"] = {k: dinfo[k] for k in ("faces_after", "time_s", "coincident_removed", "pinch_vertices_split")}
+    # a collapse can pinch a thin part off into a sliver shell of its own: the same rule drops it
+    dv, df, info["decimate"]["pieces"] = keep_solid_pieces(dv, df, config.min_component_fraction)
     check = closed_report(dv, df)
     if is_solid(check):
         return dv, np.asarray(df, np.int64), {**info, "route": "decimated", "check": check, "solid": True}

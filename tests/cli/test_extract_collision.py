@@ -97,3 +97,12 @@ def test_collision_settings_without_collision_warn(caplog):
     a = extract.parse_args(["run", "--collision-faces", "1000"])
     extract.check_args(a)
     assert any("--collision-faces ignored" in r.getMessage() for r in caplog.records)
+
+
+def test_usd_without_usd_core_fails_before_the_work(small_run, tmp_path, cli_in_process, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "pxr", None)  # as if usd-core were not installed
+    rc, err = cli_in_process(extract.main, str(small_run), "--device", "cpu", "--out", str(tmp_path / "m.usda"))
+    assert rc == 2 and "gof-warp[usd]" in err and "marching" not in err
+    assert not list(tmp_path.iterdir())
