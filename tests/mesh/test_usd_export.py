@@ -162,3 +162,23 @@ def test_export_format_and_errors(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "pxr", None)  # as if usd-core were not installed
     with pytest.raises(GofError, match=r"gof-warp\[usd\]"):
         U.write_usd(tmp_path / "n.usda", v, f)
+
+
+def test_usd_validators_find_nothing(tmp_path):
+    """USD's own validators (stage metadata, material bindings, shader compliance, physics colliders, ...) report no
+    error on a stage with every part: colours, texture, cameras, collision."""
+    try:
+        from pxr import UsdValidation
+    except ImportError:
+        pytest.skip("this usd-core has no UsdValidation (added in 24.11)")
+    v, f = _tetra()
+    out = tmp_path / "all.usda"
+    U.write_usd(out, v, f, colours=np.ones((4, 3)), cameras=_cameras(), collision=(v, f),
+                texture=np.zeros((2, 2, 3), np.uint8), uvs=np.random.default_rng(0).random((4, 3, 2)))
+    validators = UsdValidation.ValidationRegistry().GetOrLoadAllValidators()
+    assert len(validators) > 10
+    errors = UsdValidation.ValidationContext(validators).Validate(Usd.Stage.Open(str(out)))
+    assert [(e.GetName(), e.GetMessage()) for e in errors] == []
+    bare = Usd.Stage.CreateInMemory()  # the validators do find things: no up axis, no units, no default prim
+    UsdGeom.Mesh.Define(bare, "/m")
+    assert len(UsdValidation.ValidationContext(validators).Validate(bare)) > 0
