@@ -133,10 +133,15 @@ def test_a_half_seen_ball_of_gaussians_still_closes():
     """Cameras only above the ball (elevation 30-60 degrees): its underside is seen by no photo, so the extraction's
     mesh is open there; the collision mesh is closed, its top is the ball, and the unseen space under it (which the
     views see only through the ball) is solid down to the box."""
+    from gof_warp.mesh.extraction import MeshConfig, extract_mesh
+
     g = _gaussian_ball()
+    above = _cameras([30, 60])
+    (ev, ef), = extract_mesh(g, above, MeshConfig(binary_steps=2))
+    assert len(ef) and not trimesh.Trimesh(ev, ef, process=False).is_watertight  # the extraction's mesh: open
     box = (-0.8, -0.8, -0.8, 0.8, 0.8, 0.8)
     cfg = C.CollisionConfig(resolution=32, max_faces=3000, bounds=box)
-    v, f, info = C.collision_mesh(g, _cameras([30, 60]), cfg)
+    v, f, info = C.collision_mesh(g, above, cfg)
     assert info["solid"], info["check"]
     m = trimesh.Trimesh(v, f, process=False)
     assert m.is_watertight and m.is_winding_consistent and m.is_volume
