@@ -10,8 +10,8 @@ Stage layout (``defaultPrim`` ``/World``; up axis and metres per unit stated in 
   a ``UsdUVTexture`` of the image, written as ``<stem>_texture.png`` beside the stage and referenced by a relative
   path).
 * ``/World/cameras/cam_XXXX``: one ``UsdGeom.Camera`` per training camera (:func:`usd_camera_params`), its pose as
-  one ``xformOp:transform``; the camera's name and image size in its ``customData`` (``gof:name``,
-  ``gof:imageSize``).
+  one ``xformOp:transform``, its clipping range from the camera's ``near`` (else :data:`DEFAULT_NEAR`); the camera's
+  name and image size in its ``customData`` (``gof:name``, ``gof:imageSize``).
 * ``/World/collision``: the closed mesh (:mod:`gof_warp.mesh.collision`) with ``UsdPhysics.CollisionAPI`` and
   ``UsdPhysics.MeshCollisionAPI`` (approximation ``"none"``: the triangles as they are, which physics engines take
   for static colliders), purpose ``guide`` so renderers do not draw it.
@@ -52,6 +52,7 @@ from ..core.io_utils import atomic_path, write_bytes_atomic
 SUFFIXES = (".usd", ".usda", ".usdc")
 HORIZONTAL_APERTURE = 36.0  # film-back width in USD's aperture units (a 35 mm full-frame sensor's, in mm)
 UP_AXES = ("Y", "Z")
+DEFAULT_NEAR = 0.01  # a camera's near clipping distance (scene units) where the camera gives none
 
 
 def pxr():
@@ -237,6 +238,8 @@ def write_usd(path, vertices, faces, *, colours=None, cameras: Sequence = (), co
                      "verticalApertureOffset"):
             getattr(ucam, f"Create{name[0].upper()}{name[1:]}Attr")(float(p[name]))
         ucam.AddTransformOp(UsdGeom.XformOp.PrecisionDouble).Set(Gf.Matrix4d(p["transform"].T.tolist()))
+        near = float(getattr(cam, "near", 0.0) or 0.0) or DEFAULT_NEAR
+        ucam.CreateClippingRangeAttr(Gf.Vec2f(near, max(near * 1e6, 1e4 * DEFAULT_NEAR)))
         prim = ucam.GetPrim()
         prim.SetCustomDataByKey("gof:name", str(getattr(cam, "name", "") or ""))
         prim.SetCustomDataByKey("gof:imageSize", Gf.Vec2i(int(cam.width), int(cam.height)))
