@@ -23,8 +23,9 @@ whatever up its reconstruction gave. Scene units have no absolute scale unless t
 
 Cameras: gof_warp's are OpenCV world-to-camera (``x_cam = R x_world + t``, camera looks down +z, +y down the image;
 ``docs/conventions.md``); a USD camera looks down its local -z with +y up, so its local-to-world matrix is
-``[R^T diag(1, -1, -1) | C]`` with ``C = -R^T t`` the centre. Intrinsics: the horizontal aperture is fixed at
-:data:`HORIZONTAL_APERTURE` (film-back units, "mm" by convention), ``focalLength = fx * aperture / W``,
+``[R^T diag(1, -1, -1) | C]`` with ``C = -R^T t`` the centre. Intrinsics: USD measures focal length and apertures
+in tenths of a scene unit; the horizontal aperture is a 36 mm film back (:data:`FILM_WIDTH_M`) in those units
+(``0.36 / metersPerUnit``), ``focalLength = fx * aperture / W``,
 ``verticalAperture = H * focalLength / fy``; the principal point becomes the aperture offsets
 ``horizontalApertureOffset = (W / 2 - cx) * aperture / W``, ``verticalApertureOffset = (cy - H / 2) * verticalAperture
 / H``. The image spans the aperture edge to edge, pixel centres at ``i + 0.5`` (COLMAP's convention).
@@ -50,7 +51,7 @@ from ..core.errors import GofError
 from ..core.io_utils import atomic_path, write_bytes_atomic
 
 SUFFIXES = (".usd", ".usda", ".usdc")
-HORIZONTAL_APERTURE = 36.0  # film-back width in USD's aperture units (a 35 mm full-frame sensor's, in mm)
+FILM_WIDTH_M = 0.036  # the film back's width: a 35 mm full-frame sensor's, in metres
 UP_AXES = ("Y", "Z")
 DEFAULT_NEAR = 0.01  # a camera's near clipping distance (scene units) where the camera gives none
 
@@ -66,13 +67,14 @@ def pxr():
     return Usd, UsdGeom, UsdShade, UsdPhysics, Sdf, Gf, Vt
 
 
-def usd_camera_params(camera, horizontal_aperture: float = HORIZONTAL_APERTURE) -> dict:
-    """USD camera attributes of a gof_warp :class:`~gof_warp.core.camera.Camera` (see the module docstring):
+def usd_camera_params(camera, meters_per_unit: float = 1.0) -> dict:
+    """USD camera attributes of a gof_warp :class:`~gof_warp.core.camera.Camera` on a stage of ``meters_per_unit``
+    (see the module docstring):
     ``focalLength``, ``horizontalAperture``, ``verticalAperture``, ``horizontalApertureOffset``,
     ``verticalApertureOffset`` (floats) and ``transform`` (``[4, 4]`` float64 local-to-world, column-vector
     convention: ``x_world = M @ [x_local, 1]``)."""
     w, h = float(camera.width), float(camera.height)
-    ha = float(horizontal_aperture)
+    ha = FILM_WIDTH_M / float(meters_per_unit) * 10.0  # tenths of a scene unit
     focal = float(camera.fx) * ha / w
     va = h * focal / float(camera.fy)
     m = np.eye(4)
@@ -231,7 +233,7 @@ def write_usd(path, vertices, faces, *, colours=None, cameras: Sequence = (), co
     if cameras:
         UsdGeom.Scope.Define(stage, "/World/cameras")
     for i, cam in enumerate(cameras):
-        p = usd_camera_params(cam)
+        p = usd_camera_params(cam, meters_per_unit)
         ucam = UsdGeom.Camera.Define(stage, f"/World/cameras/cam_{i:04d}")
         ucam.CreateProjectionAttr(UsdGeom.Tokens.perspective)
         for name in ("focalLength", "horizontalAperture", "verticalAperture", "horizontalApertureOffset",

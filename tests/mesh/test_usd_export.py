@@ -103,7 +103,10 @@ def test_golden_pixel():
     ucam.AddTransformOp(UsdGeom.XformOp.PrecisionDouble).Set(Gf.Matrix4d(p["transform"].T.tolist()))
     ucam.GetPrim().SetCustomDataByKey("gof:imageSize", Gf.Vec2i(64, 48))
     np.testing.assert_allclose(_usd_pixel(ucam.GetPrim(), [1.5, 6.0, 2.6]), [42.5, 28.0], atol=1e-9)
-    assert p["horizontalApertureOffset"] == pytest.approx((32 - 30) * 36 / 64)
+    assert p["horizontalAperture"] == pytest.approx(0.36)  # 36 mm in tenths of a metre
+    assert p["focalLength"] == pytest.approx(100 * 0.36 / 64)
+    assert p["horizontalApertureOffset"] == pytest.approx((32 - 30) * 0.36 / 64)
+    assert U.usd_camera_params(cam, 0.01)["horizontalAperture"] == pytest.approx(36.0)  # centimetre stage: mm
 
 
 @pytest.mark.parametrize("per_corner", [True, False])
@@ -151,6 +154,13 @@ def test_export_format_and_errors(tmp_path, monkeypatch):
     assert out.read_bytes().startswith(b"PXR-USDC")  # .usd: the binary crate
     assert len(UsdGeom.Mesh(stage.GetPrimAtPath("/World/mesh")).GetPointsAttr().Get()) == 4
     assert not stage.GetPrimAtPath("/World/cameras") and not stage.GetPrimAtPath("/World/collision")
+    U.write_usd(tmp_path / "y.usda", v, f, cameras=_cameras()[:1], up_axis="Y", meters_per_unit=0.01)
+    ystage = Usd.Stage.Open(str(tmp_path / "y.usda"))
+    assert UsdGeom.GetStageUpAxis(ystage) == "Y" and UsdGeom.GetStageMetersPerUnit(ystage) == pytest.approx(0.01)
+    prim = ystage.GetPrimAtPath("/World/cameras/cam_0000")
+    cam = _cameras()[0]
+    point = cam.center + 2.0 * cam.R[2] + 0.3 * cam.R[0]
+    np.testing.assert_allclose(_usd_pixel(prim, point), cam.project(point[None])[0][0], atol=1e-6)
     with pytest.raises(GofError, match="must end"):
         U.write_usd(tmp_path / "m.ply", v, f)
     with pytest.raises(GofError, match="up_axis"):
