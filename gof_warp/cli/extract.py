@@ -283,12 +283,12 @@ def check_args(a: argparse.Namespace) -> None:
         return
     ignored(("voxel_size", "volume_band"), "they are --volume settings, and no --volume was given")
     if not a.collision:
-        ignored(("collision_faces", "collision_resolution", "collision_bounds"), "they are --collision settings, and no --collision "
-                                                             "was given")
+        ignored(("collision_faces", "collision_resolution", "collision_bounds"),
+                "they are --collision settings, and no --collision was given")
     if a.out is not None and a.format is not None:
         suffix = Path(a.out).suffix.lower().lstrip(".")
-        suffix = format_of(a.out) if f".{suffix}" in USD_SUFFIXES else suffix
-        if suffix in MESH_FORMATS and suffix != a.format:
+        named = format_of(a.out) if f".{suffix}" in USD_SUFFIXES else suffix
+        if named in MESH_FORMATS and named != a.format:
             raise GofError(f"--format {a.format}, but --out {a.out} ends in .{suffix}: give one format")
     if a.method != "tetra":
         ignored(TETRA_ONLY, f"tetra settings, and the method is {a.method}")
@@ -409,8 +409,6 @@ def extract_run(a, ranks, device) -> None:
         print(f"wrote {cpath}: {len(cv)} vertices, {len(cf)} faces, watertight {'yes' if check['watertight'] else 'NO'}"
               f", winding consistent {'yes' if check['winding_consistent'] else 'NO'}, volume {check['volume']:.4g}"
               f" ({check['components']} pieces; {cinfo['route']})")
-        if not cinfo["solid"]:
-            print("warning: the collision mesh is not closed (see the JSON's collision.check)", file=sys.stderr)
         outputs.append({"path": str(cpath), "collision": True, "vertices": int(len(cv)), "faces": int(len(cf)),
                         "format": "ply"})
     command["save_s"] = round(time.perf_counter() - t_save, 3)
