@@ -144,8 +144,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     collision = ap.add_argument_group("collision mesh")
     collision.add_argument("--collision", action="store_true",
                            help="also write a closed (watertight) mesh of the opacity field for physics or printing: "
-                                "RUN/mesh_collision.ply, or <out stem>_collision.ply beside --out, and /World/collision "
-                                "in a USD stage. Space fewer than --min-views training views see is empty; what the "
+                                "RUN/mesh_collision.ply, or <out stem>_collision.ply beside --out, and "
+                                "/World/collision in a USD stage. Space fewer than --min-views training views see is empty; what the "
                                 "views see only through the object is solid (gof_warp.mesh.collision)")
     collision.add_argument("--collision-faces", type=int, default=CollisionConfig.max_faces,
                            help="--collision: face budget of the collision mesh (default %(default)s)")
