@@ -120,13 +120,14 @@ def main():
     ap.add_argument("--resolution", type=int, nargs="+", default=[64, 128])
     ap.add_argument("--faces", type=int, nargs="+", default=[20_000])
     ap.add_argument("--coarse-factor", type=int, default=4)
+    ap.add_argument("--gt", default=None, help="the exact mesh (default: RUN/scene/gt_mesh.ply)")
     a = ap.parse_args()
     run = Path(a.run)
     gaussians, cameras, _, render_config = load_run(run, None, "cpu")
-    gt = trimesh.load(run / "scene" / "gt_mesh.ply", process=False)
+    gt = trimesh.load(a.gt or run / "scene" / "gt_mesh.ply", process=False)
     result = {"run": str(run), "machine": "2-core CPU dev box (shared with other jobs, so timings are upper bounds)",
               "python": platform.python_version(), "gaussians": len(gaussians), "views": len(cameras),
-              "exact_volume": gt.volume, "runs": []}
+              "exact_volume": gt.volume, "exact_closed": bool(gt.is_volume), "runs": []}
     extracted = run / "mesh_tetra.ply"
     if extracted.is_file():
         m = trimesh.load(extracted, process=False)

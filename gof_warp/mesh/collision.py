@@ -7,10 +7,11 @@ where no photo looks. A collision mesh must be solid, so it is made differently:
    a regular grid over the box the Gaussians occupy (:func:`gof_warp.mesh.tsdf.scene_bounds`, or
    ``CollisionConfig.bounds``), ``resolution`` cells along its longest side. It is sampled adaptively
    (:func:`sample_grid_adaptive`): first every ``coarse_factor``-th node; then exactly at every fine node of the
-   coarse cells whose corners straddle the level, and of their neighbours; every other fine node takes the
-   trilinear interpolation of its coarse cell's corners, which all lie on one side of the level, so no surface is
-   made there. A part thinner than a coarse cell that no coarse node falls in is missed (``coarse_factor=1``:
-   dense sampling, no such loss).
+   coarse cells whose corners straddle the level or that hold a Gaussian's centre, and of their neighbours; every
+   other fine node takes the trilinear interpolation of its coarse cell's corners, which all lie on one side of the
+   level, so no surface is made there. The Gaussians' centres find the parts thinner than a coarse cell that no
+   coarse node falls in (a rod, a wire); a surface more than one coarse cell from every centre and every crossing
+   cell would still be missed (``coarse_factor=1``: dense sampling, no such loss).
 2. **Unseen space.** A point seen by fewer than ``min_views`` training views is *empty* (field 0): nothing claims
    solid matter there. A point the views do see gets GOF's field, the minimum over those views of the opacity
    accumulated along the view's ray up to it; space that every view sees only through the object (its inside,
@@ -115,7 +116,7 @@ def _node_points(lower, spacing, idx: np.ndarray) -> np.ndarray:
 
 
 def sample_grid_adaptive(field: Callable[[np.ndarray], np.ndarray], lower, spacing: float, shape, *,
-                         coarse_factor: int = 4, level: float = 0.5) -> tuple[np.ndarray, dict]:
+                         coarse_factor: int = 4, level: float = 0.5, seed_points=None) -> tuple[np.ndarray, dict]:
     """Values ``[nx, ny, nz]`` float32 of ``field`` at the nodes of a grid, evaluated exactly near the level only.
 
     Args:
@@ -126,6 +127,9 @@ def sample_grid_adaptive(field: Callable[[np.ndarray], np.ndarray], lower, spaci
             The remaining nodes take the trilinear interpolation of their coarse cell's corners, which all lie on
             one side of ``level``. ``c = 1``: every node evaluated.
         level: the level the refinement looks for.
+        seed_points: optional ``[S, 3]`` world points whose coarse cells (and their neighbours) are refined too,
+            whatever their corners say: a part thinner than a coarse cell that no coarse node falls in is found
+            through them (:func:`collision_mesh` passes the Gaussians' centres).
 
     Returns:
         ``(values, info)``: ``info`` with ``nodes`` (all), ``evaluated`` (field calls' points).
@@ -152,7 +156,15 @@ def sample_grid_adaptive(field: Callable[[np.ndarray], np.ndarray], lower, spaci
     corners = [inside[i:i + inside.shape[0] - 1, j:j + inside.shape[1] - 1, k:k + inside.shape[2] - 1]
                for i in (0, 1) for j in (0, 1) for k in (0, 1)]
     crossing = np.logical_or.reduce(corners) & ~np.logical_and.reduce(corners)
-    band = ndimage.binary_dilation(crossing, structure=np.ones((3, 3, 3), bool))
+    seeded = np.zeros_like(crossing)
+    if seed_points is not None and len(seed_points):
+        # the coarse cell of each point: the last coarse node at or below its fine index, per axis
+        fine = (np.asarray(seed_points, np.float64) - np.asarray(lower, np.float64)) / spacing
+        ok = np.all((fine >= 0) & (fine <= np.asarray(shape) - 1), axis=1)
+        cell = np.stack([np.clip(np.searchsorted(ax, fine[ok, d], side="right") - 1, 0, len(ax) - 2)
+                         for d, ax in enumerate(axes)], -1)
+        seeded[tuple(cell.T)] = True
+    band = ndimage.binary_dilation(crossing | seeded, structure=np.ones((3, 3, 3), bool))
     # every fine node from trilinear interpolation of the coarse values (coarse nodes are exact)
     fine_pos = [np.interp(np.arange(s), a, np.arange(len(a))) for s, a in zip(shape, axes)]
     mesh_pos = np.meshgrid(*fine_pos, indexing="ij")
@@ -167,7 +179,8 @@ def sample_grid_adaptive(field: Callable[[np.ndarray], np.ndarray], lower, spaci
     if len(idx):
         values[tuple(idx.T)] = call(idx)
     return values, {"nodes": n_all, "evaluated": int(len(cidx) + len(idx)),
-                    "coarse_cells_crossing": int(crossing.sum()), "coarse_cells_refined": int(band.sum())}
+                    "coarse_cells_crossing": int(crossing.sum()), "coarse_cells_seeded": int(seeded.sum()),
+                    "coarse_cells_refined": int(band.sum())}
 
 
 def _padded(values: np.ndarray) -> np.ndarray:
@@ -328,7 +341,8 @@ def collision_mesh(gaussians, cameras, config: CollisionConfig | None = None, *,
         config: :class:`CollisionConfig`.
         render_config: the renderer's settings (near plane, alpha thresholds) for the field.
         field: instead of the opacity field, any ``[M, 3]`` float32 points → ``[M]`` values callable
-            (``gaussians`` then only bounds the grid unless ``config.bounds`` is given; tests use analytic fields).
+            (``gaussians`` then only bounds the grid unless ``config.bounds`` is given, and seeds the refinement;
+            tests use analytic fields).
 
     Returns:
         ``(vertices [V, 3] float32, faces [F, 3] int64, info)``: ``info`` as :func:`closed_mesh_from_grid`'s,
@@ -366,8 +380,9 @@ def collision_mesh(gaussians, cameras, config: CollisionConfig | None = None, *,
                                  render_config=render_config).cpu().numpy()
 
     lower, spacing, shape = grid_spec(box, config.resolution)
+    seeds = None if gaussians is None or len(gaussians) == 0 else gaussians.means.detach().cpu().numpy()
     values, sampling = sample_grid_adaptive(field, lower, spacing, shape, coarse_factor=config.coarse_factor,
-                                            level=config.level)
+                                            level=config.level, seed_points=seeds)
     t1 = time.perf_counter()
     v, f, info = closed_mesh_from_grid(values, lower, spacing, config)
     t2 = time.perf_counter()

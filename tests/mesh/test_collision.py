@@ -77,6 +77,31 @@ def test_adaptive_values_are_exact_in_the_band_and_on_one_side_elsewhere():
     np.testing.assert_array_equal((adaptive >= 0.5)[~exact], (dense >= 0.5)[~exact])
 
 
+def test_seed_points_find_a_rod_thinner_than_a_coarse_cell():
+    """A rod of radius 0.03 along z, 0.085 from the nearest column of coarse nodes (coarse cell 0.125): the coarse
+    pass alone never sees it; seeded with points on its axis (as the Gaussians' centres are), it is meshed as the
+    dense grid meshes it, a closed rod."""
+    def rod(p):
+        p = np.asarray(p, np.float64)
+        d = np.hypot(p[:, 0] - 0.06, p[:, 1] - 0.06)
+        return 1.0 / (1.0 + np.exp((d - 0.03) / 0.005)) * (np.abs(p[:, 2]) < 0.6)
+
+    lower, h, shape = C.grid_spec((-1, -1, -1, 1, 1, 1), 64)
+    dense, _ = C.sample_grid_adaptive(rod, lower, h, shape, coarse_factor=1)
+    blind, _ = C.sample_grid_adaptive(rod, lower, h, shape, coarse_factor=4)
+    axis = np.column_stack([np.full(13, 0.06), np.full(13, 0.06), np.linspace(-0.55, 0.55, 13)])
+    seeded, info = C.sample_grid_adaptive(rod, lower, h, shape, coarse_factor=4, seed_points=axis)
+    assert (dense >= 0.5).sum() > 0 and (blind >= 0.5).sum() == 0
+    assert info["coarse_cells_seeded"] > 0 and info["evaluated"] < info["nodes"] / 10
+    np.testing.assert_array_equal(seeded >= 0.5, dense >= 0.5)
+    report = C.closed_report(*C.marching_cubes_closed(seeded, lower, h))
+    assert report["is_volume"] and report["components"] == 1
+    # a rod one cell thick: marching cubes' linear placement keeps only part of its cross-section (as on the dense
+    # grid, whose mesh this is)
+    assert report["volume"] == pytest.approx(C.closed_report(*C.marching_cubes_closed(dense, lower, h))["volume"])
+    assert report["volume"] > 0.4 * np.pi * 0.03**2 * 1.2
+
+
 def test_voids_are_filled_and_floaters_dropped():
     """A hollow ball (shell 0.25 < r < 0.5) and a tiny ball (0.2 % of its volume): the collision mesh is the solid
     ball alone."""
