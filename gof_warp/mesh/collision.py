@@ -1,7 +1,9 @@
 """A closed triangle mesh of the opacity field for physics and printing: :func:`collision_mesh`.
 
 The extraction's mesh (:mod:`gof_warp.mesh.extraction`) drops the faces no training camera sees, so it is open
-where no photo looks. A collision mesh must be solid, so it is made differently:
+where no photo looks. A collision mesh must be solid, so it is made differently, rather than by filling the extraction's
+holes (which would have to invent surface over openings of any size and shape, in a mesh whose tetrahedral grid does
+not reach space no Gaussian covers): a dense grid whose border is empty gives a surface closed by construction.
 
 1. **Field on a grid.** The opacity field (:func:`gof_warp.rendering.opacity_field.opacity_field`) is evaluated on
    a regular grid over the box the Gaussians occupy (:func:`gof_warp.mesh.tsdf.scene_bounds`, or
