@@ -13,3 +13,9 @@ m = UsdGeom.Mesh(Usd.Stage.Open(sys.argv[1] + '/mesh_tetra.usd').GetPrimAtPath('
 save_mesh(sys.argv[1] + '/mesh_tetra.ply', np.array(m.GetPointsAttr().Get(), np.float32),
           np.array(m.GetFaceVertexIndicesAttr().Get()).reshape(-1, 3))" "$RUN"
 python benchmarks/collision/bench_collision.py "$RUN" --resolution 64 128 192 --faces 5000 20000
+# Thin structures (results_thin_scene_cpu.json):
+#   python -m gof_warp.synthetic --preset thin --out THIN_SCENE --device cpu
+#   python -m gof_warp.train THIN_SCENE --out THIN --config quick
+#   python -m gof_warp.extract THIN --binary-steps 4 --collision --no-pictures
+#   python benchmarks/collision/bench_collision.py THIN --gt THIN_SCENE/gt_mesh.ply --resolution 128 256 \
+#       --faces 20000 --out benchmarks/collision/results_thin_scene_cpu.json
