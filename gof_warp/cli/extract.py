@@ -28,10 +28,12 @@ from ..mesh.marching_inputs import MAX_BINARY_STEPS, MAX_STEPS_PER_CALL
 from ..core.io_utils import write_json_atomic
 from ..mesh.colour import SOURCES as COLOUR_SOURCES
 from ..mesh.export import FORMATS as MESH_FORMATS
-from ..mesh.export import format_of
+from ..mesh.export import USD_SUFFIXES, format_of
 from ..mesh.texture import MAX_SIDE as TEXTURE_MAX
 from ..mesh.texture import MIN_SIDE as TEXTURE_MIN
 from ..training.run_folder import cameras_from_json, load_run  # noqa: F401 - re-exported: extract.load_run is public
+from ..mesh.collision import MAX_RESOLUTION as MAX_COLLISION_RESOLUTION
+from ..mesh.collision import CollisionConfig
 from ..mesh.octree_tets import DEFAULT_CELL_FACTOR, SMALL_CELL_FACTOR, OctreeConfig
 from ..rendering.opacity_field import OpacityFieldConfig
 from ..mesh.tetra import GRIDS, TetraConfig
@@ -138,9 +140,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                              "scene the run names; on the built-in scene 1.6 dB closer to the held-out photos than gaussians: "
                              "benchmarks/extract/results/mesh_colour_fidelity_default_scene_cpu.json)")
     colour.add_argument("--format", default=None, choices=MESH_FORMATS,
-                        help="mesh file format: ply, glb (one binary glTF file) or obj (vertex colours as 'v x y z r "
-                             "g b'; with --texture, OBJ + MTL + PNG side by side) (default: from --out's suffix, .glb "
-                             "or .obj, else ply; with --texture, glb)")
+                        help="mesh file format: ply, glb (one binary glTF file), obj (vertex colours as 'v x y z r "
+                             "g b'; with --texture, OBJ + MTL + PNG side by side) or usd (a stage with the mesh, the "
+                             "training cameras and, with --collision, the collision mesh; needs gof_warp[usd]) "
+                             "(default: from --out's suffix, .glb, .obj, .usd, .usda or .usdc, else ply; with "
+                             "--texture, glb)")
     colour.add_argument("--texture", action="store_true",
                         help="bake a colour texture on a UV atlas (the optional gof_warp[texture] extra: xatlas) from "
                              "--color's source (default with --texture: photos), after any --max-faces decimation; "
@@ -149,6 +153,22 @@ def parse_args(argv=None) -> argparse.Namespace:
     colour.add_argument("--texture-size", type=int, default=None,
                         help="--texture: the texture's side in texels (default: from the face count, 16 texels per "
                              f"face at 60%% atlas fill, a multiple of 4 in [{TEXTURE_MIN}, {TEXTURE_MAX}])")
+    collision = ap.add_argument_group("collision mesh")
+    collision.add_argument("--collision", action="store_true",
+                           help="also write a closed (watertight) mesh of the opacity field for physics or printing: "
+                                "RUN/mesh_collision.ply, or <out stem>_collision.ply beside --out, and "
+                                "/World/collision in a USD stage. Space fewer than --min-views training views see is empty; what the "
+                                "views see only through the object is solid (gof_warp.mesh.collision)")
+    collision.add_argument("--collision-faces", type=int, default=CollisionConfig.max_faces,
+                           help="--collision: face budget of the collision mesh (default %(default)s)")
+    collision.add_argument("--collision-resolution", type=int, default=CollisionConfig.resolution,
+                           help="--collision: grid cells along the longest side of the Gaussians' box (default "
+                                "%(default)s)")
+    collision.add_argument("--collision-bounds", type=float, nargs=6, default=None,
+                           metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
+                           help="--collision: the box to make solid, in world units (default: the box of the "
+                                "Gaussians the cameras see; give it for a scene with a background, whose space seen "
+                                "only through the walls would otherwise be solid)")
     volume = ap.add_argument_group("other outputs")
     volume.add_argument("--volume", action="store_true",
                         help="bake the opacity field into a sparse NanoVDB volume (RUN/opacity_volume.nvdb and "
@@ -163,7 +183,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     if a.texture and not a.volume:  # --texture's defaults: photos, and a GLB unless --out or --format says otherwise
         if "color" not in a.given:
             a.color = "photos"
-        if a.format is None and (a.out is None or Path(a.out).suffix.lower().lstrip(".") not in MESH_FORMATS):
+        suffix = "" if a.out is None else Path(a.out).suffix.lower()
+        if a.format is None and suffix.lstrip(".") not in MESH_FORMATS and suffix not in USD_SUFFIXES:
             a.format = "glb"
     return a
 
@@ -187,7 +208,8 @@ MAX_DELAUNAY_WORKERS = 1024
 # flags that only a mesh uses, and those only the tetra method uses: given where they do nothing, a warning
 MESH_ONLY = ("color", "format", "texture", "texture_size", "method", "max_faces", "max_error", "levels", "keep_hidden", "min_views", "grid", "cell_factor",
              "binary_steps", "resolution", "opacity_min", "corner_min_extent", "min_component_faces", "reach_filter",
-             "band", "search_steps_per_call", "piece_tets", "delaunay", "delaunay_workers", "delaunay_processes")
+             "band", "search_steps_per_call", "piece_tets", "delaunay", "delaunay_workers", "delaunay_processes",
+             "collision_faces", "collision_resolution", "collision_bounds")
 TETRA_ONLY = ("grid", "cell_factor", "opacity_min", "corner_min_extent", "reach_filter", "band",
               "search_steps_per_call", "piece_tets", "delaunay", "delaunay_workers", "delaunay_processes")
 
@@ -251,6 +273,14 @@ def check_args(a: argparse.Namespace) -> None:
     _check_range("delaunay_workers", a.delaunay_workers, 0, MAX_DELAUNAY_WORKERS, why=" (0: every CPU)")
     _check_range("voxel_size", a.voxel_size, 0.0, above=True, why=" (world units)")
     _check_range("volume_band", a.volume_band, 0, MAX_VOLUME_BAND, why=" (voxels on each side of the level)")
+    _check_range("collision_faces", a.collision_faces, 4, INT_LIMIT)
+    _check_range("collision_resolution", a.collision_resolution, 2, MAX_COLLISION_RESOLUTION,
+                 why=" (grid cells along the longest side)")
+    if a.collision_bounds is not None:
+        b = a.collision_bounds
+        if not all(math.isfinite(x) for x in b) or not all(b[i + 3] > b[i] for i in range(3)):
+            raise GofError(f"--collision-bounds must be 6 finite numbers XMIN YMIN ZMIN XMAX YMAX ZMAX with each max "
+                           f"above its min, got {' '.join(f'{x:g}' for x in b)}")
 
     def ignored(dests, why):
         names = [_flag(d) for d in dests if d in given]
@@ -261,7 +291,7 @@ def check_args(a: argparse.Namespace) -> None:
         if "method" in given:
             raise GofError(f"--volume writes a NanoVDB opacity volume (.nvdb), not a mesh: it takes no --method "
                            f"(got --method {a.method})")
-        for dest in ("color", "format", "texture", "texture_size"):
+        for dest in ("color", "format", "texture", "texture_size", "collision"):
             if dest in given:
                 raise GofError(f"--volume writes a NanoVDB opacity volume (.nvdb), not a mesh: it takes no "
                                f"{_flag(dest)}")
@@ -276,9 +306,13 @@ def check_args(a: argparse.Namespace) -> None:
                        "none")
     if not a.texture:
         ignored(("texture_size",), "it is a --texture setting, and no --texture was given")
+    if not a.collision:
+        ignored(("collision_faces", "collision_resolution", "collision_bounds"),
+                "they are --collision settings, and no --collision was given")
     if a.out is not None and a.format is not None:
         suffix = Path(a.out).suffix.lower().lstrip(".")
-        if suffix in MESH_FORMATS and suffix != a.format:
+        named = format_of(a.out) if f".{suffix}" in USD_SUFFIXES else suffix
+        if named in MESH_FORMATS and named != a.format:
             raise GofError(f"--format {a.format}, but --out {a.out} ends in .{suffix}: give one format")
     if a.method != "tetra":
         ignored(TETRA_ONLY, f"tetra settings, and the method is {a.method}")
@@ -322,6 +356,10 @@ def extract_run(a, ranks, device) -> None:
         print(f"wrote {info['nvdb']}: {info['active_voxels']} voxels of {info['voxel_size']:.4g}, "
               f"{info['bytes'] / 2**20:.1f} MiB, {info['time_s']['total']:.1f} s")
         return
+    if format_of(mesh_base(a, run), a.format) == "usd":  # usd-core missing: said before the extraction's work
+        from ..mesh.usd_export import pxr
+
+        pxr()
     cfg = MeshConfig(method=a.method, levels=tuple(a.levels), binary_steps=a.binary_steps,
                      drop_hidden=not a.keep_hidden,
                      min_component_faces=a.min_component_faces, max_faces=a.max_faces, max_error=a.max_error,
@@ -376,11 +414,27 @@ def extract_run(a, ranks, device) -> None:
         t_colour = time.perf_counter()
         colours = mesh_vertex_colours(a, run, meshes, gaussians, cameras, views, render_config, device)
         command["colour_s"] = round(time.perf_counter() - t_colour, 3)
+    collision = None
+    if a.collision:
+        with timer("collision_mesh"):
+            collision = make_collision_mesh(a, gaussians, cameras, render_config)
     outputs = []
     t_save = time.perf_counter()
     for level, (v, f), c, tex in zip(levels, meshes, colours, textures):
         path = mesh_path(base, level, len(meshes))
-        if tex is not None:
+        if fmt == "usd":
+            from ..mesh.usd_export import write_usd
+
+            solid = None if collision is None else collision[:2]
+            if tex is not None:  # the atlas's vertices; USD's UVs have v up (ours are glTF's, v down)
+                import numpy as np
+
+                uv = np.asarray(tex.uv, np.float64)
+                write_usd(path, tex.vertices, tex.faces, cameras=cameras, collision=solid,
+                          texture=tex.texture_uint8(), uvs=np.stack([uv[:, 0], 1.0 - uv[:, 1]], 1))
+            else:
+                write_usd(path, v, f, colours=c, cameras=cameras, collision=solid)
+        elif tex is not None:
             save_textured_mesh(path, tex, fmt)
         elif fmt == "ply" and c is None:
             save_mesh(path, v, f)
@@ -392,11 +446,22 @@ def extract_run(a, ranks, device) -> None:
                                                                  "charts_fill", "best_views", "exposure", "gains")},
                             "files": [str(p) for p in textured_companions(path, fmt)]} if tex is not None else {})})
         print(f"wrote {path}: {len(v)} vertices, {len(f)} faces")
+    if collision is not None:
+        cv, cf, cinfo = collision
+        cpath = collision_path(a, run)
+        save_mesh(cpath, cv, cf)
+        check = cinfo["check"]
+        print(f"wrote {cpath}: {len(cv)} vertices, {len(cf)} faces, watertight {'yes' if check['watertight'] else 'NO'}"
+              f", winding consistent {'yes' if check['winding_consistent'] else 'NO'}, volume {check['volume']:.4g}"
+              f" ({check['components']} pieces; {cinfo['route']})")
+        outputs.append({"path": str(cpath), "collision": True, "vertices": int(len(cv)), "faces": int(len(cf)),
+                        "format": "ply"})
     command["save_s"] = round(time.perf_counter() - t_save, 3)
     summary = {
         "method": a.method, "binary_steps": a.binary_steps, "min_views": a.min_views, "num_gaussians": len(gaussians),
         "num_views": len(cameras), "device": device, "processes": ranks.world, "total_time_s": round(total, 3),
-        "command": command, "stages": timer.stages, "meshes": outputs, **({"ranks": per_rank} if ranks.active else {})}
+        "command": command, "stages": timer.stages, "meshes": outputs, **({"ranks": per_rank} if ranks.active else {}),
+        **({"collision": {k: v for k, v in collision[2].items() if k != "config"}} if collision is not None else {})}
     write_json_atomic(base.with_suffix(".json"), summary)
     if not a.no_pictures:  # a picture per mesh; a failure only warns: the mesh is already written
         from ..viz.pictures import pictures_or_warning
@@ -408,6 +473,25 @@ def extract_run(a, ranks, device) -> None:
                 print(f"wrote {p}")
         command["pictures_s"] = round(time.perf_counter() - t_pictures, 3)
         write_json_atomic(base.with_suffix(".json"), summary)  # again, with the pictures' time
+
+
+def make_collision_mesh(a, gaussians, cameras, render_config):
+    """``(vertices, faces, info)`` of the closed collision mesh (:func:`gof_warp.mesh.collision.collision_mesh`) for
+    ``--collision``."""
+    from ..mesh.collision import collision_mesh
+
+    config = CollisionConfig(resolution=a.collision_resolution, max_faces=a.collision_faces, min_views=a.min_views,
+                             bounds=None if a.collision_bounds is None else tuple(a.collision_bounds))
+    return collision_mesh(gaussians, cameras, config, render_config=render_config)
+
+
+def collision_path(a, run: Path) -> Path:
+    """Where ``--collision`` writes its PLY: ``<out stem>_collision.ply`` beside ``--out``, else
+    ``RUN/mesh_collision.ply`` (beside a PLY given as RUN)."""
+    if a.out:
+        out = Path(a.out)
+        return out.with_name(f"{out.stem}_collision.ply")
+    return (run if run.is_dir() else run.parent) / "mesh_collision.ply"
 
 
 def mesh_vertex_colours(a, run: Path, meshes, gaussians, cameras, views, render_config, device) -> list:
@@ -490,6 +574,8 @@ def check_outputs(a, run: Path) -> None:
         paths = [mesh_path(base, level, len(levels)) for level in levels] + [base.with_suffix(".json")]
         if a.texture:
             paths += [p for mesh in paths[:-1] for p in textured_companions(mesh, a.format)]
+        if a.collision:
+            paths.append(collision_path(a, run))
     for path in paths:
         check_output_path(path, protected=protected)
 

@@ -1,13 +1,15 @@
 """Mesh files with optional vertex colours: PLY (binary, ``uchar red green blue`` per vertex), GLB (one binary glTF
 file, through trimesh's exporter; colours as the ``COLOR_0`` attribute, linear as glTF defines it, with an unlit
-matte material: :func:`coloured_glb`) and OBJ (``v x y z r g b``, the common
-vertex-colour extension, colours in ``[0, 1]``). Every file is written atomically; PLY through
+matte material: :func:`coloured_glb`), OBJ (``v x y z r g b``, the common vertex-colour extension, colours in
+``[0, 1]``) and USD (``.usd``/``.usdc`` binary, ``.usda`` text; the mesh alone here, the stage with cameras and a
+collision mesh through :func:`gof_warp.mesh.usd_export.write_usd`). Every file is written atomically; PLY through
 :func:`gof_warp.core.ply.write_ply_mesh`.
 
 Textured meshes (:class:`gof_warp.mesh.texture.TexturedMesh`, :func:`save_textured_mesh`): GLB with the texture
 embedded as the PBR material's ``baseColorTexture`` (unlit, with a metallic 0 / roughness 1 fallback, double-sided:
-viewers show the photo colours); OBJ + MTL + PNG side by side (``mesh.obj`` names ``mesh.mtl``, whose ``map_Kd`` names ``mesh.png``;
-written PNG, MTL, then OBJ, each atomically); PLY keeps vertex colours, the texture sampled at each vertex.
+viewers show the photo colours); OBJ + MTL + PNG side by side (``mesh.obj`` names ``mesh.mtl``, whose ``map_Kd``
+names ``mesh.png``; written PNG, MTL, then OBJ, each atomically); USD with a UsdPreviewSurface reading
+``<stem>_texture.png`` beside the stage; PLY keeps vertex colours, the texture sampled at each vertex.
 """
 
 from __future__ import annotations
@@ -20,16 +22,19 @@ from ..core.arrays import check_triangles
 from ..core.errors import GofError
 from ..core.io_utils import atomic_path, write_bytes_atomic
 
-FORMATS = ("ply", "glb", "obj")
+FORMATS = ("ply", "glb", "obj", "usd")
+USD_SUFFIXES = (".usd", ".usda", ".usdc")
 
 
 def format_of(path, fmt: str | None = None) -> str:
-    """The file format: ``fmt`` when given, else the suffix of ``path`` when it is ``.glb`` or ``.obj``, else
-    ``ply``."""
+    """The file format: ``fmt`` when given, else the suffix of ``path`` when it is ``.glb`` or ``.obj``, ``usd``
+    for ``.usd``, ``.usda`` and ``.usdc``, else ``ply``."""
     if fmt is not None:
         if fmt not in FORMATS:
             raise GofError(f"mesh format must be one of {FORMATS}, got {fmt!r}")
         return fmt
+    if Path(path).suffix.lower() in USD_SUFFIXES:
+        return "usd"
     suffix = Path(path).suffix.lower().lstrip(".")
     return suffix if suffix in ("glb", "obj") else "ply"
 
@@ -113,6 +118,10 @@ def save_mesh_file(path, vertices, faces, colours=None, fmt: str | None = None) 
         from ..core.ply import write_ply_mesh
 
         write_ply_mesh(path, v, f, c)
+    elif fmt == "usd":
+        from .usd_export import write_usd
+
+        write_usd(path, v, f, colours=c)
     elif fmt == "obj":
         _write_obj(path, v, f, c)
     elif c is not None:
@@ -126,10 +135,13 @@ def save_mesh_file(path, vertices, faces, colours=None, fmt: str | None = None) 
 
 
 def textured_companions(path, fmt: str | None = None) -> list[Path]:
-    """The files besides ``path`` that :func:`save_textured_mesh` writes: ``[<stem>.mtl, <stem>.png]`` for OBJ,
-    none for GLB and PLY."""
+    """The files besides ``path`` that a textured mesh writes: ``[<stem>.mtl, <stem>.png]`` for OBJ,
+    ``[<stem>_texture.png]`` for USD (:func:`gof_warp.mesh.usd_export.texture_path`), none for GLB and PLY."""
     p = Path(path)
-    return [p.with_suffix(".mtl"), p.with_suffix(".png")] if format_of(p, fmt) == "obj" else []
+    fmt = format_of(p, fmt)
+    if fmt == "usd":
+        return [p.with_name(f"{p.stem}_texture.png")]
+    return [p.with_suffix(".mtl"), p.with_suffix(".png")] if fmt == "obj" else []
 
 
 def save_textured_mesh(path, textured, fmt: str | None = None) -> str:

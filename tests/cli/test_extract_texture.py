@@ -63,3 +63,29 @@ def test_texture_size_without_texture_warns(caplog):
     with caplog.at_level(logging.WARNING, logger="gof_warp.extract"):
         extract.check_args(extract.parse_args(["run", "--texture-size", "512"]))
     assert any("--texture-size" in r.getMessage() and "ignored" in r.getMessage() for r in caplog.records)
+
+
+def test_textured_usd_stage_with_its_texture_beside_it(colour_run, tmp_path, cli_in_process):  # noqa: F811
+    """``--texture --format usd``: the stage's mesh is the atlas's, with a UsdPreviewSurface reading the texture PNG
+    written beside it (USD's UVs: v up)."""
+    pytest.importorskip("pxr", reason="USD output needs the optional usd-core (gof-warp[usd] / [test])")
+    from pxr import Usd, UsdGeom, UsdShade
+
+    stage_path = tmp_path / "t.usda"
+    _extract(cli_in_process, colour_run, "--out", str(stage_path), "--texture", "--color", "gaussians",
+             "--texture-size", "64", "--max-faces", "300")
+    png = tmp_path / "t_texture.png"
+    assert png.is_file()
+    stage = Usd.Stage.Open(str(stage_path))
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/World/mesh"))
+    st = UsdGeom.PrimvarsAPI(mesh.GetPrim()).GetPrimvar("st")
+    uv = np.asarray(st.Get())
+    assert len(uv) and uv.min() >= -1e-6 and uv.max() <= 1 + 1e-6
+    material, _ = UsdShade.MaterialBindingAPI(mesh.GetPrim()).ComputeBoundMaterial()
+    assert material
+    files = [str(p.GetAttribute("inputs:file").Get()) for p in stage.Traverse() if p.GetAttribute("inputs:file")]
+    assert any("t_texture.png" in f for f in files)
+    # the texture's bytes: an RGB image of the size asked for
+    from PIL import Image
+
+    assert Image.open(png).size == (64, 64)
