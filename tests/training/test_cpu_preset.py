@@ -148,3 +148,26 @@ def test_train_plan_line(big_scene):
     assert line.startswith("plan: preset cpu, 1500 iterations, training views 200x150 px (data.downscale 2)")
     assert "roughly 6:00" in line  # 1500 × 8 s × 0.03 MP = 360 s
     assert "no time model" in train.plan_line("cpu", cfg, load_scene(big_scene, DataConfig(), device="cpu"), "mps")
+
+
+def test_pace_line_after_the_first_iterations(caplog):
+    """One log line after ETA_AFTER_ITERATIONS iterations past the first: their pace, and the time left × 1.5."""
+    import logging
+
+    from gof_warp.core.progress import format_seconds
+    from gof_warp.training.schedule import ETA_AFTER_ITERATIONS as n
+
+    seen = []
+    pace = train._Pace(lambda it, info: seen.append(it), start=10, total=500, device="cpu", quiet=False)
+    now = {"it": 0}
+    pace.clock = lambda: 2.0 * now["it"]  # 2 s an iteration
+    with caplog.at_level(logging.INFO, logger="gof_warp.cli.train"):
+        for it in range(11, 11 + n + 5):
+            now["it"] = it
+            pace(it, {})
+    lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("pace")]
+    left = 500 - (11 + n)
+    assert seen == list(range(11, 11 + n + 5))
+    assert lines == [f"pace after {n} iterations: 2.000 s an iteration; about "
+                     f"{format_seconds(left * 2.0 * 1.5)} of "
+                     "training left (rough: later iterations draw more Gaussians)"]
