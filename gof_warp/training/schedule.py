@@ -80,10 +80,11 @@ def cpu_downscale(width: int, height: int, max_pixels: int = CPU_MAX_PIXELS) -> 
 
 # ------------------------------------------------------------------------------------- expected time
 #: seconds of one training iteration per megapixel of the training view on a CPU, and how much slower the whole
-#: run's mean iteration is than its first ones (the model grows by densification). Both measured with the cpu
-#: preset on the fox (benchmarks/cpu_preset), as process CPU time: an estimate, not a promise.
-CPU_SECONDS_PER_MEGAPIXEL = 8.0
-CPU_GROWTH = 1.5
+#: run's mean iteration is than its first ones (the model grows by densification, the regularisers start). Both
+#: from the cpu preset on the fox (benchmarks/cpu_preset: 1.39 process-CPU seconds an iteration at 0.0576 MP, on a
+#: 2-core box shared with other jobs, so upper bounds): an estimate, not a promise.
+CPU_SECONDS_PER_MEGAPIXEL = 24.0
+CPU_GROWTH = 1.8
 #: seconds of one iteration on a CUDA GPU, whatever the image size (an H100: DTU scan24 at 800×600, 30,000
 #: iterations in 296 s, benchmarks/RESULTS.md); at the small sizes of the cpu preset launches dominate, not pixels.
 CUDA_SECONDS_PER_ITERATION = 0.01

@@ -132,11 +132,11 @@ def test_inspect_downscale(big_scene, capsys):
 
 
 def test_expected_time_model():
-    """CPU: iterations × 8 s per megapixel; CUDA: 10 ms an iteration; unknown devices: no estimate."""
-    assert expected_train_seconds(1500, 57_600, "cpu") == pytest.approx(1500 * 8.0 * 0.0576)
+    """CPU: iterations × 24 s per megapixel; CUDA: 10 ms an iteration; unknown devices: no estimate."""
+    assert expected_train_seconds(1500, 57_600, "cpu") == pytest.approx(1500 * 24.0 * 0.0576)
     assert expected_train_seconds(1000, 10**6, "cuda:0") == pytest.approx(10.0)
     assert expected_train_seconds(10, 10, "mps") is None
-    assert eta_from_pace(0.5, 100, "cpu") == pytest.approx(75.0) and eta_from_pace(0.5, 100, "cuda") == 50.0
+    assert eta_from_pace(0.5, 100, "cpu") == pytest.approx(90.0) and eta_from_pace(0.5, 100, "cuda") == 50.0
 
 
 def test_train_plan_line(big_scene):
@@ -146,12 +146,12 @@ def test_train_plan_line(big_scene):
     scene = load_scene(big_scene, cfg.data, device="cpu")
     line = train.plan_line("cpu", cfg, scene, "cpu")
     assert line.startswith("plan: preset cpu, 1500 iterations, training views 200x150 px (data.downscale 2)")
-    assert "roughly 6:00" in line  # 1500 × 8 s × 0.03 MP = 360 s
+    assert "roughly 18:00" in line  # 1500 × 24 s × 0.03 MP = 1080 s
     assert "no time model" in train.plan_line("cpu", cfg, load_scene(big_scene, DataConfig(), device="cpu"), "mps")
 
 
 def test_pace_line_after_the_first_iterations(caplog):
-    """One log line after ETA_AFTER_ITERATIONS iterations past the first: their pace, and the time left × 1.5."""
+    """One log line after ETA_AFTER_ITERATIONS iterations past the first: their pace, and the time left × 1.8."""
     import logging
 
     from gof_warp.core.progress import format_seconds
@@ -169,5 +169,5 @@ def test_pace_line_after_the_first_iterations(caplog):
     left = 500 - (11 + n)
     assert seen == list(range(11, 11 + n + 5))
     assert lines == [f"pace after {n} iterations: 2.000 s an iteration; about "
-                     f"{format_seconds(left * 2.0 * 1.5)} of "
+                     f"{format_seconds(left * 2.0 * 1.8)} of "
                      "training left (rough: later iterations draw more Gaussians)"]
