@@ -13,6 +13,18 @@ import sys
 from typing import Callable
 
 
+def downscale_arg(text: str) -> int:
+    """``--downscale``'s value: an integer >= 1 (argparse reports anything else as a usage error, exit 2)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1 or str(value) != text.strip().lstrip("+"):
+        raise argparse.ArgumentTypeError(f"must be an integer >= 1 that divides the resolution (1: full size), "
+                                         f"got {text!r}")
+    return value
+
+
 class HelpFormatter(argparse.RawDescriptionHelpFormatter):
     """The commands' ``--help`` layout: description and epilog printed as written (plain text, line breaks
     kept), and ``(default: X)`` after an option's help unless that help already states its default. A flag that

@@ -15,7 +15,7 @@ import sys
 
 import numpy as np
 
-from .common import HelpFormatter, configure_output, run_command
+from .common import HelpFormatter, configure_output, downscale_arg, run_command
 
 _PINHOLE = ("PINHOLE", "SIMPLE_PINHOLE")
 
@@ -72,7 +72,8 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m gof_warp.inspect", description=DESCRIPTION,
                                      formatter_class=HelpFormatter)
     parser.add_argument("scene", help="scene folder (COLMAP, Blender, instant-ngp or NeuS/DTU)")
-    parser.add_argument("--downscale", type=float, default=1.0, help="divide the resolution by this factor (>= 1)")
+    parser.add_argument("--downscale", type=downscale_arg, default=1, metavar="N",
+                        help="divide the resolution by the integer N >= 1 (default: 1, full size)")
     parser.add_argument("--test-every", type=int, default=8, help="every N-th view is a test view (0: none)")
     parser.add_argument("--memory-budget", type=float, default=8.0, help="decoded-image budget in GB")
     parser.add_argument("--undistort", choices=("valid", "same"), default="valid", help="pinhole camera after undistortion: valid (only pixels with data) or same (the original field of view)")

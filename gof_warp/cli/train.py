@@ -24,7 +24,7 @@ import shlex
 import sys
 from pathlib import Path
 
-from .common import HelpFormatter, configure_output, run_command
+from .common import HelpFormatter, configure_output, downscale_arg, run_command
 from ..core.errors import GofError
 from ..training.presets import PRESETS, preset_path, resolve_config  # noqa: F401 - importable from the command too
 from ..core.progress import TrainingProgress
@@ -64,6 +64,9 @@ def main(argv=None) -> int:
                                                    "folder, printed with its reason)")
     ap.add_argument("--iterations", type=int, default=None,
                     help="training iterations (default: the config's)")
+    ap.add_argument("--downscale", type=downscale_arg, default=None, metavar="N",
+                    help="divide the image resolution by the integer N >= 1 (same as data.downscale=N, and wins over "
+                         "it; default: the preset's: 1 for most, chosen from the image size for cpu)")
     ap.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto")
     ap.add_argument("--resume", action="store_true", help="continue from the newest checkpoint in --out")
     ap.add_argument("--overwrite", action="store_true", help="train anew into an --out that holds a finished run or "
@@ -99,6 +102,8 @@ def resume_command(a) -> str:
         words += ["--config", a.config]
     if a.iterations is not None:
         words += ["--iterations", str(a.iterations)]
+    if a.downscale is not None:
+        words += ["--downscale", str(a.downscale)]
     if a.device != "auto":
         words += ["--device", a.device]
     words += [flag for flag, on in (("--no-pictures", a.no_pictures), ("--quiet", a.quiet), ("--viewer", a.viewer)) if on]
@@ -118,6 +123,61 @@ def _interrupted_note(a, e: KeyboardInterrupt) -> str:
     if has_checkpoints(_out_dir(a)):
         return f"the newest checkpoint in the run folder is intact; continue with: {resume_command(a)}"
     return "no checkpoint was written yet; run the command again to start"
+
+
+CPU_HINT_ITERATIONS = 10_000  # a preset this long on the CPU gets a hint towards --config cpu
+
+
+def plan_line(preset: str, cfg, scene, device: str, start: int = 0) -> str:
+    """One line on what the run will do: preset, iterations, training resolution and an expected time on
+    ``device`` (:func:`gof_warp.training.schedule.expected_train_seconds`, a rough model)."""
+    from ..core.progress import format_seconds
+    from ..training.schedule import expected_train_seconds
+
+    cams = [v.camera for v in scene.train] or [v.camera for v in scene.all_views]
+    w, h = max(((c.width, c.height) for c in cams), key=lambda wh: wh[0] * wh[1])
+    left = cfg.iterations - start
+    expected = expected_train_seconds(left, w * h, device)
+    if expected is None:
+        guess = f"no time model for device {device}"
+    else:
+        guess = f"expected training time on {device} roughly {format_seconds(expected)} (an ETA follows after " \
+                f"{_eta_after()} iterations)"
+    return (f"plan: preset {preset}, {cfg.iterations} iterations, training views {w}x{h} px "
+            f"(data.downscale {cfg.data.downscale:g}); {guess}")
+
+
+def _eta_after() -> int:
+    from ..training.schedule import ETA_AFTER_ITERATIONS
+
+    return ETA_AFTER_ITERATIONS
+
+
+class _Pace:
+    """The progress callback, plus one line after the first :data:`~gof_warp.training.schedule.ETA_AFTER_ITERATIONS`
+    iterations of this command: their pace and the time left at it
+    (:func:`~gof_warp.training.schedule.eta_from_pace`)."""
+
+    def __init__(self, progress, start: int, total: int, device: str, quiet: bool):
+        import time
+
+        self.progress, self.start, self.total, self.device, self.quiet = progress, start, total, device, quiet
+        self.clock = time.perf_counter
+        self.t_first: float | None = None
+
+    def __call__(self, it: int, info: dict) -> None:
+        self.progress(it, info)
+        n = _eta_after()
+        if self.t_first is None:
+            self.t_first = self.clock()  # the first iteration's compiling and caching are not the pace
+        elif it == self.start + 1 + n and not self.quiet and self.total - it > n:
+            from ..core.progress import format_seconds
+            from ..training.schedule import eta_from_pace
+
+            pace = (self.clock() - self.t_first) / n
+            log.info("pace after %d iterations: %.3f s an iteration; about %s of training left (rough: later "
+                     "iterations draw more Gaussians)", n, pace,
+                     format_seconds(eta_from_pace(pace, self.total - it, self.device)))
 
 
 def _start_viewer(a, trainer, out: Path):
@@ -174,7 +234,7 @@ def _run(a) -> int:
     from ..training.run_folder import lock_run_folder, remove_if_empty
 
     scenes = [x for x in a.args if "=" not in x]
-    overrides = [x for x in a.args if "=" in x]
+    overrides = [x for x in a.args if "=" in x] + ([f"data.downscale={a.downscale}"] if a.downscale else [])
     if len(scenes) > 1:
         raise GofError(f"give one scene folder, got {scenes}")
     builtin = not scenes
@@ -240,9 +300,12 @@ def _train(a, out: Path, scenes: list[str], overrides: list[str], builtin: bool)
         choice = choose_preset(scenes[0])
         log.info("%s", choice.describe())
         preset = choice.preset
-    cfg = resolve_config(preset, overrides, a.iterations)
+    cfg = resolve_config(preset, overrides, a.iterations, scene=None if builtin else scenes[0])
     ranks = ranks_from_environment()  # several processes under torchrun: data-parallel (gof_warp.training.distributed)
     device = rank_device(pick_device(a.device), ranks)
+    if a.config is None and not builtin and device == "cpu" and cfg.iterations >= CPU_HINT_ITERATIONS:
+        log.info("on the CPU %d iterations take hours; --config cpu trains a real capture in minutes at a reduced "
+                 "resolution (README: your own photos)", cfg.iterations)
     if builtin:
         from ..synthetic import make_scene
 
@@ -262,6 +325,8 @@ def _train(a, out: Path, scenes: list[str], overrides: list[str], builtin: bool)
     log.info("scene %s: %d train / %d test views, extent %.3f; device %s", scene_dir, len(scene.train), len(scene.test),
              scene.extent, device)
     _check_device_memory(scene, cfg, device)
+    if ranks.is_main:
+        print(plan_line(preset, cfg, scene, device, start=0), flush=True)
     trainer = Trainer(scene, cfg, out, device, scene_path=scene_dir, ranks=ranks)
     if ranks.active:
         log.info("rank %d of %d on %s, %d views per step", ranks.rank, ranks.world, device, trainer.views_per_step)
@@ -271,7 +336,8 @@ def _train(a, out: Path, scenes: list[str], overrides: list[str], builtin: bool)
     viewer = _start_viewer(a, trainer, out) if a.viewer and ranks.is_main else None
     try:
         with TrainingProgress(cfg.iterations, start=trainer.iteration, quiet=a.quiet or not ranks.is_main) as progress:
-            metrics = trainer.run(progress=_on_iteration(progress, viewer, a.viewer_every, trainer),
+            pace = _Pace(progress, trainer.iteration, cfg.iterations, device, quiet=a.quiet or not ranks.is_main)
+            metrics = trainer.run(progress=_on_iteration(pace, viewer, a.viewer_every, trainer),
                                   on_snapshot=None if a.no_pictures else _snapshot_pictures,
                                   on_spike=None if a.no_pictures else _spike_pictures)
         if not ranks.is_main:

@@ -28,7 +28,9 @@ import numpy as np
 
 from ..core.config import ConfigError, combine_overrides, from_dict, load_yaml, merge
 
-PRESETS = ("auto", "quick", "blender", "unbounded", "dtu", "tnt", "mipnerf360")
+PRESETS = ("auto", "quick", "cpu", "blender", "unbounded", "dtu", "tnt", "mipnerf360")
+#: presets whose schedule and image size are derived for the run (:func:`resolve_config`)
+SIZED_PRESETS = ("cpu",)
 
 
 def preset_path(name_or_path: str) -> Path:
@@ -44,14 +46,49 @@ def preset_path(name_or_path: str) -> Path:
     return candidate
 
 
-def resolve_config(config: str, overrides: list[str], iterations: int | None):
+def resolve_config(config: str, overrides: list[str], iterations: int | None, scene=None):
+    """The :class:`~gof_warp.training.trainer.TrainConfig` of preset (or YAML path) ``config`` with the
+    ``key=value`` ``overrides`` and ``iterations`` (None: the preset's) applied.
+
+    The ``cpu`` preset (:data:`SIZED_PRESETS`) gets two settings derived for the run, between the YAML and the
+    overrides (so an override wins): GOF's schedule compressed to the run's iteration count
+    (:func:`~gof_warp.training.schedule.compress_schedule`) and, when the scene folder ``scene`` is given,
+    ``data.downscale`` from its largest image (:func:`~gof_warp.training.schedule.cpu_downscale`)."""
     from .trainer import TrainConfig
 
     cfg = from_dict(TrainConfig, load_yaml(preset_path(config)), f"config {config}")
     combined = combine_overrides(overrides)
     if iterations is not None:
         combined["iterations"] = iterations
-    return merge(cfg, combined, "overrides " + " ".join(overrides)) if combined else cfg
+    where = "overrides " + " ".join(overrides)
+    if config in SIZED_PRESETS:
+        user = merge(cfg, combined, where) if combined else cfg  # the overrides checked, and the run's length
+        cfg = merge(cfg, sized_settings(user, scene), f"the {config} preset's settings for this run")
+    return merge(cfg, combined, where) if combined else cfg
+
+
+def sized_settings(cfg, scene=None) -> dict:
+    """What the ``cpu`` preset derives for a run of ``cfg.iterations`` on the scene folder ``scene`` (None: no
+    downscale): the compressed schedule and ``data.downscale``, as a nested override mapping."""
+    from .schedule import compress_schedule, cpu_downscale
+
+    out = compress_schedule(cfg.iterations)
+    if scene is not None:
+        width, height = largest_image(scene, cfg.data)
+        out["data"] = {"downscale": cpu_downscale(width, height)}
+    return out
+
+
+def largest_image(scene, data_config) -> tuple[int, int]:
+    """``(width, height)`` of the scene folder's image with the most pixels, from the file headers (nothing is
+    decoded)."""
+    from ..data import read_plan
+    from ..data.images import read_header
+
+    sizes = [(h.width, h.height) for h in (read_header(v.image_path) for v in read_plan(scene, data_config).views)]
+    if not sizes:
+        raise ConfigError(f"{scene}: the scene has no images to size the cpu preset by")
+    return max(sizes, key=lambda wh: wh[0] * wh[1])
 
 
 ALPHA_PROBE_VIEWS = 3
