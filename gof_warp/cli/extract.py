@@ -426,12 +426,9 @@ def extract_run(a, ranks, device) -> None:
             from ..mesh.usd_export import write_usd
 
             solid = None if collision is None else collision[:2]
-            if tex is not None:  # the atlas's vertices; USD's UVs have v up (ours are glTF's, v down)
-                import numpy as np
-
-                uv = np.asarray(tex.uv, np.float64)
+            if tex is not None:  # the atlas's vertices; USD's UVs have v up
                 write_usd(path, tex.vertices, tex.faces, cameras=cameras, collision=solid,
-                          texture=tex.texture_uint8(), uvs=np.stack([uv[:, 0], 1.0 - uv[:, 1]], 1))
+                          texture=tex.texture_uint8(), uvs=tex.uv_up())
             else:
                 write_usd(path, v, f, colours=c, cameras=cameras, collision=solid)
         elif tex is not None:

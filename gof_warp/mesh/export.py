@@ -140,7 +140,9 @@ def textured_companions(path, fmt: str | None = None) -> list[Path]:
     p = Path(path)
     fmt = format_of(p, fmt)
     if fmt == "usd":
-        return [p.with_name(f"{p.stem}_texture.png")]
+        from .usd_export import texture_path
+
+        return [texture_path(p)]
     return [p.with_suffix(".mtl"), p.with_suffix(".png")] if fmt == "obj" else []
 
 
@@ -163,7 +165,7 @@ def save_textured_mesh(path, textured, fmt: str | None = None) -> str:
     from PIL import Image
 
     image = Image.fromarray(tex, "RGB")
-    gl_uv = np.stack([uv[:, 0], 1.0 - uv[:, 1]], 1)  # OpenGL/OBJ convention: v up (trimesh flips it for glTF)
+    gl_uv = textured.uv_up()  # OpenGL/OBJ convention: v up (trimesh flips it for glTF)
     if fmt == "glb":
         import trimesh
         from trimesh.visual.material import PBRMaterial

@@ -121,6 +121,12 @@ class TexturedMesh:
     vmap: np.ndarray
     info: dict
 
+    def uv_up(self) -> np.ndarray:
+        """``uv`` in the OpenGL / OBJ / USD convention, ``v`` up (``(0, 0)`` at the image's bottom-left): ``[V', 2]``
+        float64."""
+        uv = np.asarray(self.uv, np.float64)
+        return np.stack([uv[:, 0], 1.0 - uv[:, 1]], 1)
+
     def texture_uint8(self) -> np.ndarray:
         """The texture as ``[S, S, 3]`` uint8 (rounded)."""
         return np.round(np.clip(self.texture, 0.0, 1.0) * 255.0).astype(np.uint8)

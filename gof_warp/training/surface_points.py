@@ -78,20 +78,12 @@ def surface_points(gaussians, cameras: list[Camera], config: RenderConfig | None
 
 def _agrees(points: torch.Tensor, camera: Camera, grid: torch.Tensor, stride: int, rel_tol: float) -> torch.Tensor:
     """``[P]`` int64: 1 where ``camera``'s depth grid (0: no opaque surface) holds ``points``' depth at their pixel."""
-    R = torch.as_tensor(camera.R, dtype=points.dtype, device=points.device)
-    t = torch.as_tensor(camera.t, dtype=points.dtype, device=points.device)
-    pc = points @ R.T + t
-    z = pc[:, 2]
-    front = z > 0
-    zs = torch.where(front, z, torch.ones_like(z))
-    px = camera.fx * pc[:, 0] / zs + camera.cx
-    py = camera.fy * pc[:, 1] / zs + camera.cy
+    px, py, z, inside = camera.in_image_tensor(points)
     h, w = grid.shape
     # the nearest grid sample: sample k sits at pixel centre stride // 2 + k · stride + 0.5
     gx = torch.round((px - 0.5 - stride // 2) / stride).long()
     gy = torch.round((py - 0.5 - stride // 2) / stride).long()
-    inside = front & (px >= 0) & (px < camera.width) & (py >= 0) & (py < camera.height) & \
-        (gx >= 0) & (gx < w) & (gy >= 0) & (gy < h)
+    inside &= (gx >= 0) & (gx < w) & (gy >= 0) & (gy < h)
     d = torch.zeros_like(z)
     d[inside] = grid[gy[inside], gx[inside]]
     return (inside & (d > 0) & ((z - d).abs() <= rel_tol * z)).long()
