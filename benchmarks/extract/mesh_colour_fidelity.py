@@ -30,19 +30,18 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
 
     from gof_warp.cli.extract import run_photos
-    from gof_warp.core.camera import Camera
     from gof_warp.core.devices import resolve_device, warp_device
     from gof_warp.eval.image_metrics import psnr, ssim
     from gof_warp.mesh.colour import colours_from_images, gaussian_images, mesh_render_psnr, render_vertex_colours
     from gof_warp.mesh.decimate import decimate
     from gof_warp.mesh.extraction import MeshConfig, extract_mesh
-    from gof_warp.training.run_folder import load_run
+    from gof_warp.training.run_folder import cameras_from_json, load_run
 
     run = Path(a.run)
     device = resolve_device(a.device)
     wdev = warp_device(device)
     gaussians, train_cams, _, render_config = load_run(run, None, device)
-    test_cams = [Camera.from_dict(c) for c in json.loads((run / "cameras.json").read_text()).get("test", [])]
+    test_cams = cameras_from_json(run / "cameras.json", "test")
     train_photos = run_photos(run, train_cams, device)
     test_photos = run_photos(run, test_cams, device)
     if train_photos is None or test_photos is None or not test_cams:

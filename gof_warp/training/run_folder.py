@@ -60,10 +60,11 @@ def load_run(run: Path, scene: str | None, device: str):
     return gaussians, cameras, views, render_config
 
 
-def cameras_from_json(path: Path) -> list[Camera]:
+def cameras_from_json(path: Path, split: str = "train") -> list[Camera]:
+    """The ``split`` (``"train"`` or ``"test"``) cameras of a run's ``cameras.json``; :class:`GofError` when unreadable."""
     try:
         data = json.loads(path.read_text())
-        return [Camera.from_dict(c) for c in data["train"]]
+        return [Camera.from_dict(c) for c in data[split]]
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise GofError(f"{path}: cannot read cameras: {e}") from None
 
