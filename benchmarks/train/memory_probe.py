@@ -10,7 +10,8 @@ no synchronisation) and the number of the allocator's ``cudaMalloc`` calls and f
 
 With ``--history``, torch's allocation history (``torch.cuda.memory._record_memory_history``, Python stacks, the last
 ``--history`` events) is recorded and dumped (``snapshot.pickle``, readable with ``torch.cuda.memory._snapshot`` tools
-or https://pytorch.org/memory_viz) the first time reserved memory grows by more than ``--jump-mb`` in one iteration,
+or https://pytorch.org/memory_viz) the first time reserved memory grows by more than ``--jump-mb`` in one iteration (or exceeds the allocated memory
+by ``--gap-mb``),
 together with a summary of the segments: per stream, and the Python frame that allocated each segment.
 
 Writes ``DIR/memory_probe.json``: per-iteration ``[iteration, gaussians, allocated_mb, reserved_mb, mallocs, frees]``,
@@ -57,7 +58,13 @@ def main(argv=None) -> int:
     ap.add_argument("--alloc-conf", default=None, help="torch allocator settings, e.g. expandable_segments:True")
     ap.add_argument("--history", type=int, default=0, help="record this many allocation events (0: off)")
     ap.add_argument("--jump-mb", type=float, default=1024.0)
+    ap.add_argument("--gap-mb", type=float, default=3072.0,
+                    help="also dump when reserved exceeds allocated by this much (a gradual growth)")
     ap.add_argument("--cap-gb", type=float, default=None, help="torch.cuda.set_per_process_memory_fraction to this size")
+    ap.add_argument("--cudnn-benchmark", choices=("on", "off"), default="on",
+                    help="cuDNN's autotuner during the loop (the trainer keeps it on)")
+    ap.add_argument("--empty-cache-on-change", action="store_true",
+                    help="torch.cuda.empty_cache() after every iteration that changed the Gaussian count")
     ap.add_argument("overrides", nargs="*")
     a = ap.parse_intermixed_args(argv)
 
@@ -84,18 +91,24 @@ def main(argv=None) -> int:
     mb = 2**20
     last_reserved = 0
     t0 = time.perf_counter()
-    with cudnn_benchmark(True):
+    torch.backends.cudnn.benchmark = False
+    with cudnn_benchmark(a.cudnn_benchmark == "on"):
         trainer._warm_up()
         t_loop = time.perf_counter()
         while trainer.iteration < cfg.iterations:
+            n_before = len(trainer.gaussians)
             trainer._pending.add(*trainer._step())
+            if a.empty_cache_on_change and len(trainer.gaussians) != n_before:
+                torch.cuda.empty_cache()
             if len(trainer._pending) >= 50:
                 trainer._drain()
             s = torch.cuda.memory_stats(device)
             reserved = s["reserved_bytes.all.current"]
             rows.append([trainer.iteration, len(trainer.gaussians), round(s["allocated_bytes.all.current"] / mb, 1),
                          round(reserved / mb, 1), s.get("num_device_alloc", 0), s.get("num_device_free", 0)])
-            if a.history and dumped is None and reserved - last_reserved > a.jump_mb * mb:
+            allocated = s["allocated_bytes.all.current"]
+            if a.history and dumped is None and (reserved - last_reserved > a.jump_mb * mb
+                                                 or reserved - allocated > a.gap_mb * mb):
                 snap = torch.cuda.memory._snapshot()
                 with open(a.out / "snapshot.pickle", "wb") as f:
                     pickle.dump(snap, f)
@@ -109,8 +122,11 @@ def main(argv=None) -> int:
     peaks = {"max_reserved_mb": round(torch.cuda.max_memory_reserved(device) / mb, 1),
              "max_allocated_mb": round(torch.cuda.max_memory_allocated(device) / mb, 1)}
     snap_end = _segments_summary(torch.cuda.memory._snapshot())
+    stats = torch.cuda.memory_stats(device)
+    peaks.update({k: stats.get(k, 0) for k in ("num_alloc_retries", "num_ooms", "num_device_alloc", "num_device_free")})
     result = {"scene": a.scene, "config": a.config, "overrides": a.overrides, "alloc_conf": a.alloc_conf,
-              "cap_gb": a.cap_gb, "device": torch.cuda.get_device_name(device), "torch": torch.__version__,
+              "cap_gb": a.cap_gb, "cudnn_benchmark": a.cudnn_benchmark,
+              "empty_cache_on_change": a.empty_cache_on_change, "device": torch.cuda.get_device_name(device), "torch": torch.__version__,
               "loop_s": round(t_end - t_loop, 2), "total_s": round(t_end - t0, 2), **peaks, "jump": dumped,
               "segments_at_end": snap_end, "rows": rows}
     (a.out / "memory_probe.json").write_text(json.dumps(result))

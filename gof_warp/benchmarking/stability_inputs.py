@@ -321,6 +321,16 @@ def _cases(root: Path):
     yield "extract_out_over_the_model", "options", "error", "", extract_args(
         "over_model", out=lambda ply: ply, watch=True)
 
+    def camera_inside(name):  # one more camera at the centre of the good model's shell, looking out
+        from ..core.camera import look_at
+
+        inner = look_at([0.0, 0.0, 0.0], [1.0, 0.0, 0.1], fx=0.9 * SIZE, width=SIZE, height=SIZE, name="inside")
+        folder = write_transforms(root / name, [*cams[:3], inner, *cams[3:]])  # a training view (not every 8th)
+        argv = [write_ply(root / "good.ply", "good"), "--scene", folder, "--out", root / f"{name}.ply",
+                "--binary-steps", 2, "--no-pictures", "--quiet"]
+        return {"method": "extract", **run_cli(extract.main, argv)}
+    yield "camera_inside_the_object", "scene", "warning", "inside what the other views see as solid", camera_inside
+
     def empty_mesh(name):
         mesh = root / f"{name}.ply"
         mesh.write_bytes(b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"

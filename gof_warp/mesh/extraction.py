@@ -34,7 +34,8 @@ from ..training.distributed import Ranks
 from ..core.errors import GofError, ModelError
 from .marching import compact_mesh, marching_tetrahedra, merge_keyed_pieces, search_edges
 from .marching_inputs import MAX_BINARY_STEPS, MAX_STEPS_PER_CALL
-from ..rendering.opacity_field import OpacityFieldConfig, opacity_field
+from ..rendering.opacity_field import (OpacityFieldConfig, cameras_inside_message, cameras_inside_surfaces,
+                                      opacity_field)
 from ..rendering.render import RenderConfig
 from .tetra import TetraConfig, grid_points, level_band, octree_tets_from_gaussians, tetrahedralize
 from .tsdf import TSDFConfig, extract_tsdf_mesh, fuse_tsdf
@@ -499,6 +500,12 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
     if len(gaussians) == 0:
         raise GofError("the model has no Gaussians: nothing to extract")
     gaussians = meshable(gaussians)
+    if ranks.is_main:  # a camera inside the solid gets a cavity carved around it: say so before the work
+        with timer("cameras_inside"):
+            inside = cameras_inside_surfaces(gaussians, cameras, render_config=render_config)
+        timer.stages["cameras_inside"]["cameras"] = [c.name for c in inside]
+        if inside:
+            log.warning("warning: %s", cameras_inside_message(inside, len(cameras)))
 
     def field_fn(points, field_config=config.field):
         ranks.check_same_points(points, "opacity field")

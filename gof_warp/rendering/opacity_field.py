@@ -205,3 +205,121 @@ def _in_forked_processes(arrays, views, pts: np.ndarray, workers: int, chunk_siz
     inputs = (arrays, views, np.ascontiguousarray(pts, np.float32), bounds, chunk_size)
     parts = map_forked(_part, inputs, workers, workers)
     return np.concatenate([f for f, _ in parts]), np.concatenate([c for _, c in parts])
+
+
+# ----------------------------------------------------------------------------------------- cameras inside surfaces
+@dataclass
+class CameraInside:
+    """A camera whose own free space the other views see as solid (:func:`cameras_inside_surfaces`)."""
+
+    index: int  # into the cameras given
+    name: str
+    solid_fraction: float  # of the tested points in front of it (its free space) that the other views see as solid
+    tested: int  # points tested (seen by at least one other view)
+
+
+def _owned_slices(views, pts: torch.Tensor, bounds, field: torch.Tensor, seen: torch.Tensor, arrays, own: bool):
+    """Lower ``field`` / count ``seen`` at ``pts``: view ``j`` evaluated on its own block ``bounds[j]:bounds[j+1]``
+    (``own``) or on every other block (``not own``). The view's binning is done once either way."""
+    for j, (cp, settings) in enumerate(views):
+        lo, hi = int(bounds[j]), int(bounds[j + 1])
+        parts = [(lo, hi)] if own else [(0, lo), (hi, pts.shape[0])]
+        parts = [(a, b) for a, b in parts if b > a]
+        if not parts:
+            continue
+        splats, lists, _ = prepare_view(*arrays, 0, cp, settings)
+        for a, b in parts:
+            wp.launch(opacity_min_over_view, dim=b - a, device=_wp_device(pts),
+                      inputs=[wp.from_torch(pts[a:b].contiguous(), dtype=wp.vec3), lists, splats, cp, settings],
+                      outputs=[wp.from_torch(field[a:b]), wp.from_torch(seen[a:b])])
+
+
+@torch.no_grad()
+def cameras_inside_surfaces(gaussians, cameras: Sequence[Camera], *, render_config: RenderConfig | None = None,
+                            rays: int = 6, depths: int = 48, solid: float = 0.5,
+                            min_fraction: float = 2.0 / 3.0, min_tested: int = 8) -> list[CameraInside]:
+    """The cameras that sit inside what the other views see as solid: wrong poses, or photos taken from inside an
+    object. Training carves each such camera's free space out of the solid, so the mesh gets a cavity around it.
+
+    For each camera, ``rays × rays`` rays spread over its image are marched with its own opacity at ``depths``
+    depths (geometric, from the near plane to twice the cameras' spread plus the Gaussians' extent) to where its
+    own view reaches opacity ``solid`` (its surface); points at 0.5 and 0.8 of that depth lie in space this camera
+    sees through. The other views' opacity field there (the minimum over them, GOF's rule, without this camera) is
+    solid for a camera inside an object and free for a camera outside one — also in a 360° orbit, where the cameras
+    beside it see the space in front of it through free space, and in a room, where the other cameras are inside
+    it too. A camera is reported when at least ``min_fraction`` of at least ``min_tested`` such points (seen by at
+    least one other view) are solid to the other views.
+
+    Returns:
+        the :class:`CameraInside` of each camera reported, in camera order (empty: none; also for fewer than two
+        cameras or no Gaussians).
+    """
+    render_config = render_config or RenderConfig()
+    render_config.validate()
+    cameras = list(cameras)
+    if len(cameras) < 2 or len(gaussians) == 0:
+        return []
+    device = gaussians.device
+    wp.init()
+    arrays, views = _view_inputs(gaussians, cameras, render_config)
+    centres = np.stack([c.center for c in cameras])
+    means = gaussians.means.detach().cpu().double().numpy()
+    reach = 2.0 * (np.ptp(centres, axis=0).max() + np.ptp(means, axis=0).max()) + 1e-6
+    near = max(render_config.near, 1e-4 * reach)
+    z = np.geomspace(near * 1.01, max(reach, near * 2.0), depths)  # depths along each ray (camera z)
+
+    def rays_of(cam: Camera) -> np.ndarray:  # [rays², 3] camera-space directions with z = 1
+        u = (np.arange(rays) + 0.5) / rays * cam.width
+        v = (np.arange(rays) + 0.5) / rays * cam.height
+        uu, vv = np.meshgrid(u, v, indexing="xy")
+        return np.stack([(uu.ravel() - cam.cx) / cam.fx, (vv.ravel() - cam.cy) / cam.fy, np.ones(uu.size)], 1)
+
+    def world(cam: Camera, d_cam: np.ndarray) -> np.ndarray:  # camera-space points → world
+        return (d_cam - cam.t) @ cam.R
+
+    n_r = rays * rays
+    # 1. each camera's own surface depth along each of its rays
+    march = np.concatenate([world(c, (rays_of(c)[:, None, :] * z[None, :, None]).reshape(-1, 3)) for c in cameras])
+    pts = torch.as_tensor(march, dtype=torch.float32, device=device)
+    field = torch.ones(len(pts), dtype=torch.float32, device=device)
+    seen = torch.zeros(len(pts), dtype=torch.int32, device=device)
+    _owned_slices(views, pts, np.arange(len(cameras) + 1) * n_r * depths, field, seen, arrays, own=True)
+    own = torch.where(seen > 0, field, torch.zeros_like(field)).cpu().numpy().reshape(len(cameras), n_r, depths)
+    hit = own >= solid
+    has = hit.any(axis=2)
+    surface = z[np.argmax(hit, axis=2)]  # [cameras, rays]: first depth at which the own view is solid
+    # 2. points in front of those surfaces, judged by the other views
+    tests, counts = [], []
+    for j, c in enumerate(cameras):
+        d = rays_of(c)[has[j]]
+        zs = surface[j][has[j]]
+        p = np.concatenate([d * (f * zs)[:, None] for f in (0.5, 0.8)])
+        tests.append(world(c, p) if len(p) else np.zeros((0, 3)))
+        counts.append(len(p))
+    bounds = np.concatenate([[0], np.cumsum(counts)])
+    if bounds[-1] == 0:
+        return []
+    pts = torch.as_tensor(np.concatenate(tests), dtype=torch.float32, device=device)
+    field = torch.ones(len(pts), dtype=torch.float32, device=device)
+    seen = torch.zeros(len(pts), dtype=torch.int32, device=device)
+    _owned_slices(views, pts, bounds, field, seen, arrays, own=False)
+    field, seen = field.cpu().numpy(), seen.cpu().numpy()
+    out = []
+    for j, c in enumerate(cameras):
+        f, s = field[bounds[j]:bounds[j + 1]], seen[bounds[j]:bounds[j + 1]]
+        tested = int((s > 0).sum())
+        if tested >= min_tested:
+            frac = float((f[s > 0] >= solid).mean())
+            if frac >= min_fraction:
+                out.append(CameraInside(j, c.name, round(frac, 3), tested))
+    return out
+
+
+def cameras_inside_message(inside: Sequence[CameraInside], n_cameras: int, shown: int = 5) -> str:
+    """One line naming the cameras :func:`cameras_inside_surfaces` reported and what follows for the mesh."""
+    names = ", ".join(f"{c.name or c.index!s} ({100 * c.solid_fraction:.0f} % of {c.tested} points)" for c in inside[:shown])
+    more = f" and {len(inside) - shown} more" if len(inside) > shown else ""
+    return (f"{len(inside)} of {n_cameras} cameras sit inside what the other views see as solid — {names}{more} "
+            f"(the share of the space each sees through that is solid to the others): the training carved their view "
+            f"out of the solid, so the mesh has cavities around them; check their poses (a wrong scale or sign) or "
+            f"leave those photos out")
