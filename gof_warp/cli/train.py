@@ -284,6 +284,7 @@ def _main_process() -> bool:
 
 def _train(a, out: Path, scenes: list[str], overrides: list[str], builtin: bool) -> int:
     """The command's work in the locked run folder ``out``."""
+    from ..core.devices import expandable_cuda_segments
     from ..data import load_scene
     from ..training.distributed import rank_device, ranks_from_environment
     from ..training.run_folder import is_finished_run, remove_run_outputs
@@ -303,6 +304,7 @@ def _train(a, out: Path, scenes: list[str], overrides: list[str], builtin: bool)
     cfg = resolve_config(preset, overrides, a.iterations, scene=None if builtin else scenes[0])
     ranks = ranks_from_environment()  # several processes under torchrun: data-parallel (gof_warp.training.distributed)
     device = rank_device(pick_device(a.device), ranks)
+    expandable_cuda_segments(device)  # reserved memory stays near what is in use as densification grows the tensors
     if a.config is None and not builtin and device == "cpu" and cfg.iterations >= CPU_HINT_ITERATIONS:
         log.info("on the CPU %d iterations take hours; --config cpu trains a real capture in minutes at a reduced "
                  "resolution (README: your own photos)", cfg.iterations)

@@ -54,6 +54,34 @@ def resolve_device(device=None, like=None) -> str:
     return resolve_device("cuda") if cuda_available() else "cpu"
 
 
+#: torch's allocator setting for training on CUDA (:func:`expandable_cuda_segments`).
+EXPANDABLE_SEGMENTS = "expandable_segments:True"
+
+
+def expandable_cuda_segments(device) -> bool:
+    """On a CUDA ``device``, let torch's caching allocator grow a segment in place (``expandable_segments``) instead of
+    asking the driver for a new one whenever a tensor is larger than every free block — unless the user set
+    ``PYTORCH_CUDA_ALLOC_CONF``, which wins. Returns whether the setting was made (False on the CPU).
+
+    Training needs it: densification makes every per-Gaussian tensor (parameters, Adam moments, gradients) a little
+    larger each time, so with fixed segments each new size takes new segments while the smaller freed blocks stay
+    cached for sizes never asked again. Measured on DTU scan 24 (30k iterations, one H200, ``benchmarks/train/``):
+    26,756 MiB reserved at the peak for 1,573 MiB ever allocated; with expandable segments 2,440 MiB, training time
+    and PSNR unchanged.
+    Process-wide: callers that own the process (the ``train`` command) call it, before the first CUDA allocation.
+    """
+    import os
+
+    if torch.device(str(device)).type != "cuda" or os.environ.get("PYTORCH_CUDA_ALLOC_CONF"):
+        return False
+    setter = getattr(torch.cuda.memory, "_set_allocator_settings", None)
+    if setter is None:  # a torch without the runtime setter: the variable works if CUDA is not initialised yet
+        os.environ["PYTORCH_CUDA_ALLOC_CONF"] = EXPANDABLE_SEGMENTS
+        return not torch.cuda.is_initialized()
+    setter(EXPANDABLE_SEGMENTS)
+    return True
+
+
 @contextlib.contextmanager
 def cudnn_benchmark(on: bool = True):
     """Within the block, cuDNN times its algorithms for each new convolution shape (``torch.backends.cudnn.benchmark``)

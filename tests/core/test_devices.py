@@ -78,3 +78,18 @@ def test_cudnn_benchmark_is_set_inside_and_restored_after():
         assert torch.backends.cudnn.benchmark is True
     finally:
         torch.backends.cudnn.benchmark = before
+
+
+def test_expandable_segments_are_set_for_cuda_only_and_never_over_the_users_setting(monkeypatch):
+    import torch
+
+    from gof_warp.core import devices
+
+    calls = []
+    monkeypatch.setattr(torch.cuda.memory, "_set_allocator_settings", calls.append, raising=False)
+    monkeypatch.delenv("PYTORCH_CUDA_ALLOC_CONF", raising=False)
+    assert devices.expandable_cuda_segments("cpu") is False and calls == []
+    assert devices.expandable_cuda_segments("cuda:0") is True
+    assert calls == [devices.EXPANDABLE_SEGMENTS]
+    monkeypatch.setenv("PYTORCH_CUDA_ALLOC_CONF", "max_split_size_mb:128")
+    assert devices.expandable_cuda_segments("cuda:0") is False and len(calls) == 1
