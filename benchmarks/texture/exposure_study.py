@@ -27,7 +27,7 @@ def main(argv=None) -> int:
 
     import trimesh
 
-    from gof_warp.cli.extract import run_photos
+    from gof_warp.viz.pictures import run_photos
     from gof_warp.core.devices import resolve_device, warp_device
     from gof_warp.mesh.decimate import decimate
     from gof_warp.mesh.texture import bake_texture, make_atlas, texture_side, textured_render_psnr

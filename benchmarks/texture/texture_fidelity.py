@@ -37,7 +37,7 @@ def main(argv=None) -> int:
     import trimesh
     from PIL import Image
 
-    from gof_warp.cli.extract import run_photos
+    from gof_warp.viz.pictures import run_photos
     from gof_warp.core.devices import resolve_device, warp_device
     from gof_warp.eval.image_metrics import psnr, ssim
     from gof_warp.mesh.colour import colours_from_images, gaussian_images, mesh_render_psnr, render_vertex_colours

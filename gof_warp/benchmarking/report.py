@@ -25,9 +25,10 @@ log = logging.getLogger("gof_warp.benchmarking")  # one logger for the harness
 
 CHARTS = (("total_time_s", "chamfer", "chamfer_vs_time.png"), ("total_time_s", "fscore", "fscore_vs_time.png"),
           ("num_gaussians", "chamfer", "chamfer_vs_gaussians.png"), ("faces", "chamfer", "chamfer_vs_faces.png"),
-          ("train_time_s", "test_psnr", "psnr_vs_train_time.png"))
+          ("train_time_s", "test_psnr", "psnr_vs_train_time.png"), ("faces", "mesh_psnr", "mesh_psnr_vs_faces.png"))
 Y_LABELS = {"chamfer": "Chamfer (lower is better)", "fscore": "F-score at τ (higher is better)",
-            "test_psnr": "test PSNR, dB (higher is better)"}
+            "test_psnr": "test PSNR, dB (higher is better)",
+            "mesh_psnr": "vertex-coloured mesh, test PSNR, dB (higher is better)"}
 
 
 def machine_info() -> dict:
@@ -60,7 +61,7 @@ def reset_peak_memory() -> None:
 
 def peak_memory() -> dict:
     """Peak host RSS since :func:`reset_peak_memory` (VmHWM; where unavailable, the process's lifetime peak)
-    and torch's peak CUDA allocation, in MB."""
+    and torch's peak CUDA allocated and reserved memory, in MB (MiB)."""
     import torch
 
     host = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
@@ -69,8 +70,11 @@ def peak_memory() -> dict:
         host = int(line.split()[1]) / 1024.0
     except (OSError, StopIteration, ValueError):
         pass
-    gpu = torch.cuda.max_memory_allocated() / 2**20 if torch.cuda.is_available() else None
-    return {"host_peak_rss_mb": round(host, 1), "gpu_peak_allocated_mb": None if gpu is None else round(gpu, 1)}
+    cuda = torch.cuda.is_available()
+    gpu = torch.cuda.max_memory_allocated() / 2**20 if cuda else None
+    reserved = torch.cuda.max_memory_reserved() / 2**20 if cuda else None
+    return {"host_peak_rss_mb": round(host, 1), "gpu_peak_allocated_mb": None if gpu is None else round(gpu, 1),
+            "gpu_peak_reserved_mb": None if reserved is None else round(reserved, 1)}
 
 
 FINITE = ("chamfer", "accuracy", "completeness")  # means that are infinite for an empty mesh

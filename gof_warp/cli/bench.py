@@ -254,6 +254,20 @@ def _extract(method: Method, model: Model, scene, render_config, grid_cache: dic
         return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32), str(e), "grid_shared" in timer.stages
 
 
+def _mesh_photo_scores(verts, faces, scene, render_config, device) -> dict:
+    """The mesh coloured from the training photos (per vertex, with visibility) and rendered from the test views:
+    PSNR/SSIM against their photos (:func:`gof_warp.mesh.colour.mesh_render_psnr`); {} without test views."""
+    from ..core.devices import warp_device
+    from ..mesh.colour import colours_from_images, mesh_render_psnr
+
+    if not scene.test:
+        return {}
+    device = warp_device(device)
+    colours = colours_from_images(verts, faces, scene.train_cameras, [v.image for v in scene.train], device=device)
+    return mesh_render_psnr(verts, faces, colours, [v.camera for v in scene.test], [v.image for v in scene.test],
+                            background=tuple(render_config.background), device=device)
+
+
 def _extract_row(run: Run, method: Method, model: Model, scene, render_config, metrics, scene_dir: Path,
                  machine: dict, grid_cache: dict | None = None) -> dict:
     """Extract one mesh from ``model``, score it, and return its results row (with the machine it ran on).
@@ -267,6 +281,9 @@ def _extract_row(run: Run, method: Method, model: Model, scene, render_config, m
     extract_mem = peak_memory()
     t1 = time.perf_counter()
     m, st = scores(verts, faces, scene_dir / "gt_mesh.ply", run.eval_samples) if verts is not None else ({}, {})
+
+    photo = (_mesh_photo_scores(verts, faces, scene, render_config, model.gaussians.device)
+             if verts is not None and len(faces) else {})
 
     def first(key):  # the score at the first τ (0.5 % of the GT diagonal)
         return m[key][0] if m else None
@@ -284,12 +301,15 @@ def _extract_row(run: Run, method: Method, model: Model, scene, render_config, m
         "components": st.get("connected_components"), "watertight": st.get("watertight"),
         "faces": st.get("faces"), "vertices": st.get("vertices"),
         "test_psnr": model.test.get("psnr"), "test_ssim": model.test.get("ssim"), "num_gaussians": len(model.gaussians),
+        "mesh_psnr": photo.get("psnr"), "mesh_ssim": photo.get("ssim"), "mesh_coverage": photo.get("coverage"),
         "train_time_s": model.train_time_s,
         "extract_time_s": None if extract_time is None else round(extract_time, 3), "grid_shared": grid_shared,
         "total_time_s": round(float(model.train_time_s or 0.0) + (extract_time or 0.0), 3),
         "eval_time_s": round(time.perf_counter() - t1, 3) if verts is not None else None,
         "train_host_peak_rss_mb": train_mem.get("host_peak_rss_mb", metrics.get("host_peak_rss_mb")),
         "train_gpu_peak_allocated_mb": train_mem.get("gpu_peak_allocated_mb", metrics.get("gpu_peak_allocated_mb")),
+        "train_gpu_peak_reserved_mb": train_mem.get("gpu_peak_reserved_mb", metrics.get("gpu_peak_reserved_mb")),
+        "train_device_used_peak_mb": metrics.get("device_used_peak_mb"),
         "extract_host_peak_rss_mb": extract_mem["host_peak_rss_mb"],
         "extract_gpu_peak_allocated_mb": extract_mem["gpu_peak_allocated_mb"],
         "device": str(model.gaussians.device), "error": error,

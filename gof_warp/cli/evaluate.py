@@ -3,6 +3,7 @@
     python -m gof_warp.evaluate --mesh MESH.ply --gt GT.ply [--tau T ...] [--density D] [--max-dist M]
         [--crop xmin ymin zmin xmax ymax zmax] [--method points|triangles] [--truncate exclude|clamp]
         [--scene SCENE_DIR [--patch P] [--supersample S] [--min-views K]] [--json OUT.json]
+    python -m gof_warp.evaluate --mesh MESH.glb --photos RUN [--split test|train]   # a coloured/textured mesh
 
 Prints accuracy, completeness, Chamfer, precision/recall/F-score at each tau and both meshes'
 statistics; ``--json`` writes the same (atomically). With ``--scene`` (a folder with
@@ -12,7 +13,9 @@ training cameras observe, sampled inside it, with the exact-vs-exact floor besid
 (:mod:`gof_warp.eval.region_metrics`; JSON keys ``region``, ``floor``, ``ground`` beside ``metrics``; ``--crop``
 then sets the box of interest). Defaults relative to the GT's bounding-box
 diagonal: tau = 0.5% and 1%, max-dist = 5%, density (sample spacing) for ~300k GT samples. The
-definitions are in :mod:`gof_warp.eval.geometry_metrics`. Rendering metrics of a trained run:
+definitions are in :mod:`gof_warp.eval.geometry_metrics`. With ``--photos RUN`` the mesh is rendered in its own
+colours or texture from the run's test (``--split``) views and scored against their photos beside the Gaussians'
+render (:mod:`gof_warp.viz.photo_fidelity`; JSON key ``photometric``); ``--gt`` is then optional. Rendering metrics of a trained run:
 :func:`image_metrics` (from :mod:`gof_warp.eval.image_metrics`). Bad input: ``error: ...`` on stderr, exit code 2.
 """
 
@@ -43,7 +46,8 @@ def __getattr__(name):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-DESCRIPTION = "Score a reconstructed mesh against a ground-truth mesh or point cloud."
+DESCRIPTION = ("Score a reconstructed mesh against a ground-truth mesh or point cloud, and a coloured or textured mesh "
+               "against a run's photos.")
 EPILOG = """\
 Prints both meshes' statistics, accuracy, completeness and Chamfer distance, and a table of
 precision, recall and F-score at each tau (also given as a fraction of the diagonal). --json
@@ -58,6 +62,11 @@ truth scored against itself) beside each score; the diagonal is then that of the
 truth, and --crop sets the box of interest. When scene.json records a ground plane, the ground's
 patch completeness and flatness are printed too.
 
+With --photos RUN (a training run folder) the mesh is rendered in its own colours or texture
+(extract --color photos / --texture; no view dependence) from the run's held-out views and
+scored against their photos: PSNR and SSIM over the whole image and over the pixels the mesh
+covers, beside the Gaussians' render of the same views. --gt is then optional.
+
 Bad input: "error: ..." on stderr, exit code 2."""
 
 
@@ -65,7 +74,12 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m gof_warp.evaluate", description=DESCRIPTION, epilog=EPILOG,
                                 formatter_class=HelpFormatter)
     p.add_argument("--mesh", required=True, help="reconstructed mesh (PLY, OBJ, ...)")
-    p.add_argument("--gt", required=True, help="ground-truth mesh or point cloud")
+    p.add_argument("--gt", help="ground-truth mesh or point cloud (default: none; needed unless --photos is given)")
+    p.add_argument("--photos", metavar="RUN",
+                   help="a training run folder: render the mesh in its colours or texture from the run's views and "
+                        "score it against their photos (PSNR, SSIM), beside the Gaussians' render (default: none)")
+    p.add_argument("--split", choices=("test", "train"), default="test", help="with --photos: the views to score on")
+    p.add_argument("--device", default="auto", help="with --photos: cpu, cuda, cuda:N or auto")
     p.add_argument("--tau", type=float, nargs="+",
                    help="F-score distance thresholds (default: 0.5 %% and 1 %% of the diagonal)")
     p.add_argument("--density", type=float,
@@ -239,6 +253,20 @@ def main(argv=None) -> int:
     def body():
         crop = None if args.crop is None else (args.crop[:3], args.crop[3:])
         check_args(args)
+        if not args.gt and not args.photos:
+            raise GofError("nothing to score against: give --gt (a ground-truth mesh or point cloud) and/or --photos "
+                           "RUN (the run's photos)")
+        photo_report = None
+        if args.photos:
+            from ..viz.photo_fidelity import format_photo_report, mesh_photo_fidelity
+
+            photo_report = mesh_photo_fidelity(args.photos, args.mesh, split=args.split, device=args.device)
+            print(format_photo_report(photo_report))
+        if not args.gt:
+            if args.json:
+                write_json_atomic(args.json, {"mesh": str(args.mesh), "photometric": photo_report})
+                print(f"\nwrote {args.json}")
+            return
         mesh, gt = load_inputs(args.mesh, args.gt)
         if args.scene:
             report = evaluate_region(mesh, gt, args.scene, tau=args.tau, density=args.density,
@@ -250,6 +278,9 @@ def main(argv=None) -> int:
                                    crop=crop, truncate=args.truncate, method=args.method, seed=args.seed)
         report["mesh"], report["gt"] = str(args.mesh), str(args.gt)
         report["metrics"]["tau_fraction_of_diagonal"] = tau_fractions(report)
+        if photo_report is not None:
+            report["photometric"] = photo_report
+            print()
         print(format_report(report))
         if args.json:
             write_json_atomic(args.json, report)

@@ -516,31 +516,13 @@ def mesh_textures(a, run: Path, meshes, gaussians, cameras, views, render_config
 def training_photos(a, run: Path, cameras, views, device) -> list:
     """``--color photos``: the training photos, one uint8 ``[H, W, 3]`` per camera, from ``--scene``'s views or the
     scene folder the run names; a :class:`GofError` when there are none."""
+    from ..viz.pictures import run_photos
+
     photos = [v.image for v in views] if views is not None else run_photos(run, cameras, device)
     if photos is None:
         raise GofError(f"--color photos: no photos found for {run} (pass --scene SCENE, the scene the model was "
                        "trained on)")
     return photos
-
-
-def run_photos(run: Path, cameras, device):
-    """The training photos of ``cameras`` from the scene folder a run names, or ``RUN/scene`` (uint8 ``[H, W, 3]``
-    each), or None when none is found."""
-    import json
-
-    from ..core.config import from_dict
-    from ..core.devices import warp_device
-    from ..data import DataConfig
-    from ..training.run_folder import read_run_config, scene_candidates
-    from ..viz.pictures import find_photos
-
-    base = run if run.is_dir() else run.parent
-    config = read_run_config(base / "config.yaml") if run.is_dir() else {}
-    cams_file = base / "cameras.json"
-    cams_json = json.loads(cams_file.read_text()) if run.is_dir() and cams_file.is_file() else {}
-    data_config = from_dict(DataConfig, (config or {}).get("data", {}) or {}, "config.yaml: data")
-    return find_photos(list(cameras), scene_candidates(base, cams_json, config or {}, None), data_config,
-                       device=warp_device(device))
 
 
 def mesh_base(a, run: Path) -> Path:

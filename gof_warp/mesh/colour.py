@@ -239,27 +239,37 @@ def to_uint8(colours: np.ndarray) -> np.ndarray:
     return np.round(np.clip(np.asarray(colours, np.float64), 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
-def render_vertex_colours(vertices, faces, colours, camera: Camera, *, background=(0.0, 0.0, 0.0), device=None,
-                          mesh: wp.Mesh | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Render the vertex-coloured mesh at ``camera``'s pixel centres: ``(rgb [H, W, 3] float32, hit [H, W] bool)``;
-    a hit pixel interpolates its face's corner colours by the barycentrics of the hit, a missed one is
-    ``background``. ``mesh``: a ``wp.Mesh`` of the same vertices and faces, to reuse over views."""
-    v = np.asarray(vertices, np.float64)
-    f = np.asarray(faces, np.int64)
-    c = np.asarray(colours, np.float32)
-    if c.dtype == np.uint8:
-        c = c.astype(np.float32) / 255.0
-    mesh = mesh if mesh is not None else _wp_mesh(v, f, warp_device(device))
+def render_surface(vertices, faces, colour_at, camera: Camera, *, background=(0.0, 0.0, 0.0), device=None,
+                   mesh: wp.Mesh | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Render a mesh whose colour ``colour_at(face [N], bary [N, 2]) -> [N, 3]`` (floats in ``[0, 1]``; Warp's
+    barycentrics: the hit is ``u p0 + v p1 + (1 - u - v) p2``) gives at its first hits through ``camera``'s pixel
+    centres: ``(rgb [H, W, 3] float32, hit [H, W] bool)``, missed pixels ``background``. ``mesh``: a ``wp.Mesh`` of
+    the same vertices and faces, to reuse over views."""
+    mesh = mesh if mesh is not None else _wp_mesh(np.asarray(vertices, np.float64), np.asarray(faces, np.int64),
+                                                  warp_device(device))
     hits = _cast(mesh, camera)
-    face = hits["face"]
-    hit = face >= 0
+    hit = hits["face"] >= 0
     rgb = np.empty((camera.height, camera.width, 3), np.float32)
     rgb[:] = np.asarray(background, np.float32)
-    fi = f[face[hit]]
-    b = hits["bary"][hit]
-    w0, w1 = b[:, :1], b[:, 1:2]
-    rgb[hit] = c[fi[:, 0]] * w0 + c[fi[:, 1]] * w1 + c[fi[:, 2]] * (1.0 - w0 - w1)
+    if hit.any():
+        rgb[hit] = colour_at(hits["face"][hit], hits["bary"][hit])
     return rgb, hit
+
+
+def render_vertex_colours(vertices, faces, colours, camera: Camera, *, background=(0.0, 0.0, 0.0), device=None,
+                          mesh: wp.Mesh | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Render the vertex-coloured mesh at ``camera``'s pixel centres (:func:`render_surface`): a hit pixel
+    interpolates its face's corner colours by the barycentrics of the hit."""
+    f = np.asarray(faces, np.int64)
+    c = np.asarray(colours)
+    c = c.astype(np.float32) / 255.0 if c.dtype == np.uint8 else c.astype(np.float32)
+
+    def colour_at(face, bary):
+        fi = f[face]
+        w0, w1 = bary[:, :1], bary[:, 1:2]
+        return c[fi[:, 0]] * w0 + c[fi[:, 1]] * w1 + c[fi[:, 2]] * (1.0 - w0 - w1)
+
+    return render_surface(vertices, f, colour_at, camera, background=background, device=device, mesh=mesh)
 
 
 def mesh_render_psnr(vertices, faces, colours, cameras: Sequence[Camera], photos: Iterable, *,

@@ -91,6 +91,7 @@ def find_photos(cameras: list[Camera], candidates: list[Path], data_config, devi
     them all, following the run's ``data_config`` (downscale, background). Only these views are decoded.
     Returns one ``uint8 [H, W, 3]`` per camera (resized to the camera's size if the scene's differs), or None."""
     from ..data import detect_format, read_plan
+    from ..core.scene import pose_warnings
     from ..data.plan import build_scene, unique_names
 
     wanted = [c.name for c in cameras]
@@ -106,7 +107,10 @@ def find_photos(cameras: list[Camera], candidates: list[Path], data_config, devi
                 missing = ", ".join(n for n in wanted if n not in index)
                 log.info("%s does not hold every view shown (%s)", folder, missing)
                 continue
-            sub = dataclasses.replace(plan, views=[plan.views[index[n]] for n in wanted], warnings=[])
+            # a subset of the views, decoded for their photos: its pose warnings ("only 1 training view") are not
+            # the scene's, so they count as said already
+            chosen = [plan.views[index[n]] for n in wanted]
+            sub = dataclasses.replace(plan, views=chosen, warnings=pose_warnings([v.camera for v in chosen]))
             scene = build_scene(sub, dataclasses.replace(data_config, test_every=0), device=device)
         except GofError as e:
             log.info("no photos from %s: %s", folder, e)
@@ -120,6 +124,26 @@ def find_photos(cameras: list[Camera], candidates: list[Path], data_config, devi
         log.info("photos from %s", folder)
         return photos
     return None
+
+
+def run_photos(run: Path, cameras, device):
+    """The training photos of ``cameras`` from the scene folder a run names, or ``RUN/scene`` (uint8 ``[H, W, 3]``
+    each), or None when none is found."""
+    import json
+
+    from ..core.config import from_dict
+    from ..core.devices import warp_device
+    from ..data import DataConfig
+    from ..training.run_folder import read_run_config, scene_candidates
+
+    run = Path(run)
+    base = run if run.is_dir() else run.parent
+    config = read_run_config(base / "config.yaml") if run.is_dir() else {}
+    cams_file = base / "cameras.json"
+    cams_json = json.loads(cams_file.read_text()) if run.is_dir() and cams_file.is_file() else {}
+    data_config = from_dict(DataConfig, (config or {}).get("data", {}) or {}, "config.yaml: data")
+    return find_photos(list(cameras), scene_candidates(base, cams_json, config or {}, None), data_config,
+                       device=warp_device(device))
 
 
 def mesh_picture_stem(mesh_path) -> str:

@@ -22,7 +22,8 @@ from gof_warp.benchmarking.report import load_rows, row_key
 from gof_warp.core.errors import GofError
 
 NUMERIC = ("chamfer", "accuracy", "completeness", "fscore", "precision", "recall", "tau", "test_psnr", "test_ssim",
-           "train_time_s", "extract_time_s", "total_time_s", "num_gaussians", "faces", "vertices", "components")
+           "train_time_s", "extract_time_s", "total_time_s", "num_gaussians", "faces", "vertices", "components",
+           "mesh_psnr", "mesh_ssim", "mesh_coverage")
 MODEL_NUMERIC = ("test_psnr", "test_ssim", "train_time_s", "total_time_s", "num_gaussians")  # render_only rows
 MIN_FSCORE_2TAU = 0.05  # 200 iterations at 40x40 is a rough model, but its surface must be near the GT's
 MAX_CHAMFER = 0.2  # ~3% of the default scene's diagonal (~3.4); a mesh of floaters would score far worse
@@ -57,6 +58,8 @@ def test_one_row_per_run_iteration_and_method_with_finite_numbers(tiny):
         assert r["total_time_s"] == pytest.approx(r["train_time_s"] + (r["extract_time_s"] or 0), abs=2e-3)
         if mesh:
             assert r["faces"] > 0 and r["chamfer"] < MAX_CHAMFER and r["fscore_2tau"] > MIN_FSCORE_2TAU, r
+            # the vertex-coloured mesh looks like the photos: well above a flat grey guess, at most the Gaussians' + 3
+            assert 12.0 < r["mesh_psnr"] < r["test_psnr"] + 3.0 and 0.0 < r["mesh_coverage"] <= 1.0, r
         else:
             assert r["faces"] is None and r["chamfer"] is None and r["extract_time_s"] is None
     # one model per (run, iteration): its methods report the same training; the snapshot is the trainer's
@@ -81,7 +84,7 @@ def test_charts_are_written(tiny):
     pytest.importorskip("matplotlib")
     out, _ = tiny
     for name in ("chamfer_vs_time.png", "fscore_vs_time.png", "chamfer_vs_gaussians.png", "chamfer_vs_faces.png",
-                 "psnr_vs_train_time.png"):
+                 "psnr_vs_train_time.png", "mesh_psnr_vs_faces.png"):
         data = (out / name).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 5000, name
 
