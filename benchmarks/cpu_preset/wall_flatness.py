@@ -1,0 +1,71 @@
+"""How flat is the fox's wall in the mesh? The mesh is ray cast from one of the run's test views; the hits in a strip
+of the image that shows only the wall (default: the left fifth) are fitted with a plane (least squares), and the
+script reports the points' RMS distance from it (as a fraction of their mean depth) and the angle between each hit
+face's normal and the plane's (median and 90th percentile, degrees): bumps show as spread normals.
+
+    python benchmarks/cpu_preset/wall_flatness.py RUN [--mesh RUN/mesh_tetra.ply] [--view 0] [--strip 0 0.2] [--json OUT]
+
+The strip is a fraction of the image width (x from, x to); on the fox's test views 0 and 1 the left fifth shows
+wallpaper only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+
+def flatness(vertices: np.ndarray, faces: np.ndarray, camera, strip=(0.0, 0.2)) -> dict:
+    """The plane fit of the mesh's first hits in ``strip`` (fractions of the width) of ``camera``'s image."""
+    from gof_warp.mesh.colour import _cast, _wp_mesh
+
+    hits = _cast(_wp_mesh(vertices, faces, "cpu"), camera)
+    h, w = hits["face"].shape
+    cols = np.zeros(w, bool)
+    cols[int(strip[0] * w):int(np.ceil(strip[1] * w))] = True
+    sel = (hits["face"] >= 0) & cols[None, :]
+    ys, xs = np.nonzero(sel)
+    z = hits["depth"][sel]
+    cam_pts = np.stack([(xs + 0.5 - camera.cx) / camera.fx * z, (ys + 0.5 - camera.cy) / camera.fy * z, z], 1)
+    world = (cam_pts - camera.t) @ camera.R
+    centre = world.mean(0)
+    _, _, vt = np.linalg.svd(world - centre, full_matrices=False)
+    normal = vt[2]
+    dist = (world - centre) @ normal
+    tri = vertices[faces[hits["face"][sel]]]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-30)
+    angle = np.degrees(np.arccos(np.clip(np.abs(fn @ normal), 0.0, 1.0)))
+    return {"pixels": int(sel.sum()), "strip_pixels": int(cols.sum() * h),
+            "rms_over_depth": float(np.sqrt(np.mean(dist**2)) / np.mean(z)),
+            "normal_angle_median_deg": float(np.median(angle)), "normal_angle_p90_deg": float(np.percentile(angle, 90))}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("run", type=Path)
+    ap.add_argument("--mesh", type=Path, default=None)
+    ap.add_argument("--view", type=int, default=0, help="index among the run's test views")
+    ap.add_argument("--strip", type=float, nargs=2, default=(0.0, 0.2))
+    ap.add_argument("--json", type=Path, default=None)
+    a = ap.parse_args(argv)
+
+    import trimesh
+
+    from gof_warp.training.run_folder import cameras_from_json
+
+    mesh = trimesh.load(a.mesh or a.run / "mesh_tetra.ply", process=False, force="mesh")
+    cam = cameras_from_json(a.run / "cameras.json", "test")[a.view]
+    out = {"run": str(a.run), "view": cam.name, "strip": list(a.strip),
+           **flatness(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64), cam, a.strip)}
+    print(json.dumps(out, indent=1))
+    if a.json:
+        a.json.write_text(json.dumps(out, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
