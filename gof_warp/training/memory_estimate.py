@@ -17,7 +17,12 @@ The constants are fitted to a measured run (DTU scan 24, 49 views of 800 × 600 
 ``benchmarks/train/results/dtu_scan24_30k_h100_metrics.json``): at warm-up (38 k Gaussians) torch allocated 756 MiB,
 which sets the per-pixel term; at its peak (0.82 M Gaussians) torch's 1,574 MiB plus Warp's pool's 270 MiB, which
 sets the per-Gaussian term; the rule gives 1,893 MiB there. Torch's caching allocator reserves more than it
-allocates; :data:`RESERVE_FACTOR` is the margin asked of the device on top of the estimate.
+allocates; :data:`RESERVE_FACTOR` is the margin asked of the device on top of the estimate. Checked on a later DTU run
+with expandable segments (``core.devices.expandable_cuda_segments``; one H200,
+``benchmarks/train/results/dtu_scan24_30k_h200_expandable_cap8gib_metrics.json``): the rule, with its 1 M Gaussians
+assumed (the preset sets no bound), gives 2,150 MiB and asks for 3,225 MiB free; the run reserved 2,440 MiB in torch
+and 270 MiB in Warp's pool, and the device's used memory peaked at 3,509 MiB, the CUDA context (there before the
+check reads the free memory) and the libraries' handles included.
 """
 
 from __future__ import annotations
