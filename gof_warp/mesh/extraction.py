@@ -477,7 +477,8 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
             the tetra path stores its grid there (points, field values, tetrahedra) and a later call with the same
             grid settings (tetra config, field config, and the levels when the band is on) reuses it, so extractions
             that differ only in search steps, levels or decimation build it once. ``timer.stages["grid_shared"]``
-            says so, with the seconds the grid took when it was built.
+            says so, with the seconds the grid took when it was built. The check for cameras inside the solid
+            (:func:`~gof_warp.rendering.opacity_field.cameras_inside_surfaces`) runs once per cache too.
         ranks: a :class:`~gof_warp.training.distributed.Ranks` of several processes (``torchrun``; every rank calls this
             with the same model and cameras). Tetra path: the field at the grid points is shared out by views, the
             Delaunay runs on rank 0 and is broadcast (the octree grid is built alike on every rank), and the
@@ -500,10 +501,13 @@ def extract_mesh(gaussians, cameras: list[Camera], config: MeshConfig | None = N
     if len(gaussians) == 0:
         raise GofError("the model has no Gaussians: nothing to extract")
     gaussians = meshable(gaussians)
-    if ranks.is_main:  # a camera inside the solid gets a cavity carved around it: say so before the work
+    # a camera inside the solid gets a cavity carved around it: say so before the work (once per model and cameras)
+    if ranks.is_main and (grid_cache is None or "cameras_inside" not in grid_cache):
         with timer("cameras_inside"):
             inside = cameras_inside_surfaces(gaussians, cameras, render_config=render_config)
         timer.stages["cameras_inside"]["cameras"] = [c.name for c in inside]
+        if grid_cache is not None:
+            grid_cache["cameras_inside"] = inside
         if inside:
             log.warning("warning: %s", cameras_inside_message(inside, len(cameras)))
 

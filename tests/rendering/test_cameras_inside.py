@@ -81,3 +81,17 @@ def test_own_and_other_views_equal_the_field_over_those_views():
             f, s = opacity_field(g, subset, pts[sl], render_config=cfg, return_seen=True)
             assert torch.equal(s, seen[sl])
             assert torch.equal(torch.where(s > 0, f, torch.ones_like(f)), field[sl])
+
+
+def test_extract_warns_once_per_model_when_the_grid_is_shared(caplog):
+    from gof_warp.mesh.extraction import MeshConfig, StageTimer, extract_mesh
+
+    g = _shell()  # closed: with a third of the discs the inside camera sees out through the gaps (and is not reported)
+    cams = _orbit() + [look_at([0, 0, 0], [1, 0, 0.1], fx=0.9 * SIZE, width=SIZE, height=SIZE, name="inside")]
+    cache, timers = {}, []
+    with caplog.at_level("WARNING", logger="gof_warp.mesh.extraction"):
+        for steps in (0, 2):
+            timers.append(StageTimer("cpu"))
+            extract_mesh(g, cams, MeshConfig(binary_steps=steps), grid_cache=cache, timer=timers[-1])
+    assert caplog.text.count("inside what the other views see as solid") == 1 and "inside (" in caplog.text
+    assert timers[0].stages["cameras_inside"]["cameras"] == ["inside"] and "cameras_inside" not in timers[1].stages
