@@ -29,23 +29,20 @@ def main(argv=None) -> int:
     ap.add_argument("--device", default="auto")
     a = ap.parse_args(argv)
 
-    from gof_warp.viz.pictures import run_photos
+    from gof_warp.viz.pictures import run_views
     from gof_warp.core.devices import resolve_device, warp_device
     from gof_warp.eval.image_metrics import psnr, ssim
     from gof_warp.mesh.colour import colours_from_images, gaussian_images, mesh_render_psnr, render_vertex_colours
     from gof_warp.mesh.decimate import decimate
     from gof_warp.mesh.extraction import MeshConfig, extract_mesh
-    from gof_warp.training.run_folder import cameras_from_json, load_run
+    from gof_warp.training.run_folder import load_run
 
     run = Path(a.run)
     device = resolve_device(a.device)
     wdev = warp_device(device)
-    gaussians, train_cams, _, render_config = load_run(run, None, device)
-    test_cams = cameras_from_json(run / "cameras.json", "test")
-    train_photos = run_photos(run, train_cams, device)
-    test_photos = run_photos(run, test_cams, device)
-    if train_photos is None or test_photos is None or not test_cams:
-        raise SystemExit(f"{run}: the scene's train and test photos are needed")
+    gaussians, _, _, render_config = load_run(run, None, device)
+    train_cams, train_photos = run_views(run, "train", device)
+    test_cams, test_photos = run_views(run, "test", device)
     background = tuple(render_config.background)
 
     mesh_file = run / "mesh_tetra.ply"

@@ -27,19 +27,18 @@ def main(argv=None) -> int:
 
     import trimesh
 
-    from gof_warp.viz.pictures import run_photos
+    from gof_warp.viz.pictures import run_views
     from gof_warp.core.devices import resolve_device, warp_device
     from gof_warp.mesh.decimate import decimate
     from gof_warp.mesh.texture import bake_texture, make_atlas, texture_side, textured_render_psnr
-    from gof_warp.training.run_folder import cameras_from_json, load_run
+    from gof_warp.training.run_folder import load_run
 
     run = Path(a.run)
     device = resolve_device(a.device)
     wdev = warp_device(device)
-    _, train_cams, _, render_config = load_run(run, None, device)
-    test_cams = cameras_from_json(run / "cameras.json", "test")
-    train_photos = run_photos(run, train_cams, device)
-    test_photos = run_photos(run, test_cams, device)
+    _, _, _, render_config = load_run(run, None, device)
+    train_cams, train_photos = run_views(run, "train", device)
+    test_cams, test_photos = run_views(run, "test", device)
     background = tuple(render_config.background)
     m = trimesh.load(run / "mesh_tetra.ply", process=False, force="mesh")
     v, f = decimate(np.asarray(m.vertices, np.float64), np.asarray(m.faces, np.int64), max_faces=a.max_faces,

@@ -30,10 +30,10 @@ def mesh_photo_fidelity(run, mesh_path, *, split: str = "test", device: str = "a
 
     from ..core.devices import resolve_device, warp_device
     from ..mesh.colour import _wp_mesh, gaussian_images, render_fidelity, render_surface
-    from ..training.run_folder import cameras_from_json, load_run
+    from ..training.run_folder import load_run
     from ..eval.image_metrics import psnr, ssim
     from .mesh_files import load_mesh_file
-    from .pictures import run_photos
+    from .pictures import run_views
 
     if split not in SPLITS:
         raise GofError(f"--split must be one of {SPLITS}, got {split!r}")
@@ -44,16 +44,9 @@ def mesh_photo_fidelity(run, mesh_path, *, split: str = "test", device: str = "a
     if not mesh.coloured:
         raise GofError(f"--mesh {mesh_path} has no colours to compare with photos: extract it with --color photos, "
                        "--color gaussians or --texture")
-    cameras = cameras_from_json(run / "cameras.json", split)
-    if not cameras:
-        raise GofError(f"--photos {run} has no {split} views" + (" (the run held none out: try --split train)"
-                                                                 if split == "test" else ""))
     device = resolve_device(device)
+    cameras, photos = run_views(run, split, device)
     gaussians, _, _, render_config = load_run(run, None, device)
-    photos = run_photos(run, cameras, device)
-    if photos is None:
-        raise GofError(f"--photos {run}: the photos of its {split} views were not found (the scene folder it names, "
-                       "or RUN/scene)")
     background = tuple(float(b) for b in render_config.background)
     wmesh = _wp_mesh(mesh.vertices, mesh.faces, warp_device(device))
     fidelity = render_fidelity(lambda cam: render_surface(mesh.vertices, mesh.faces, mesh.colour_at, cam,

@@ -146,6 +146,24 @@ def run_photos(run: Path, cameras, device):
                        device=warp_device(device))
 
 
+def run_views(run, split: str, device) -> tuple[list[Camera], list]:
+    """The ``split`` (``"train"`` or ``"test"``) cameras of run folder ``run`` (``RUN/cameras.json``, at the training
+    resolution) and their photos (:func:`run_photos`, uint8 ``[H, W, 3]`` each); :class:`GofError` when the run holds no
+    such views or their photos are not found."""
+    from ..training.run_folder import cameras_from_json
+
+    run = Path(run)
+    cameras = cameras_from_json(run / "cameras.json", split)
+    if not cameras:
+        raise GofError(f"{run} has no {split} views" + (" (the run held none out: use its train views)"
+                                                         if split == "test" else ""))
+    photos = run_photos(run, cameras, device)
+    if photos is None:
+        raise GofError(f"{run}: the photos of its {split} views were not found (the scene folder it names, or "
+                       "RUN/scene)")
+    return cameras, photos
+
+
 def mesh_picture_stem(mesh_path) -> str:
     """``mesh_<stem>`` for a mesh file, without doubling the prefix (``mesh_tetra.ply`` → ``mesh_tetra``)."""
     stem = Path(mesh_path).stem
