@@ -56,8 +56,8 @@ from ..core.arrays import check_triangles
 from ..core.camera import Camera
 from ..core.devices import warp_device
 from ..core.errors import GofError
-from .colour import (DEPTH_TOL, DEPTH_TOL_PX, UNSEEN_GREY, _as_float_image, _cast, _wp_mesh, render_fidelity,
-                     segment_unblocked, source_images, vertex_normals, visibility_tolerance)
+from .colour import (DEPTH_TOL, DEPTH_TOL_PX, UNSEEN_GREY, _as_float_image, _wp_mesh, render_fidelity,
+                     render_surface, segment_unblocked, source_images, vertex_normals, visibility_tolerance)
 
 log = logging.getLogger(__name__)
 
@@ -655,21 +655,18 @@ def render_textured(textured: TexturedMesh, camera: Camera, *, background=(0.0, 
     is ``background``. ``mesh``: a ``wp.Mesh`` of ``textured``'s vertices and faces, to reuse over views."""
     dev = mesh.device if mesh is not None else warp_device(device)
     mesh = mesh if mesh is not None else _wp_mesh(textured.vertices, textured.faces, dev)
-    hits = _cast(mesh, camera)
-    hit = hits["face"] >= 0
-    rgb = np.empty((camera.height, camera.width, 3), np.float32)
-    rgb[:] = np.asarray(background, np.float32)
-    n = int(hit.sum())
-    if n:
-        out = wp.empty(n, dtype=wp.vec3, device=dev)
-        wp.launch(_lookup, dim=n, inputs=[
-            wp.array(hits["face"][hit].astype(np.int32), dtype=wp.int32, device=dev),
-            wp.array(hits["bary"][hit].astype(np.float32), dtype=wp.vec2, device=dev),
+
+    def colour_at(face, bary):  # the texture's bilinear lookup at the hits' interpolated UVs, in a Warp kernel
+        out = wp.empty(len(face), dtype=wp.vec3, device=dev)
+        wp.launch(_lookup, dim=len(face), inputs=[
+            wp.array(np.asarray(face, np.int32), dtype=wp.int32, device=dev),
+            wp.array(np.asarray(bary, np.float32), dtype=wp.vec2, device=dev),
             wp.array(np.asarray(textured.faces, np.int32), dtype=wp.int32, device=dev),
             wp.array(np.asarray(textured.uv, np.float32), dtype=wp.vec2, device=dev),
             wp.array(np.ascontiguousarray(textured.texture, np.float32), dtype=wp.vec3, device=dev), out], device=dev)
-        rgb[hit] = out.numpy()
-    return rgb, hit
+        return out.numpy()
+
+    return render_surface(textured.vertices, textured.faces, colour_at, camera, background=background, mesh=mesh)
 
 
 def textured_render_psnr(textured: TexturedMesh, cameras: Sequence[Camera], photos: Iterable, *,
