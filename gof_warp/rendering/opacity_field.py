@@ -261,6 +261,8 @@ def cameras_inside_surfaces(gaussians, cameras: Sequence[Camera], *, render_conf
         return []
     device = gaussians.device
     wp.init()
+    # the renderer's tile, not the field's smaller CPU tile: with a few hundred points a view the binning dominates,
+    # and finer tiles make it dearer (2-core CPU, fox: 1.95 s here, 3.9 s with CPU_TILE_SIZE; the same cameras)
     arrays, views = _view_inputs(gaussians, cameras, render_config)
     centres = np.stack([c.center for c in cameras])
     means = gaussians.means.detach().cpu().double().numpy()
