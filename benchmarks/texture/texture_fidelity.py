@@ -6,7 +6,7 @@ views (whole image, and over the pixels the mesh covers). At the full mesh also:
 and the texture from the Gaussians' renders. Writes OUT.json and OUT.png (one test view: photo | Gaussians |
 textured mesh | vertex-coloured mesh).
 
-    python benchmarks/texture/texture_fidelity.py RUN OUT.json [--max-faces 50000 20000 5000] [--device cpu]
+    python benchmarks/texture/texture_fidelity.py RUN OUT.json [--max-faces 50000 20000 5000] [--device cpu] [--no-variants]
 
 RUN: a training run folder with its scene (``RUN/scene`` or the scene it names) and ``RUN/mesh_tetra.ply`` (the
 README job: ``python -m gof_warp.train --out RUN && python -m gof_warp.extract RUN --binary-steps 4``).
@@ -32,6 +32,8 @@ def main(argv=None) -> int:
     ap.add_argument("--max-faces", type=int, nargs="*", default=[50_000, 20_000, 5_000])
     ap.add_argument("--device", default="auto")
     ap.add_argument("--view", type=int, default=0, help="the test view of the picture")
+    ap.add_argument("--no-variants", action="store_true",
+                    help="skip the full mesh's texture without exposure gains and from the Gaussians' renders")
     a = ap.parse_args(argv)
 
     import trimesh
@@ -57,7 +59,8 @@ def main(argv=None) -> int:
     result = {"run": str(run), "mesh": str(run / "mesh_tetra.ply"), "mesh_faces": int(len(mesh[1])),
               "device": str(device), "host": platform.node(), "train_views": len(train_cams),
               "test_views": len(test_cams),
-              "machine": "2-core CPU dev box (shared with other jobs, so timings are upper bounds)"}
+              "machine": (f"1x {torch.cuda.get_device_name(device)}" if str(device).startswith("cuda") else
+                          "2-core CPU dev box (shared with other jobs, so timings are upper bounds)")}
     metrics_file = run / "metrics.json"
     if metrics_file.is_file():
         trained = json.loads(metrics_file.read_text())
@@ -90,7 +93,7 @@ def main(argv=None) -> int:
         atlas = make_atlas(v, f, texture_side(len(f)))
         atlas_s = time.perf_counter() - t
         variants = [("texture", dict(source="photos", exposure=True))]
-        if i == 0:
+        if i == 0 and not a.no_variants:
             variants += [("texture_no_exposure", dict(source="photos", exposure=False)),
                          ("texture_from_gaussians", dict(source="gaussians", exposure=False))]
         for name, opts in variants:

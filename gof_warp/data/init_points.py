@@ -104,13 +104,47 @@ def background_points(scene: Scene, n: int, existing: np.ndarray | None = None) 
     return pts[seen > 0], colours[seen > 0]
 
 
+def views_seeing_points(points: np.ndarray, cameras) -> np.ndarray:
+    """``[P]`` int: how many of ``cameras`` hold each of ``points [P, 3]`` in their image, in front of them."""
+    count = np.zeros(len(points), dtype=np.int64)
+    for cam in cameras:
+        count += cam.in_image(points)[2]
+    return count
+
+
+#: rounds of redrawing the random points that too few cameras see; those still unseen after them are left out
+_REDRAW_ROUNDS = 256
+
+
+def _redraw_unseen(points: np.ndarray, box: np.ndarray, rng, scene: Scene, min_views: int) -> np.ndarray:
+    """``points`` with each one that fewer than ``min_views`` training cameras see drawn again, uniformly in ``box``
+    (the draws continue ``rng``: nothing is drawn where every point is seen already). Points still unseen after
+    :data:`_REDRAW_ROUNDS` rounds are left out (a box mostly outside the views); none seen at all is an error."""
+    cams = scene.train_cameras
+    points = points.copy()
+    todo = np.flatnonzero(views_seeing_points(points, cams) < min_views)
+    for _ in range(_REDRAW_ROUNDS):
+        if not len(todo):
+            return points
+        points[todo] = box[:3] + (box[3:] - box[:3]) * rng.random((len(todo), 3))
+        todo = todo[views_seeing_points(points[todo], cams) < min_views]
+    if len(todo) == len(points):
+        raise GofError(f"model.init=random: no point of model.init_box {box.tolist()} is seen by {min_views} training "
+                       f"cameras (model.random_min_views): set model.init_box to the region the cameras look at, or "
+                       f"model.random_min_views=0")
+    log.info("model.init=random: %d of %d random points left out: fewer than %d training cameras see them",
+             len(todo), len(points), min_views)
+    return np.delete(points, todo, axis=0)
+
+
 def initial_point_cloud(scene: Scene, init: str, *, random_points: int, init_box=None, background: int = 0,
-                        seed: int = 0, sfm_config=None) -> tuple[np.ndarray, np.ndarray | None, dict]:
+                        seed: int = 0, sfm_config=None, min_views: int = 0) -> tuple[np.ndarray, np.ndarray | None, dict]:
     """The initial points of a run: ``(points [P, 3], colours [P, 3] (uint8, or float in [0, 1]) or None, info)``.
 
     ``init`` is ``ModelConfig.init`` (``"auto" | "sfm" | "random"``, see there); ``info`` says what was used
     (``source``: ``scene`` / ``triangulated`` / ``random``, counts, and the triangulation's statistics), for
-    the run's ``metrics.json`` and log.
+    the run's ``metrics.json`` and log. ``min_views > 0``: random points are drawn only where at least that many
+    training cameras see them (:func:`views_seeing_points`), as SfM points are seen by two views or more.
     """
     info: dict = {"init": init}
     points = colours = None
@@ -139,8 +173,12 @@ def initial_point_cloud(scene: Scene, init: str, *, random_points: int, init_box
             raise GofError(f"model.init_box must be (xmin, ymin, zmin, xmax, ymax, zmax) with max > min, got {box.tolist()}")
         rng = np.random.default_rng(seed)
         points = box[:3] + (box[3:] - box[:3]) * rng.random((random_points, 3))
-        colours = rng.random((random_points, 3))  # as Gaussians.random_in_box: same draws, same model
+        if min_views > 0:
+            points = _redraw_unseen(points, box, rng, scene, min_views)
+        colours = rng.random((len(points), 3))  # as Gaussians.random_in_box: same draws, same model
         info["source"] = "random"
+        if min_views > 0:
+            info["random_min_views"] = min_views
     info["points"] = int(len(points))
     if background > 0:
         bg, bg_col = background_points(scene, background, points if info["source"] != "random" else None)

@@ -37,6 +37,10 @@ Rules (GOF_REFERENCE §4; defaults in :class:`DensifyConfig`):
   nearest initial (SfM) point that camera sees (``gof_warp.training.near_camera``): nothing the photos triangulated lies
   that close. Measured on colmap_can: every per-view loss spike after 15k was such a Gaussian (opaque, 0.2–0.6
   in front of the camera, its centre often beside the image) or one that had grown past ``0.1·E`` (scale 4).
+* A run from random points (``ModelConfig.random_min_views``): after each densification and late prune, the
+  Gaussians whose centres fewer than that many training cameras see are removed (the trainer's ``unseen`` test,
+  :func:`gof_warp.training.near_camera.views_seeing`): densification grows from SfM points, which two views or more
+  saw, but random points also fill the space right in front of a camera, which no other view constrains.
 * Optional budget ``max_gaussians``: growth stops at the budget; when there are more candidates than
   room, the highest-scoring ones (score = metric / its threshold) are kept. The budget is checked
   against the count *before* this step's prune; room freed by the prune is used at the next step.
@@ -165,6 +169,7 @@ class DensifyReport:
     late_pruned: bool = False  # a prune after densification ran (late_prune_interval)
     num_near_camera: int = 0  # of num_pruned: Gaussians in front of a camera (near_camera_fraction)
     num_hidden: int = 0  # Gaussians removed as hidden behind the rendered surface (hidden_prune_iters)
+    num_unseen: int = 0  # Gaussians removed because too few training cameras see them (the trainer's unseen test)
     filter_3d_due: bool = False  # the trainer should recompute the 3D filter now (GOF schedule)
 
 
@@ -316,6 +321,7 @@ class Densifier:
         # Gaussians the late prunes removed, by reason (each counted once, in this order)
         self.late_pruned = {"transparent": 0, "too_large": 0, "near_camera": 0}
         self.hidden_pruned = 0  # Gaussians the hidden prunes removed
+        self.unseen_pruned = 0  # Gaussians removed because too few training cameras see them
         self._view_stats = ViewStatsKernel()  # adds each view's statistics into self.stats
 
     # ------------------------------------------------------------------ hooks
@@ -373,12 +379,14 @@ class Densifier:
 
     def step(self, iteration: int, gaussians: Gaussians, optimizer, extent: float,
              near_camera: Callable[[], torch.Tensor] | None = None,
-             hidden: Callable[[], torch.Tensor] | None = None) -> DensifyReport:
+             hidden: Callable[[], torch.Tensor] | None = None,
+             unseen: Callable[[], torch.Tensor] | None = None) -> DensifyReport:
         """Densify/prune and reset opacities when the schedule says so (call after backward, before
         ``optimizer.step()``). Replaced parameters have no ``.grad``, so Adam skips them this
         iteration, as in GOF. ``near_camera()`` (``[N]`` bool, called only at a late prune): the Gaussians in
         front of a camera (``near_camera_fraction``). ``hidden()`` (``[N]`` bool, called at ``hidden_prune_iters``,
-        after any other change this step): the Gaussians behind the rendered surface."""
+        after any other change this step): the Gaussians behind the rendered surface. ``unseen()`` (``[N]`` bool,
+        called after each densification and late prune): the Gaussians too few training cameras see."""
         cfg = self.config
         n0 = len(gaussians)
         report = DensifyReport(iteration=iteration, num_before=n0, num_after=n0)
@@ -392,6 +400,9 @@ class Densifier:
                 report.opacity_reset = True
         elif self.late_prune_due(iteration):
             self._late_prune(iteration, gaussians, optimizer, extent, near_camera, report)
+        if unseen is not None and (report.densified or report.late_pruned):
+            report.num_unseen = self._mask_prune(iteration, gaussians, optimizer, unseen, "unseen")
+            self.unseen_pruned += report.num_unseen
         if hidden is not None and self.hidden_prune_due(iteration):
             self._hidden_prune(iteration, gaussians, optimizer, hidden, report)
         report.filter_3d_due = report.densified or (
@@ -425,17 +436,22 @@ class Densifier:
             self.stats = None
 
     def _hidden_prune(self, iteration: int, gaussians, optimizer, hidden, report: DensifyReport) -> None:
-        mask = hidden()
-        if mask.shape != (len(gaussians),):
-            raise GofError(f"hidden prune at iteration {iteration}: a mask of shape {list(mask.shape)} for "
-                           f"{len(gaussians)} Gaussians")
-        report.num_hidden = int(mask.sum())
-        if report.num_hidden == len(gaussians):
-            raise GofError(f"the hidden prune at iteration {iteration} would remove all {len(gaussians)} Gaussians")
+        report.num_hidden = self._mask_prune(iteration, gaussians, optimizer, hidden, "hidden")
         self.hidden_pruned += report.num_hidden
-        if report.num_hidden:
+
+    def _mask_prune(self, iteration: int, gaussians, optimizer, test: Callable[[], torch.Tensor], what: str) -> int:
+        """Remove the Gaussians ``test()`` (``[N]`` bool) marks; how many. Removing every one is an error."""
+        mask = test()
+        if mask.shape != (len(gaussians),):
+            raise GofError(f"{what} prune at iteration {iteration}: a mask of shape {list(mask.shape)} for "
+                           f"{len(gaussians)} Gaussians")
+        n = int(mask.sum())
+        if n == len(gaussians):
+            raise GofError(f"the {what} prune at iteration {iteration} would remove all {len(gaussians)} Gaussians")
+        if n:
             replace_params(gaussians, optimizer, keep=~mask)
             self.stats = None
+        return n
 
     # ------------------------------------------------------------------ the densification step
     def _densify_and_prune(self, iteration, gaussians, optimizer, extent, report: DensifyReport) -> None:
@@ -488,13 +504,15 @@ class Densifier:
         gen = None if self.generator is None else (str(self.generator.device), self.generator.get_state())
         return {"config": asdict(self.config), "history": list(self.history),
                 "stats": None if self.stats is None else asdict(self.stats), "generator": gen,
-                "late_pruned": dict(self.late_pruned), "hidden_pruned": self.hidden_pruned}
+                "late_pruned": dict(self.late_pruned), "hidden_pruned": self.hidden_pruned,
+                "unseen_pruned": self.unseen_pruned}
 
     def load_state_dict(self, state: dict) -> None:
         self.history = [tuple(h) for h in state["history"]]
         self.stats = None if state["stats"] is None else _Stats(**state["stats"])
         self.late_pruned = dict(state.get("late_pruned", self.late_pruned))  # older checkpoints: none
         self.hidden_pruned = int(state.get("hidden_pruned", 0))
+        self.unseen_pruned = int(state.get("unseen_pruned", 0))
         if state["generator"] is not None:
             device, gstate = state["generator"]
             self.generator = torch.Generator(device=device)

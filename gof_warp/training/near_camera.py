@@ -18,6 +18,9 @@ view's photometric loss and distortion term: a one-iteration loss spike.
 * :func:`near_camera_bounds` / :func:`in_front_of_cameras` — per camera, a depth no surface it sees lies in front
   of (a fraction of its nearest initial point), and the Gaussians that some camera's rays meet nearer than that
   (the ray census's test): what ``DensifyConfig.near_camera_fraction`` removes after densification.
+* :func:`views_seeing` — how many cameras hold each centre in their image beyond their near plane. In a random start
+  the space right in front of a camera is in no other training view's image (a held-out view between them looks
+  through it): what ``ModelConfig.random_min_views`` keeps Gaussians out of.
 """
 
 from __future__ import annotations
@@ -195,6 +198,30 @@ def stack_cameras(cameras: list[Camera], device=None, dtype=torch.float32) -> di
             "t": torch.tensor(np.stack([c.t for c in cameras]), device=device, dtype=dtype),
             "k": torch.tensor([[c.fx, c.fy, c.cx, c.cy, c.width, c.height] for c in cameras], device=device,
                               dtype=dtype)}
+
+
+def views_seeing(means: torch.Tensor, cameras: dict[str, torch.Tensor], near: torch.Tensor,
+                 chunk: int = _PROJECT_CHUNK) -> torch.Tensor:
+    """``[N]`` int64: for each centre of ``means [N, 3]``, the number of ``cameras`` (:func:`stack_cameras`) that hold
+    it in their image beyond their near plane: camera-space ``z > near[c]`` and pixel ``0 <= u < width``,
+    ``0 <= v < height`` (``u = fx·x/z + cx``; :meth:`Camera.in_image`'s test). ``near [C]``: each camera's clip depth.
+    Memory: ``C × chunk`` projections at a time."""
+    with torch.no_grad():
+        dt = cameras["R"].dtype
+        means = means.detach().to(dt)
+        k = cameras["k"]
+        fx, fy, cx, cy, w, h = (k[:, i:i + 1] for i in range(6))
+        nr = near.to(device=means.device, dtype=dt)[:, None]
+        out = torch.zeros(means.shape[0], dtype=torch.int64, device=means.device)
+        for lo in range(0, means.shape[0], chunk):
+            pc = torch.einsum("cij,nj->cni", cameras["R"], means[lo:lo + chunk]) + cameras["t"][:, None, :]
+            z = pc[..., 2]
+            zs = torch.where(z > 0, z, torch.ones_like(z))
+            u = fx * pc[..., 0] / zs + cx
+            v = fy * pc[..., 1] / zs + cy
+            seen = (z > nr) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+            out[lo:lo + chunk] = seen.sum(0)
+        return out
 
 
 def in_front_of_cameras(means: torch.Tensor, quats: torch.Tensor, scales: torch.Tensor, opacities: torch.Tensor,

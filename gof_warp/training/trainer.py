@@ -56,7 +56,7 @@ from ..eval.image_metrics import image_metrics, psnr
 from ..core.model import Activation, Gaussians
 from .multiview import MultiViewTerm
 from .near_camera import (in_front_of_cameras, near_camera_bounds, near_camera_census, near_ray_census,
-                          stack_cameras)
+                          stack_cameras, views_seeing)
 from .optim import LeanAdam, OptimConfig, make_optimizer, update_learning_rate
 from ..rendering.render import DensifyStats, RenderConfig, RenderScratch, render, scene_near, scene_size
 from ..core.scene import Scene
@@ -93,6 +93,12 @@ class ModelConfig:
     missing SfM points: from then on they bound each camera as SfM points would (``render.near_from_points``,
     ``densify.near_camera_fraction``), so Gaussians cannot settle right in front of a camera. 0 = never (those two
     stay off without points); runs from measured points ignore it.
+    ``random_min_views``: in a run that starts from random points, the points are drawn only where at least this
+    many training cameras see them (in their image, in front), and at every densification and late prune the
+    Gaussians whose centres fewer training cameras see (beyond their near plane) are removed: the space right in
+    front of a camera that no other view constrains, where a random start leaves floaters over held-out views
+    (SfM or triangulated points are seen by two views or more by construction). 0 = off; runs from measured points
+    ignore it.
     """
 
     sh_degree: int = 3  # spherical-harmonics degree of the colours (0: view-independent)
@@ -103,6 +109,7 @@ class ModelConfig:
     background_points: int = field(default=0, metadata={"set_by": "experimental.background_points"})
     use_filter_3d: bool = True  # Mip-Splatting 3D smoothing filter, as GOF
     surface_points_iter: int = 0  # random start: iteration whose rendered surfaces stand in for SfM points (0: never)
+    random_min_views: int = 2  # random start: points and Gaussians only where this many training cameras see them
 
     def __post_init__(self):
         if self.init not in INIT_MODES:
@@ -110,6 +117,9 @@ class ModelConfig:
         if isinstance(self.surface_points_iter, bool) or not isinstance(self.surface_points_iter, int) \
                 or self.surface_points_iter < 0:
             raise ConfigError(f"model.surface_points_iter must be an integer >= 0, got {self.surface_points_iter!r}")
+        if isinstance(self.random_min_views, bool) or not isinstance(self.random_min_views, int) \
+                or self.random_min_views < 0:
+            raise ConfigError(f"model.random_min_views must be an integer >= 0, got {self.random_min_views!r}")
         if self.background_points < 0 or self.random_init_points < 1:
             raise ConfigError("model.background_points must be >= 0 and model.random_init_points >= 1")
 
@@ -178,7 +188,8 @@ def initial_gaussians(scene: Scene, cfg: ModelConfig, seed: int, device) -> tupl
     """The first Gaussians (:func:`gof_warp.data.init_points.initial_point_cloud` decides where), what was used, and the
     scene's or triangulated points among them (``[P, 3]``; None for a random start)."""
     points, colours, info = initial_point_cloud(scene, cfg.init, random_points=cfg.random_init_points,
-                                                init_box=cfg.init_box, background=cfg.background_points, seed=seed)
+                                                init_box=cfg.init_box, background=cfg.background_points, seed=seed,
+                                                min_views=cfg.random_min_views if cfg.init == "random" else 0)
     log.info("initial points: %d from %s%s", info["points"], info["source"],
              f" + {info['background_points']} background" if info.get("background_points") else "")
     measured = None if info["source"] == "random" else points[:info["points"]]
@@ -305,6 +316,7 @@ class Trainer:
                                    else 0)
         self._camera_near_planes(init_points)
         self._in_front = self._near_camera_rule(init_points)
+        self._unseen = self._unseen_rule(init_points)
         if config.model.use_filter_3d:
             update_filter_3d(self.gaussians, self.cameras, near=self.render_config.near)
         self.optimizer = make_optimizer(self.gaussians, config.optim, scene.extent)
@@ -380,7 +392,7 @@ class Trainer:
             if self.densifier.densify_due(it):
                 self.ranks.reduce_densify_stats(self.densifier.stats)
             report = self.densifier.step(it, g, self.optimizer, self.scene.extent, near_camera=self._in_front,
-                                         hidden=self._hidden)
+                                         hidden=self._hidden, unseen=self._unseen)
             if report.num_hidden:
                 log.info("iteration %d: removed %d Gaussians hidden behind the rendered surface", it, report.num_hidden)
             if len(g) == 0:
@@ -547,6 +559,20 @@ class Trainer:
                                        alpha_min=rc.alpha_min, alpha_max=rc.alpha_max)
         return in_front
 
+    def _unseen_rule(self, points: np.ndarray | None) -> Callable[[], torch.Tensor] | None:
+        """``model.random_min_views``' test for a random start (None for a run from points, or when 0): the
+        Gaussians whose centres fewer than that many training cameras hold in their image beyond their near plane."""
+        k = self.config.model.random_min_views
+        if points is not None or k <= 0:
+            return None
+        self.init_info["unseen_prune"] = {"min_views": k}
+
+        def unseen() -> torch.Tensor:  # the cameras are read at each call: surface_points_iter may set near planes
+            stack = stack_cameras(self.cameras, self.device)
+            near = torch.tensor([self.render_config.clip_near(c) for c in self.cameras], dtype=torch.float64)
+            return views_seeing(self.gaussians.means, stack, near) < k
+        return unseen
+
     def view_index(self, name: str) -> int | None:
         """Index in ``cameras``/``images`` of the training view called ``name`` (None: no such view)."""
         return next((i for i, c in enumerate(self.cameras) if c.name == name), None)
@@ -645,6 +671,8 @@ class Trainer:
             "late_pruned": dict(self.densifier.late_pruned) if cfg.densify.late_prune_interval else None,
             # Gaussians removed as hidden behind the rendered surface (densify.hidden_prune_iters; None: off)
             "hidden_pruned": self.densifier.hidden_pruned if cfg.densify.hidden_prune_iters else None,
+            # Gaussians too few training cameras saw (a random start's model.random_min_views; None: off)
+            "unseen_pruned": self.densifier.unseen_pruned if self._unseen is not None else None,
             # calls, exact measurements, overflows (renders that dropped entries: see kernels.binning.TileListSizer)
             "tile_lists": None if self.tile_lists is None else self.tile_lists.stats(),
             "loss_compiled": self.loss.compiled is not None, "loss_compile_fallback": self.loss.fallback_reason,
