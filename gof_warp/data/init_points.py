@@ -114,23 +114,48 @@ def views_seeing_points(points: np.ndarray, cameras) -> np.ndarray:
 
 #: rounds of redrawing the random points that too few cameras see; those still unseen after them are left out
 _REDRAW_ROUNDS = 256
+#: far random points (``random_far_fraction``) reach this many times the largest camera distance from the focus
+FAR_REACH = 20.0
 
 
-def _redraw_unseen(points: np.ndarray, box: np.ndarray, rng, scene: Scene, min_views: int) -> np.ndarray:
-    """``points`` with each one that fewer than ``min_views`` training cameras see drawn again, uniformly in ``box``
-    (the draws continue ``rng``: nothing is drawn where every point is seen already). Points still unseen after
-    :data:`_REDRAW_ROUNDS` rounds are left out (a box mostly outside the views); none seen at all is an error."""
+def _in_box(box: np.ndarray, rng):
+    """A sampler ``n -> [n, 3]``: uniform in ``box`` (xmin, ymin, zmin, xmax, ymax, zmax)."""
+    return lambda n: box[:3] + (box[3:] - box[:3]) * rng.random((n, 3))
+
+
+def _far(box: np.ndarray, scene: Scene, rng):
+    """A sampler ``n -> [n, 3]``: around the box's centre ``c``, in uniformly random directions, at distances
+    log-uniform in ``[r0, r1]``: ``r0`` the box's half-diagonal, ``r1 = FAR_REACH`` × the largest distance of a training
+    camera from ``c`` (as many points per doubling of the distance: the far background a capture sees, where SfM
+    finds points and a box start has none)."""
+    c = 0.5 * (box[:3] + box[3:])
+    r0 = 0.5 * float(np.linalg.norm(box[3:] - box[:3]))
+    r1 = max(FAR_REACH * float(np.max(np.linalg.norm(np.stack([v.center for v in scene.train_cameras]) - c, axis=1))),
+             2.0 * r0)
+
+    def draw(n: int) -> np.ndarray:
+        d = rng.normal(size=(n, 3))
+        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+        return c + d * np.exp(rng.uniform(math.log(r0), math.log(r1), size=(n, 1)))
+    return draw
+
+
+def _redraw_unseen(points: np.ndarray, draw, scene: Scene, min_views: int, where: str) -> np.ndarray:
+    """``points`` with each one that fewer than ``min_views`` training cameras see drawn again by ``draw(n)`` (which
+    continues the run's generator: nothing is drawn where every point is seen already). Points still unseen after
+    :data:`_REDRAW_ROUNDS` rounds are left out (a region mostly outside the views); none seen at all is an error
+    naming ``where`` they were drawn."""
     cams = scene.train_cameras
     points = points.copy()
     todo = np.flatnonzero(views_seeing_points(points, cams) < min_views)
     for _ in range(_REDRAW_ROUNDS):
         if not len(todo):
             return points
-        points[todo] = box[:3] + (box[3:] - box[:3]) * rng.random((len(todo), 3))
+        points[todo] = draw(len(todo))
         todo = todo[views_seeing_points(points[todo], cams) < min_views]
     if len(todo) == len(points):
-        raise GofError(f"model.init=random: no point of model.init_box {box.tolist()} is seen by {min_views} training "
-                       f"cameras (model.random_min_views): set model.init_box to the region the cameras look at, or "
+        raise GofError(f"model.init=random: no point {where} is seen by {min_views} training cameras "
+                       f"(model.random_min_views): set model.init_box to the region the cameras look at, or "
                        f"model.random_min_views=0")
     log.info("model.init=random: %d of %d random points left out: fewer than %d training cameras see them",
              len(todo), len(points), min_views)
@@ -138,13 +163,15 @@ def _redraw_unseen(points: np.ndarray, box: np.ndarray, rng, scene: Scene, min_v
 
 
 def initial_point_cloud(scene: Scene, init: str, *, random_points: int, init_box=None, background: int = 0,
-                        seed: int = 0, sfm_config=None, min_views: int = 0) -> tuple[np.ndarray, np.ndarray | None, dict]:
+                        seed: int = 0, sfm_config=None, min_views: int = 0, far_fraction: float = 0.0) -> tuple[np.ndarray, np.ndarray | None, dict]:
     """The initial points of a run: ``(points [P, 3], colours [P, 3] (uint8, or float in [0, 1]) or None, info)``.
 
     ``init`` is ``ModelConfig.init`` (``"auto" | "sfm" | "random"``, see there); ``info`` says what was used
     (``source``: ``scene`` / ``triangulated`` / ``random``, counts, and the triangulation's statistics), for
     the run's ``metrics.json`` and log. ``min_views > 0``: random points are drawn only where at least that many
     training cameras see them (:func:`views_seeing_points`), as SfM points are seen by two views or more.
+    ``far_fraction``: that fraction of the random points lies beyond the box, out to the far background
+    (:func:`_far`: log-uniform distances), where a capture's background is.
     """
     info: dict = {"init": init}
     points = colours = None
@@ -172,9 +199,18 @@ def initial_point_cloud(scene: Scene, init: str, *, random_points: int, init_box
         if box.shape != (6,) or np.any(box[3:] <= box[:3]):
             raise GofError(f"model.init_box must be (xmin, ymin, zmin, xmax, ymax, zmax) with max > min, got {box.tolist()}")
         rng = np.random.default_rng(seed)
-        points = box[:3] + (box[3:] - box[:3]) * rng.random((random_points, 3))
+        n_far = int(round(far_fraction * random_points))
+        in_box = _in_box(box, rng)
+        points = in_box(random_points - n_far)
         if min_views > 0:
-            points = _redraw_unseen(points, box, rng, scene, min_views)
+            points = _redraw_unseen(points, in_box, scene, min_views, f"of model.init_box {box.tolist()}")
+        if n_far:
+            far = _far(box, scene, rng)
+            far_points = far(n_far)
+            if min_views > 0:
+                far_points = _redraw_unseen(far_points, far, scene, min_views, "beyond model.init_box")
+            points = np.concatenate([points, far_points])
+            info["random_far_points"] = int(len(far_points))
         colours = rng.random((len(points), 3))  # as Gaussians.random_in_box: same draws, same model
         info["source"] = "random"
         if min_views > 0:

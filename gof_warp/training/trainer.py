@@ -99,6 +99,11 @@ class ModelConfig:
     front of a camera that no other view constrains, where a random start leaves floaters over held-out views
     (SfM or triangulated points are seen by two views or more by construction). 0 = off; runs from measured points
     ignore it.
+    ``random_far_fraction``: in a random start, this fraction of the ``random_init_points`` lies beyond ``init_box``, in
+    random directions at distances log-uniform from the box's half-diagonal to 20 × the farthest camera's distance
+    (:func:`gof_warp.data.init_points.initial_point_cloud`): a capture with a background (a ground, walls, a far
+    horizon) starts with points there, as SfM's would, instead of painting it on Gaussians near the cameras. 0 (3DGS's
+    box start) for objects on a plain background.
     """
 
     sh_degree: int = 3  # spherical-harmonics degree of the colours (0: view-independent)
@@ -110,6 +115,7 @@ class ModelConfig:
     use_filter_3d: bool = True  # Mip-Splatting 3D smoothing filter, as GOF
     surface_points_iter: int = 0  # random start: iteration whose rendered surfaces stand in for SfM points (0: never)
     random_min_views: int = 2  # random start: points and Gaussians only where this many training cameras see them
+    random_far_fraction: float = 0.0  # random start: this fraction of the points beyond init_box, out to the far background
 
     def __post_init__(self):
         if self.init not in INIT_MODES:
@@ -120,6 +126,9 @@ class ModelConfig:
         if isinstance(self.random_min_views, bool) or not isinstance(self.random_min_views, int) \
                 or self.random_min_views < 0:
             raise ConfigError(f"model.random_min_views must be an integer >= 0, got {self.random_min_views!r}")
+        if isinstance(self.random_far_fraction, bool) or not isinstance(self.random_far_fraction, (int, float)) \
+                or not 0.0 <= self.random_far_fraction < 1.0:
+            raise ConfigError(f"model.random_far_fraction must be in [0, 1), got {self.random_far_fraction!r}")
         if self.background_points < 0 or self.random_init_points < 1:
             raise ConfigError("model.background_points must be >= 0 and model.random_init_points >= 1")
 
@@ -189,7 +198,8 @@ def initial_gaussians(scene: Scene, cfg: ModelConfig, seed: int, device) -> tupl
     scene's or triangulated points among them (``[P, 3]``; None for a random start)."""
     points, colours, info = initial_point_cloud(scene, cfg.init, random_points=cfg.random_init_points,
                                                 init_box=cfg.init_box, background=cfg.background_points, seed=seed,
-                                                min_views=cfg.random_min_views if cfg.init == "random" else 0)
+                                                min_views=cfg.random_min_views if cfg.init == "random" else 0,
+                                                far_fraction=cfg.random_far_fraction)
     log.info("initial points: %d from %s%s", info["points"], info["source"],
              f" + {info['background_points']} background" if info.get("background_points") else "")
     measured = None if info["source"] == "random" else points[:info["points"]]

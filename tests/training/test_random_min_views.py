@@ -130,3 +130,29 @@ def test_the_trainer_prunes_what_fewer_than_two_training_cameras_see_at_each_den
     # a run from points, or the setting 0: no such rule
     off = Trainer(scene, merge(cfg, {"model": {"random_min_views": 0}}), tmp_path / "off", "cpu")
     assert off._unseen is None and "unseen_prune" not in off.init_info
+
+
+def test_far_points_lie_beyond_the_box_out_to_the_far_background_where_two_cameras_see_them():
+    cams = _ring()
+    scene = _scene(cams)
+    box = np.array([-0.5, -0.5, -0.5, 0.5, 0.5, 0.5])
+    pts, cols, info = initial_point_cloud(scene, "random", random_points=2000, init_box=box, seed=2, min_views=2,
+                                          far_fraction=0.25)
+    assert len(pts) == len(cols) == 2000 and info["random_far_points"] == 500
+    inside = np.all((pts >= box[:3]) & (pts <= box[3:]), axis=1)
+    assert inside[:1500].all() and not inside[1500:].any()  # the box's points first, then the far ones
+    r = np.linalg.norm(pts[1500:], axis=1)
+    r0, r1 = 0.5 * np.linalg.norm(box[3:] - box[:3]), 20.0 * np.linalg.norm(cams[0].center)
+    assert r.min() >= r0 - 1e-9 and r.max() <= r1 + 1e-9
+    assert np.median(r) > 3.0 * r0  # log-uniform: half of them beyond the geometric mean of r0 and r1
+    assert (views_seeing_points(pts, cams) >= 2).all()
+    # no far points: the box's draws as before
+    a = initial_point_cloud(scene, "random", random_points=300, init_box=box, seed=2, min_views=2)
+    b = initial_point_cloud(scene, "random", random_points=300, init_box=box, seed=2, min_views=2, far_fraction=0.0)
+    assert np.array_equal(a[0], b[0]) and "random_far_points" not in b[2]
+
+
+def test_the_far_fraction_is_validated():
+    for bad in (-0.1, 1.0, True, "0.5"):
+        with pytest.raises(ConfigError, match="model.random_far_fraction"):
+            ModelConfig(random_far_fraction=bad)
