@@ -162,7 +162,7 @@ def _mesh_nan(path: Path) -> bool:
         return False
     import trimesh
 
-    v = np.asarray(trimesh.load(path, process=False).vertices)
+    v = np.asarray(trimesh.load(path, process=False, force="mesh").vertices)
     return bool(len(v)) and not bool(np.isfinite(v).all())
 
 

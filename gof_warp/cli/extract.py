@@ -24,6 +24,7 @@ from ..core.errors import GofError
 from ..mesh.extraction import (MAX_RESOLUTION, METHODS, MIN_RESOLUTION, MeshConfig, StageTimer,  # noqa: F401
                                empty_mesh_message, extract_mesh, level_name_clash, meshable, save_mesh)
 from ..mesh.export import save_mesh_file, save_textured_mesh, textured_companions
+from ..core.orientation import UP_CHOICES, parse_up, scene_up
 from ..mesh.marching_inputs import MAX_BINARY_STEPS, MAX_STEPS_PER_CALL
 from ..core.io_utils import write_json_atomic
 from ..mesh.colour import SOURCES as COLOUR_SOURCES
@@ -145,6 +146,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                              "training cameras and, with --collision, the collision mesh; needs gof_warp[usd]) "
                              "(default: from --out's suffix, .glb, .obj, .usd, .usda or .usdc, else ply; with "
                              "--texture, glb)")
+    colour.add_argument("--up", default="auto", choices=UP_CHOICES,
+                        help="the scene's up direction, so that glb and obj (+Y up) and usd (Z up) assets stand "
+                             "upright: auto (the default: the mean up direction of the training cameras' images, "
+                             "snapped to a world axis within 10 degrees) or an axis; ply stays in the scene's frame "
+                             "(the file records the rotation: gof_warp reads it back in the scene's frame)")
     colour.add_argument("--texture", action="store_true",
                         help="bake a colour texture on a UV atlas (the optional gof_warp[texture] extra: xatlas) from "
                              "--color's source (default with --texture: photos), after any --max-faces decimation; "
@@ -418,6 +424,9 @@ def extract_run(a, ranks, device) -> None:
     if a.collision:
         with timer("collision_mesh"):
             collision = make_collision_mesh(a, gaussians, cameras, render_config)
+    up = asset_up(a, cameras, fmt)
+    if up is not None:
+        command["up"] = [float(x) for x in up]
     outputs = []
     t_save = time.perf_counter()
     for level, (v, f), c, tex in zip(levels, meshes, colours, textures):
@@ -428,15 +437,15 @@ def extract_run(a, ranks, device) -> None:
             solid = None if collision is None else collision[:2]
             if tex is not None:  # the atlas's vertices; USD's UVs have v up
                 write_usd(path, tex.vertices, tex.faces, cameras=cameras, collision=solid,
-                          texture=tex.texture_uint8(), uvs=tex.uv_up())
+                          texture=tex.texture_uint8(), uvs=tex.uv_up(), up=up)
             else:
-                write_usd(path, v, f, colours=c, cameras=cameras, collision=solid)
+                write_usd(path, v, f, colours=c, cameras=cameras, collision=solid, up=up)
         elif tex is not None:
-            save_textured_mesh(path, tex, fmt)
+            save_textured_mesh(path, tex, fmt, up=up)
         elif fmt == "ply" and c is None:
             save_mesh(path, v, f)
         else:
-            save_mesh_file(path, v, f, c, fmt)
+            save_mesh_file(path, v, f, c, fmt, up=up)
         outputs.append({"path": str(path), "level": level, "vertices": int(len(v)), "faces": int(len(f)),
                         "format": fmt, "color": a.color,
                         **({"texture": {k: tex.info[k] for k in ("size", "atlas_vertices", "texels", "unseen_texels",
@@ -523,6 +532,29 @@ def training_photos(a, run: Path, cameras, views, device) -> list:
         raise GofError(f"--color photos: no photos found for {run} (pass --scene SCENE, the scene the model was "
                        "trained on)")
     return photos
+
+
+def asset_up(a, cameras, fmt: str):
+    """The scene's up for an upright GLB, OBJ or USD (``--up``; None for PLY, or when ``auto`` finds the training
+    cameras' image-up directions cancel out, which is warned about)."""
+    if fmt == "ply":
+        return None
+    up = parse_up(a.up)
+    if up is None:
+        up = scene_up(cameras)
+        if up is None:
+            print("warning: the training cameras do not agree on an up direction (--up auto): the mesh is written in "
+                  "the scene's frame; pass --up +z (or the axis that is up) to stand it upright", file=sys.stderr)
+            return None
+        print(f"up: {_axis_name(up)} (from the training cameras; --up to choose)")
+    return up
+
+
+def _axis_name(up) -> str:
+    k = max(range(3), key=lambda i: abs(float(up[i])))
+    if abs(float(up[k])) == 1.0:
+        return ("+" if up[k] > 0 else "-") + "xyz"[k]
+    return "(" + ", ".join(f"{float(x):.3f}" for x in up) + ")"
 
 
 def mesh_base(a, run: Path) -> Path:

@@ -42,6 +42,7 @@ from scipy.spatial import cKDTree
 
 from ..core.arrays import distinct
 from ..core.errors import GofError
+from ..core.orientation import world_from_file
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +54,8 @@ DEFAULT_MAX_DIST_FRACTION = 0.05  # of the GT diagonal; DTU's 20 mm is ~5% of it
 
 # ----------------------------------------------------------------------------- inputs
 def load_geometry(path) -> trimesh.Trimesh | trimesh.PointCloud:
-    """Read a mesh or point cloud (PLY, OBJ, STL, OFF, ...) as stored (no vertex merging)."""
+    """Read a mesh or point cloud (PLY, OBJ, STL, OFF, ...) as stored (no vertex merging), in the scene's frame (a
+    GLB or OBJ written upright is turned back: :func:`gof_warp.core.orientation.world_from_file`)."""
     p = Path(path)
     if not p.is_file():
         raise GofError(f"mesh file {p} does not exist")
@@ -67,6 +69,9 @@ def load_geometry(path) -> trimesh.Trimesh | trimesh.PointCloud:
         geom = trimesh.util.concatenate(meshes) if meshes else trimesh.Trimesh()
     if not isinstance(geom, (trimesh.Trimesh, trimesh.PointCloud)):
         raise GofError(f"mesh file {p} holds a {type(geom).__name__}, not a triangle mesh or point cloud")
+    back = world_from_file(p)  # a GLB/OBJ extract wrote upright: scored in the scene's frame
+    if back is not None:
+        geom.vertices = np.asarray(geom.vertices, np.float64) @ back.T
     return geom
 
 

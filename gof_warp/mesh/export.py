@@ -10,6 +10,15 @@ embedded as the PBR material's ``baseColorTexture`` (unlit, with a metallic 0 / 
 viewers show the photo colours); OBJ + MTL + PNG side by side (``mesh.obj`` names ``mesh.mtl``, whose ``map_Kd``
 names ``mesh.png``; written PNG, MTL, then OBJ, each atomically); USD with a UsdPreviewSurface reading
 ``<stem>_texture.png`` beside the stage; PLY keeps vertex colours, the texture sampled at each vertex.
+
+Upright assets (``up``, the world's up direction: :func:`gof_warp.core.orientation.scene_up`): GLB and OBJ are +Y up
+(glTF's rule, and what OBJ importers assume), so their vertices are written rotated by ``R`` =
+:func:`~gof_warp.core.orientation.rotation_taking` ``(up, +Y)``, and ``R`` is recorded — GLB: the JSON's
+``asset.extras.gof_warp.file_from_world`` (row-major 3 × 3), OBJ: a comment line ``# gof_warp file_from_world`` with
+the nine numbers — so :func:`world_from_file` (:mod:`gof_warp.core.orientation`; used by every reader of mesh files) reads the
+mesh back in the scene's frame. A USD stage states its up axis and holds the rotation as its ``/World`` transform
+(:func:`gof_warp.mesh.usd_export.write_usd`). PLY is written in the scene's frame. ``up=None``: every format in the
+scene's frame.
 """
 
 from __future__ import annotations
@@ -21,6 +30,8 @@ import numpy as np
 from ..core.arrays import check_triangles
 from ..core.errors import GofError
 from ..core.io_utils import atomic_path, write_bytes_atomic
+from ..core.orientation import GLB_JSON, GLB_MAGIC, OBJ_ROTATION_TAG, Y_UP, read_glb_json, rotation_taking
+from ..core.orientation import world_from_file  # noqa: F401 - the readers' half of what the writers record
 
 FORMATS = ("ply", "glb", "obj", "usd")
 USD_SUFFIXES = (".usd", ".usda", ".usdc")
@@ -49,7 +60,6 @@ def _uint8(colours, n: int) -> np.ndarray:
 
 
 UNLIT = "KHR_materials_unlit"
-GLB_MAGIC, GLB_JSON = 0x46546C67, 0x4E4F534A  # the GLB header's magic and its JSON chunk's type
 
 
 def srgb_to_linear(c) -> np.ndarray:
@@ -64,18 +74,43 @@ def linear_to_srgb(c) -> np.ndarray:
     return np.where(c <= 0.0031308, c * 12.92, 1.055 * c ** (1.0 / 2.4) - 0.055)
 
 
-def unlit_glb(glb: bytes) -> bytes:
-    """``glb`` (a GLB trimesh wrote) with every material drawn in its own colours: ``KHR_materials_unlit`` (photo
-    colours already hold the scene's light), a matte PBR fallback (metallic 0, roughness 1) for viewers without the
-    extension, double-sided; primitives without a material get one."""
+
+
+def _file_rotation(up) -> np.ndarray | None:
+    """``R`` taking the world's ``up`` to +Y (None: no rotation, for ``up`` None or already +Y)."""
+    if up is None:
+        return None
+    R = rotation_taking(up, Y_UP)
+    return None if np.array_equal(R, np.eye(3)) else R
+
+
+def _glb_json(glb: bytes) -> tuple[dict, int]:
+    """The JSON chunk of ``glb`` and its length in bytes."""
+    return read_glb_json(glb)
+
+
+def _glb_with_json(glb: bytes, doc: dict, json_len: int) -> bytes:
     import json
     import struct
 
-    magic, _, _ = struct.unpack_from("<III", glb, 0)
-    json_len, json_type = struct.unpack_from("<II", glb, 12)
-    if magic != GLB_MAGIC or json_type != GLB_JSON:
-        raise GofError("trimesh wrote a GLB that cannot be read back")
-    doc = json.loads(glb[20:20 + json_len])
+    text = json.dumps(doc, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)
+    body = struct.pack("<II", len(text), GLB_JSON) + text + glb[20 + json_len:]
+    return struct.pack("<III", GLB_MAGIC, 2, 12 + len(body)) + body
+
+
+def unlit_glb(glb: bytes, file_from_world: np.ndarray | None = None) -> bytes:
+    """``glb`` (a GLB trimesh wrote) with every material drawn in its own colours: ``KHR_materials_unlit`` (photo
+    colours already hold the scene's light), a matte PBR fallback (metallic 0, roughness 1) for viewers without the
+    extension, double-sided; primitives without a material get one. ``file_from_world``: the rotation the vertices
+    were written with, recorded in ``asset.extras`` (module docstring)."""
+    try:
+        doc, json_len = _glb_json(glb)
+    except GofError:
+        raise GofError("trimesh wrote a GLB that cannot be read back") from None
+    if file_from_world is not None:
+        doc.setdefault("asset", {}).setdefault("extras", {})["gof_warp"] = {
+            "file_from_world": [float(x) for x in np.asarray(file_from_world, np.float64).ravel()]}
     materials = doc.setdefault("materials", [])
     for mesh_entry in doc.get("meshes", []):
         for prim in mesh_entry.get("primitives", []):
@@ -90,30 +125,34 @@ def unlit_glb(glb: bytes) -> bytes:
     used = doc.setdefault("extensionsUsed", [])
     if UNLIT not in used:
         used.append(UNLIT)
-    text = json.dumps(doc, separators=(",", ":")).encode()
-    text += b" " * (-len(text) % 4)
-    body = struct.pack("<II", len(text), GLB_JSON) + text + glb[20 + json_len:]
-    return struct.pack("<III", GLB_MAGIC, 2, 12 + len(body)) + body
+    return _glb_with_json(glb, doc, json_len)
 
 
-def coloured_glb(vertices, faces, colours) -> bytes:
+def coloured_glb(vertices, faces, colours, file_from_world: np.ndarray | None = None) -> bytes:
     """A GLB of ``vertices [V, 3]``, ``faces [F, 3]`` and sRGB ``colours [V, 3]`` (uint8) as glTF defines vertex
-    colours: ``COLOR_0`` linear (8 bits: the darkest sRGB levels round by a few steps), unlit (:func:`unlit_glb`)."""
+    colours: ``COLOR_0`` linear (8 bits: the darkest sRGB levels round by a few steps), unlit (:func:`unlit_glb`);
+    ``file_from_world``: recorded (the vertices are taken as given)."""
     import trimesh
 
     linear = np.round(srgb_to_linear(np.asarray(colours, np.float64) / 255.0) * 255.0).astype(np.uint8)
     mesh = trimesh.Trimesh(vertices=np.asarray(vertices, np.float64), faces=np.asarray(faces, np.int64),
                            process=False,
                            vertex_colors=np.concatenate([linear, np.full((len(linear), 1), 255, np.uint8)], 1))
-    return unlit_glb(mesh.export(file_type="glb"))
+    return unlit_glb(mesh.export(file_type="glb"), file_from_world)
 
 
-def save_mesh_file(path, vertices, faces, colours=None, fmt: str | None = None) -> str:
+def _rotated(v: np.ndarray, R: np.ndarray | None) -> np.ndarray:
+    return v if R is None else np.asarray(v, np.float64) @ R.T
+
+
+def save_mesh_file(path, vertices, faces, colours=None, fmt: str | None = None, up=None) -> str:
     """Write ``vertices [V, 3]``, ``faces [F, 3]`` and optional ``colours [V, 3]`` (uint8, or float in ``[0, 1]``)
-    to ``path`` in ``fmt`` (:func:`format_of`). Returns the format written."""
+    to ``path`` in ``fmt`` (:func:`format_of`); ``up`` (``[3]``, the scene's up; None: the scene's frame): GLB and OBJ
+    written upright, USD with its ``/World`` rotation (module docstring). Returns the format written."""
     fmt = format_of(path, fmt)
     v, f = check_triangles(vertices, np.asarray(faces, np.int64), path, GofError)
     c = None if colours is None else _uint8(colours, len(v))
+    R = _file_rotation(up) if fmt in ("glb", "obj") else None
     if fmt == "ply":
         from ..core.ply import write_ply_mesh
 
@@ -121,16 +160,22 @@ def save_mesh_file(path, vertices, faces, colours=None, fmt: str | None = None) 
     elif fmt == "usd":
         from .usd_export import write_usd
 
-        write_usd(path, v, f, colours=c)
+        write_usd(path, v, f, colours=c, up=up)
     elif fmt == "obj":
-        _write_obj(path, v, f, c)
+        _write_obj(path, _rotated(v, R), f, c, R)
     elif c is not None:
-        write_bytes_atomic(path, coloured_glb(v, f, c))
+        write_bytes_atomic(path, coloured_glb(_rotated(v, R), f, c, R))
     else:
         import trimesh
 
-        write_bytes_atomic(path, trimesh.Trimesh(vertices=np.asarray(v, np.float64), faces=f,
-                                                 process=False).export(file_type="glb"))
+        glb = trimesh.Trimesh(vertices=np.asarray(_rotated(v, R), np.float64), faces=f,
+                              process=False).export(file_type="glb")
+        if R is not None:
+            doc, json_len = _glb_json(glb)
+            doc.setdefault("asset", {}).setdefault("extras", {})["gof_warp"] = {
+                "file_from_world": [float(x) for x in R.ravel()]}
+            glb = _glb_with_json(glb, doc, json_len)
+        write_bytes_atomic(path, glb)
     return fmt
 
 
@@ -146,11 +191,13 @@ def textured_companions(path, fmt: str | None = None) -> list[Path]:
     return [p.with_suffix(".mtl"), p.with_suffix(".png")] if fmt == "obj" else []
 
 
-def save_textured_mesh(path, textured, fmt: str | None = None) -> str:
+def save_textured_mesh(path, textured, fmt: str | None = None, up=None) -> str:
     """Write a :class:`~gof_warp.mesh.texture.TexturedMesh` to ``path`` in ``fmt`` (:func:`format_of`; module
-    docstring). Returns the format written."""
+    docstring); ``up`` as :func:`save_mesh_file`'s (PLY and USD are written by the caller's own paths: PLY here in
+    the scene's frame). Returns the format written."""
     fmt = format_of(path, fmt)
-    v = np.asarray(textured.vertices, np.float64)
+    R = _file_rotation(up) if fmt in ("glb", "obj") else None
+    v = _rotated(np.asarray(textured.vertices, np.float64), R)
     f = np.asarray(textured.faces, np.int64)
     uv = np.asarray(textured.uv, np.float64)
     if uv.shape != (len(v), 2):
@@ -159,7 +206,7 @@ def save_textured_mesh(path, textured, fmt: str | None = None) -> str:
     if fmt == "ply":
         n = int(np.max(textured.vmap)) + 1
         mesh_v = np.zeros((n, 3), np.float64)
-        mesh_v[textured.vmap] = v
+        mesh_v[textured.vmap] = np.asarray(textured.vertices, np.float64)
         mesh_f = np.asarray(textured.vmap, np.int64)[f]
         return save_mesh_file(path, mesh_v, mesh_f, textured.vertex_colours(), "ply")
     from PIL import Image
@@ -175,7 +222,7 @@ def save_textured_mesh(path, textured, fmt: str | None = None) -> str:
                                doubleSided=True)
         mesh = trimesh.Trimesh(vertices=v, faces=f, process=False,
                                visual=TextureVisuals(uv=gl_uv, material=material))
-        write_bytes_atomic(path, unlit_glb(mesh.export(file_type="glb")))
+        write_bytes_atomic(path, unlit_glb(mesh.export(file_type="glb"), R))
         return fmt
     mtl, png = textured_companions(path, "obj")
     with atomic_path(png) as tmp:
@@ -185,7 +232,7 @@ def save_textured_mesh(path, textured, fmt: str | None = None) -> str:
                              f"map_Kd {png.name}\n", encoding="ascii")
     with atomic_path(path) as tmp:
         with open(tmp, "w", encoding="ascii") as out:
-            out.write(f"# written by gof_warp\nmtllib {mtl.name}\n")
+            out.write(f"# written by gof_warp\n{_obj_rotation_line(R)}mtllib {mtl.name}\n")
             np.savetxt(out, v.astype(np.float32), fmt="v %.7g %.7g %.7g")
             np.savetxt(out, gl_uv, fmt="vt %.7g %.7g")
             out.write("usemtl texture\n")
@@ -195,10 +242,14 @@ def save_textured_mesh(path, textured, fmt: str | None = None) -> str:
     return fmt
 
 
-def _write_obj(path, v, f, c) -> None:
+def _obj_rotation_line(R: np.ndarray | None) -> str:
+    return "" if R is None else OBJ_ROTATION_TAG + " " + " ".join(f"{x:.17g}" for x in R.ravel()) + "\n"
+
+
+def _write_obj(path, v, f, c, R: np.ndarray | None = None) -> None:
     with atomic_path(path) as tmp:
         with open(tmp, "w", encoding="ascii") as out:
-            out.write("# written by gof_warp\n")
+            out.write("# written by gof_warp\n" + _obj_rotation_line(R))
             if c is None:
                 np.savetxt(out, np.asarray(v, np.float32), fmt="v %.7g %.7g %.7g")
             else:

@@ -16,9 +16,10 @@ Stage layout (``defaultPrim`` ``/World``; up axis and metres per unit stated in 
   ``UsdPhysics.MeshCollisionAPI`` (approximation ``"none"``: the triangles as they are, which physics engines take
   for static colliders), purpose ``guide`` so renderers do not draw it.
 
-Coordinates are written as they are (no axis change): the scene's world frame is the stage's. gof_warp's built-in
-scenes are z up, hence the default ``up_axis="Z"`` (Isaac Sim's and Omniverse's physics default); a COLMAP scene has
-whatever up its reconstruction gave. Scene units have no absolute scale unless the data has one, so
+Coordinates are written as they are, in the scene's world frame; the stage states ``up_axis`` (default ``"Z"``, Isaac
+Sim's and Omniverse's physics default), and with ``up`` (the scene's up direction: a COLMAP scene has whatever up its
+reconstruction gave) ``/World`` carries the rotation taking it to that axis, so the asset stands upright and
+gravity points down it. Scene units have no absolute scale unless the data has one, so
 ``meters_per_unit`` defaults to 1 (a unit is a metre) and should be given when known.
 
 Cameras: gof_warp's are OpenCV world-to-camera (``x_cam = R x_world + t``, camera looks down +z, +y down the image;
@@ -179,7 +180,7 @@ def texture_path(path) -> Path:
 
 
 def write_usd(path, vertices, faces, *, colours=None, cameras: Sequence = (), collision=None, texture=None,
-              uvs=None, up_axis: str = "Z", meters_per_unit: float = 1.0) -> dict:
+              uvs=None, up_axis: str = "Z", meters_per_unit: float = 1.0, up=None) -> dict:
     """Write a USD stage (layout in the module docstring) atomically.
 
     Args:
@@ -190,7 +191,10 @@ def write_usd(path, vertices, faces, *, colours=None, cameras: Sequence = (), co
         collision: optional ``(vertices [Vc, 3], faces [Fc, 3])`` of the closed collision mesh.
         texture: optional RGB uint8 image ``[H, W, 3]``; uvs: its UVs, ``[F, 3, 2]`` per face corner or ``[V, 2]``
             per vertex (``(0, 0)`` at the image's bottom-left). Both or neither.
-        up_axis: ``"Z"`` or ``"Y"``, the stage's stated up axis (coordinates are not changed).
+        up_axis: ``"Z"`` or ``"Y"``, the stage's stated up axis.
+        up: ``[3]`` the scene's up direction (:func:`gof_warp.core.orientation.scene_up`); ``/World`` gets the
+            rotation taking it to ``up_axis`` (its children keep the scene's coordinates). None: no rotation (the
+            scene's frame is taken to be ``up_axis`` up).
         meters_per_unit: the stage's ``metersPerUnit``.
 
     Returns:
@@ -219,6 +223,14 @@ def write_usd(path, vertices, faces, *, colours=None, cameras: Sequence = (), co
     UsdGeom.SetStageMetersPerUnit(stage, float(meters_per_unit))
     world = UsdGeom.Xform.Define(stage, "/World")
     stage.SetDefaultPrim(world.GetPrim())
+    if up is not None:
+        from ..core.orientation import rotation_taking
+
+        R = rotation_taking(up, (0.0, 0.0, 1.0) if up_axis == "Z" else (0.0, 1.0, 0.0))
+        if not np.array_equal(R, np.eye(3)):
+            M = np.eye(4)
+            M[:3, :3] = R
+            world.AddTransformOp(UsdGeom.XformOp.PrecisionDouble).Set(Gf.Matrix4d(M.T.tolist()))
     stage.GetRootLayer().documentation = "written by gof_warp"
 
     mesh = _define_mesh(stage, "/World/mesh", v, f)

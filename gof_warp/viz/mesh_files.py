@@ -11,6 +11,9 @@ image) or GLB through trimesh into a :class:`MeshFile`: the triangles, and the a
   ``baseColorTexture`` times its ``baseColorFactor``; OBJ ``map_Kd`` times ``Kd``);
 * nothing: an uncoloured mesh, drawn shaded.
 
+A GLB or OBJ that ``extract`` wrote upright (its recorded rotation: :func:`gof_warp.core.orientation.world_from_file`) is
+read back in the scene's frame, where the run's cameras see it.
+
 :meth:`MeshFile.colour_at` gives the surface colour at ray hits (face index and Warp's barycentrics), so that a
 ray caster can draw the mesh with its own colours.
 
@@ -27,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.errors import GofError
+from ..core.orientation import world_from_file
 from ..mesh.export import linear_to_srgb
 
 MESH_SUFFIXES = (".ply", ".glb", ".obj")  # what ``extract --format`` writes
@@ -165,6 +169,10 @@ def load_mesh_file(path) -> MeshFile:
     if not isinstance(m, trimesh.Trimesh):
         raise GofError(f"{path}: not a triangle mesh (trimesh read a {type(m).__name__})")
     v = np.asarray(m.vertices, np.float64).reshape(-1, 3)
+    back = world_from_file(path)  # a GLB/OBJ written upright: back to the scene's frame
+    if back is not None:
+        v = v @ back.T
+        m.vertices = v
     f = np.asarray(m.faces, np.int64).reshape(-1, 3)
     if len(f) == 0:
         raise GofError(f"{path}: no triangles in the file")

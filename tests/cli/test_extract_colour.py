@@ -67,6 +67,14 @@ def test_default_bytes_unchanged_and_coloured_files_load_back(colour_run, tmp_pa
         assert rgb.std() > 0 or rgb.mean() > 0  # coloured, not trimesh's default grey
         if name == "c.ply":
             ply_rgb = rgb
+    # glTF and OBJ files stand upright: the built-in scene's +z (found from its cameras) is their +Y; PLY keeps the
+    # scene's frame
+    assert json.loads((tmp_path / "c.json").read_text())["command"]["up"] == [0.0, 0.0, 1.0]
+    assert "up" not in json.loads(plain.with_suffix(".json").read_text())["command"]
+    for name in ("c.glb", "c.obj"):
+        raw = np.asarray(trimesh.load(tmp_path / name, process=False, force="mesh").vertices)
+        np.testing.assert_allclose(raw[:, 1], np.asarray(base.vertices)[:, 2], atol=1e-5)
+        np.testing.assert_allclose(raw[:, 2], -np.asarray(base.vertices)[:, 1], atol=1e-5)
     # the same colours through every format (OBJ's floats round back to the same bytes; GLB's linear 8 bits within
     # their rounding)
     m = trimesh.load(tmp_path / "c.obj", process=False, force="mesh")
