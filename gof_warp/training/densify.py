@@ -403,6 +403,8 @@ class Densifier:
         if unseen is not None and (report.densified or report.late_pruned):
             report.num_unseen = self._mask_prune(iteration, gaussians, optimizer, unseen, "unseen")
             self.unseen_pruned += report.num_unseen
+            if report.num_unseen and report.densified:  # as densification leaves them: zero, one row a Gaussian
+                self.stats = _Stats.zeros(len(gaussians), gaussians.means.device)
         if hidden is not None and self.hidden_prune_due(iteration):
             self._hidden_prune(iteration, gaussians, optimizer, hidden, report)
         report.filter_3d_due = report.densified or (

@@ -78,6 +78,8 @@ def compute_filter_3d(means: torch.Tensor, cameras: Sequence[Camera], *, near: f
         d = nearest_seen_depth_torch(means, cameras, near, chunk_elements)
     seen_any = torch.isfinite(d)
     if not seen_any.any():
+        if not bool(torch.isfinite(means).all()):  # a NaN step: the trainer's loss check names where it began
+            return torch.full_like(d, math.nan)
         raise GofError(f"compute_filter_3d: none of the {n} Gaussians is seen by any of the {len(cameras)} cameras "
                        f"(depth > {near} and inside the image); check the poses and the scene scale")
     d = torch.where(seen_any, d, d.masked_fill(~seen_any, -math.inf).amax())

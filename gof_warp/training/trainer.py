@@ -580,7 +580,9 @@ class Trainer:
         def unseen() -> torch.Tensor:  # the cameras are read at each call: surface_points_iter may set near planes
             stack = stack_cameras(self.cameras, self.device)
             near = torch.tensor([self.render_config.clip_near(c) for c in self.cameras], dtype=torch.float64)
-            return views_seeing(self.gaussians.means, stack, near) < k
+            means = self.gaussians.means
+            # a non-finite centre is left to the loss's NaN check, which names the iteration it came from
+            return (views_seeing(means, stack, near) < k) & torch.isfinite(means).all(dim=1)
         return unseen
 
     def view_index(self, name: str) -> int | None:

@@ -66,7 +66,8 @@ def test_training_runs_and_writes_outputs(tiny_scene, straight_run):
     assert trainer.gaussians.filter_3d is not None and torch.isfinite(trainer.gaussians.filter_3d).all()
     assert "distortion" in trainer.history[-1] and "normal" in trainer.history[-1]
     assert metrics["test"]["psnr"] == saved["test"]["psnr"]
-    assert saved["init"] == {"init": "random", "source": "random", "points": 300}
+    assert saved["init"] == {"init": "random", "source": "random", "points": 300, "random_min_views": 2,
+                             "unseen_prune": {"min_views": 2}}
     spikes = saved["loss_spikes"]  # 24 iterations: all inside the 1,000-iteration warm-up, nothing checked
     assert spikes["after_iteration"] == 1000 and spikes["iterations_checked"] == 0 and spikes["max_ratio"] is None
 
