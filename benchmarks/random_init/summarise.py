@@ -10,7 +10,10 @@ under them each run's median depth (brighter is nearer; one scale per view, from
 
 from __future__ import annotations
 
+import datetime
 import json
+import os
+import platform
 import sys
 from pathlib import Path
 
@@ -80,10 +83,10 @@ def main(out: Path, names: list[str]) -> int:
                       "init": {k: init.get(k) for k in ("source", "points", "random_min_views")},
                       "unseen_pruned": m.get("unseen_pruned"), "device": m.get("device"),
                       "iterations": m.get("iterations")}
-    if torch.cuda.is_available():
-        for r in rows.values():
-            r["gpu"] = torch.cuda.get_device_name(0)
-    summary = {"floater_cover": f"per test view, the fraction of pixels rendered opaque (alpha >= 0.5) nearer than "
+    machine = (f"1x {torch.cuda.get_device_name(0)}" if torch.cuda.is_available()
+               else f"{os.cpu_count()}-core CPU ({platform.node()})")
+    summary = {"machine": machine, "date": datetime.date.today().isoformat(),
+               "floater_cover": f"per test view, the fraction of pixels rendered opaque (alpha >= 0.5) nearer than "
                                 f"{COVER_FRACTION} x the exact depth; a view is covered above {COVERED}",
                "runs": rows}
     (out / "summary.json").write_text(json.dumps(summary, indent=1))
