@@ -31,7 +31,6 @@ from ..core.arrays import check_triangles
 from ..core.errors import GofError
 from ..core.io_utils import atomic_path, write_bytes_atomic
 from ..core.orientation import GLB_JSON, GLB_MAGIC, OBJ_ROTATION_TAG, Y_UP, read_glb_json, rotation_taking
-from ..core.orientation import world_from_file  # noqa: F401 - the readers' half of what the writers record
 
 FORMATS = ("ply", "glb", "obj", "usd")
 USD_SUFFIXES = (".usd", ".usda", ".usdc")
@@ -74,8 +73,6 @@ def linear_to_srgb(c) -> np.ndarray:
     return np.where(c <= 0.0031308, c * 12.92, 1.055 * c ** (1.0 / 2.4) - 0.055)
 
 
-
-
 def _file_rotation(up) -> np.ndarray | None:
     """``R`` taking the world's ``up`` to +Y (None: no rotation, for ``up`` None or already +Y)."""
     if up is None:
@@ -84,9 +81,11 @@ def _file_rotation(up) -> np.ndarray | None:
     return None if np.array_equal(R, np.eye(3)) else R
 
 
-def _glb_json(glb: bytes) -> tuple[dict, int]:
-    """The JSON chunk of ``glb`` and its length in bytes."""
-    return read_glb_json(glb)
+def _record_rotation(doc: dict, file_from_world: np.ndarray | None) -> None:
+    """Write ``file_from_world`` (row-major) into a glTF JSON's ``asset.extras.gof_warp`` (nothing for None)."""
+    if file_from_world is not None:
+        doc.setdefault("asset", {}).setdefault("extras", {})["gof_warp"] = {
+            "file_from_world": [float(x) for x in np.asarray(file_from_world, np.float64).ravel()]}
 
 
 def _glb_with_json(glb: bytes, doc: dict, json_len: int) -> bytes:
@@ -105,12 +104,10 @@ def unlit_glb(glb: bytes, file_from_world: np.ndarray | None = None) -> bytes:
     extension, double-sided; primitives without a material get one. ``file_from_world``: the rotation the vertices
     were written with, recorded in ``asset.extras`` (module docstring)."""
     try:
-        doc, json_len = _glb_json(glb)
+        doc, json_len = read_glb_json(glb)
     except GofError:
         raise GofError("trimesh wrote a GLB that cannot be read back") from None
-    if file_from_world is not None:
-        doc.setdefault("asset", {}).setdefault("extras", {})["gof_warp"] = {
-            "file_from_world": [float(x) for x in np.asarray(file_from_world, np.float64).ravel()]}
+    _record_rotation(doc, file_from_world)
     materials = doc.setdefault("materials", [])
     for mesh_entry in doc.get("meshes", []):
         for prim in mesh_entry.get("primitives", []):
@@ -171,9 +168,8 @@ def save_mesh_file(path, vertices, faces, colours=None, fmt: str | None = None, 
         glb = trimesh.Trimesh(vertices=np.asarray(_rotated(v, R), np.float64), faces=f,
                               process=False).export(file_type="glb")
         if R is not None:
-            doc, json_len = _glb_json(glb)
-            doc.setdefault("asset", {}).setdefault("extras", {})["gof_warp"] = {
-                "file_from_world": [float(x) for x in R.ravel()]}
+            doc, json_len = read_glb_json(glb)
+            _record_rotation(doc, R)
             glb = _glb_with_json(glb, doc, json_len)
         write_bytes_atomic(path, glb)
     return fmt

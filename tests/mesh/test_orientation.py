@@ -10,8 +10,8 @@ import trimesh
 
 from gof_warp.core.camera import look_at
 from gof_warp.core.errors import GofError
-from gof_warp.mesh.export import save_mesh_file, save_textured_mesh, world_from_file
-from gof_warp.core.orientation import parse_up, rotation_taking, scene_up
+from gof_warp.core.orientation import parse_up, rotation_taking, scene_up, world_from_file
+from gof_warp.mesh.export import save_mesh_file, save_textured_mesh
 from gof_warp.mesh.texture import TexturedMesh
 from gof_warp.viz.mesh_files import load_mesh_file
 
